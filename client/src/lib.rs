@@ -1,0 +1,1 @@
+//! ppfd client library.

@@ -1,0 +1,128 @@
+//! Pinhole intrinsics and depth frames, the input of scene preparation and the target of
+//! rendering.
+
+use nalgebra::{Point3, Vector2};
+
+use crate::{Error, Result};
+
+/// Pinhole camera intrinsics in pixels (OpenCV convention: x right, y down, z forward; pixel
+/// centres at integer coordinates).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Intrinsics {
+    /// Focal length along x, pixels.
+    pub fx: f32,
+    /// Focal length along y, pixels.
+    pub fy: f32,
+    /// Principal point x, pixels.
+    pub cx: f32,
+    /// Principal point y, pixels.
+    pub cy: f32,
+}
+
+impl Intrinsics {
+    /// The LM-O (Kinect v1) camera, 640×480: the embedded default for generated scenes.
+    pub const LMO: Intrinsics =
+        Intrinsics { fx: 572.4114, fy: 573.57043, cx: 325.2611, cy: 242.04899 };
+
+    /// Refuses focal lengths that are zero, negative or not finite, and non-finite centres.
+    pub fn validate(&self) -> Result<()> {
+        let ok_focal = |f: f32| f.is_finite() && f > 0.0;
+        if !ok_focal(self.fx) || !ok_focal(self.fy) {
+            return Err(Error::InvalidFrame(format!(
+                "focal lengths must be finite and positive, got fx={} fy={}",
+                self.fx, self.fy
+            )));
+        }
+        if !self.cx.is_finite() || !self.cy.is_finite() {
+            return Err(Error::InvalidFrame(format!(
+                "principal point must be finite, got cx={} cy={}",
+                self.cx, self.cy
+            )));
+        }
+        Ok(())
+    }
+
+    /// Projects a camera-space point (z > 0) to pixel coordinates.
+    #[inline]
+    pub fn project(&self, p: &Point3<f32>) -> Vector2<f32> {
+        Vector2::new(self.fx * p.x / p.z + self.cx, self.fy * p.y / p.z + self.cy)
+    }
+
+    /// The camera-space point at pixel `(u, v)` with depth `z_mm`.
+    #[inline]
+    pub fn backproject(&self, u: f32, v: f32, z_mm: f32) -> Point3<f32> {
+        Point3::new((u - self.cx) * z_mm / self.fx, (v - self.cy) * z_mm / self.fy, z_mm)
+    }
+}
+
+/// A borrowed depth frame: `width × height` raw sensor values, row-major; value × `depth_scale_mm`
+/// is the depth (z) in millimetres; 0 means no measurement.
+#[derive(Clone, Copy, Debug)]
+pub struct DepthFrame<'a> {
+    pub width: u32,
+    pub height: u32,
+    pub intrinsics: Intrinsics,
+    /// Millimetres per raw depth unit (BOP's `depth_scale`).
+    pub depth_scale_mm: f32,
+    pub depth: &'a [u16],
+}
+
+impl<'a> DepthFrame<'a> {
+    /// Checks the frame against its own header: size, intrinsics, depth scale.
+    pub fn validate(&self) -> Result<()> {
+        if self.width == 0 || self.height == 0 {
+            return Err(Error::InvalidFrame(format!(
+                "depth frame size must be positive, got {}x{}",
+                self.width, self.height
+            )));
+        }
+        let expected = self.width as usize * self.height as usize;
+        if self.depth.len() != expected {
+            return Err(Error::InvalidFrame(format!(
+                "depth frame {}x{} needs {} values, got {}",
+                self.width,
+                self.height,
+                expected,
+                self.depth.len()
+            )));
+        }
+        self.intrinsics.validate()?;
+        if !(self.depth_scale_mm.is_finite() && self.depth_scale_mm > 0.0) {
+            return Err(Error::InvalidFrame(format!(
+                "depth scale must be finite and positive, got {}",
+                self.depth_scale_mm
+            )));
+        }
+        Ok(())
+    }
+
+    /// Depth in millimetres at pixel `(u, v)`, or `None` where there is no measurement.
+    #[inline]
+    pub fn depth_mm(&self, u: u32, v: u32) -> Option<f32> {
+        let raw = self.depth[(v * self.width + u) as usize];
+        (raw != 0).then(|| raw as f32 * self.depth_scale_mm)
+    }
+}
+
+/// An owned depth frame (what a renderer or a PNG reader produces).
+#[derive(Clone, Debug)]
+pub struct OwnedDepthFrame {
+    pub width: u32,
+    pub height: u32,
+    pub intrinsics: Intrinsics,
+    pub depth_scale_mm: f32,
+    pub depth: Vec<u16>,
+}
+
+impl OwnedDepthFrame {
+    /// Borrows this frame.
+    pub fn view(&self) -> DepthFrame<'_> {
+        DepthFrame {
+            width: self.width,
+            height: self.height,
+            intrinsics: self.intrinsics,
+            depth_scale_mm: self.depth_scale_mm,
+            depth: &self.depth,
+        }
+    }
+}

@@ -1,0 +1,1 @@
+//! The ppfd wire contract.
