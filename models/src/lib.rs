@@ -18,7 +18,13 @@
 
 pub mod camera;
 pub mod error;
+pub mod feature;
 pub mod mesh;
+pub mod model;
+pub mod sampling;
+pub mod store;
+pub mod subsample;
+pub mod table;
 
 pub use error::{Error, Result};
 
