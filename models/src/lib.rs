@@ -22,6 +22,7 @@ pub mod feature;
 pub mod mesh;
 pub mod model;
 pub mod sampling;
+pub mod scene;
 pub mod store;
 pub mod subsample;
 pub mod table;
