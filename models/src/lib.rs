@@ -17,6 +17,8 @@
 //! coordinates, `p_cam = R p_model + t`, OpenCV camera convention.
 
 pub mod camera;
+pub mod clustering;
+pub mod detector;
 pub mod error;
 pub mod feature;
 pub mod mesh;
@@ -26,6 +28,7 @@ pub mod scene;
 pub mod store;
 pub mod subsample;
 pub mod table;
+pub mod voting;
 
 pub use error::{Error, Result};
 

@@ -26,7 +26,12 @@ pub struct SceneParams {
 
 impl Default for SceneParams {
     fn default() -> Self {
-        Self { normal_radius_mm: 5.0, max_depth_jump_mm: 15.0, min_depth_mm: 100.0, max_depth_mm: 5000.0 }
+        Self {
+            normal_radius_mm: 5.0,
+            max_depth_jump_mm: 15.0,
+            min_depth_mm: 100.0,
+            max_depth_mm: 5000.0,
+        }
     }
 }
 
@@ -57,7 +62,11 @@ impl PointImage {
                 })
             })
             .collect();
-        Self { width: w, height: h, points }
+        Self {
+            width: w,
+            height: h,
+            points,
+        }
     }
 
     #[inline]
@@ -84,7 +93,8 @@ pub fn oriented_points(
             let mut out = OrientedPoints::default();
             for u in 0..w {
                 let Some(p) = image.at(u, v) else { continue };
-                let k = ((params.normal_radius_mm * intrinsics.fx / p.z).round() as i64).clamp(1, 8);
+                let k =
+                    ((params.normal_radius_mm * intrinsics.fx / p.z).round() as i64).clamp(1, 8);
                 let near = |q: Option<Point3<f32>>| {
                     q.filter(|q| (q.z - p.z).abs() <= params.max_depth_jump_mm)
                 };
@@ -139,7 +149,11 @@ impl PreparedScene {
         let coords: Vec<[f32; 3]> = sub.positions.iter().map(|p| [p.x, p.y, p.z]).collect();
         let tree = ImmutableKdTree::new_from_slice(&coords)
             .map_err(|e| Error::InvalidFrame(format!("cannot index scene points: {e:?}")))?;
-        Ok(Self { leaf_mm: subsample_params.leaf_mm, points: sub, tree })
+        Ok(Self {
+            leaf_mm: subsample_params.leaf_mm,
+            points: sub,
+            tree,
+        })
     }
 
     /// Calls `visit` with the index of every scene point within `radius_mm` of `p`.
@@ -189,10 +203,20 @@ mod tests {
     #[test]
     fn frontal_plane_gives_normals_towards_the_camera() {
         let (depth, k) = plane_frame(|_, _| 800.0);
-        let frame = DepthFrame { width: 640, height: 480, intrinsics: k, depth_scale_mm: 1.0, depth: &depth };
+        let frame = DepthFrame {
+            width: 640,
+            height: 480,
+            intrinsics: k,
+            depth_scale_mm: 1.0,
+            depth: &depth,
+        };
         let pts = prepare_points(&frame, &SceneParams::default()).unwrap();
         assert_eq!(pts.len(), 640 * 480);
-        let worst = pts.normals.iter().map(|n| (n - Vector3::new(0.0, 0.0, -1.0)).norm()).fold(0.0, f32::max);
+        let worst = pts
+            .normals
+            .iter()
+            .map(|n| (n - Vector3::new(0.0, 0.0, -1.0)).norm())
+            .fold(0.0, f32::max);
         assert!(worst < 1e-3, "worst normal off by {worst}");
         let c = pts.positions[240 * 640 + 320];
         assert!((c.z - 800.0).abs() < 1e-3 && (c.x - (320.0 - k.cx) * 800.0 / k.fx).abs() < 1e-3);
@@ -206,7 +230,13 @@ mod tests {
             // Solve z = 800 + 0.5 * (u - cx) z / fx for z.
             800.0 / (1.0 - 0.5 * (u - k.cx) / k.fx)
         });
-        let frame = DepthFrame { width: 640, height: 480, intrinsics: k, depth_scale_mm: 0.1, depth: &depth.iter().map(|&d| d * 10).collect::<Vec<_>>() };
+        let frame = DepthFrame {
+            width: 640,
+            height: 480,
+            intrinsics: k,
+            depth_scale_mm: 0.1,
+            depth: &depth.iter().map(|&d| d * 10).collect::<Vec<_>>(),
+        };
         let pts = prepare_points(&frame, &SceneParams::default()).unwrap();
         let expected = Vector3::new(0.5, 0.0, -1.0).normalize();
         let mean: Vector3<f32> = pts.normals.iter().sum::<Vector3<f32>>() / pts.len() as f32;
@@ -216,14 +246,27 @@ mod tests {
     #[test]
     fn empty_and_malformed_frames_are_refused() {
         let depth = vec![0u16; 640 * 480];
-        let mut frame = DepthFrame { width: 640, height: 480, intrinsics: Intrinsics::LMO, depth_scale_mm: 1.0, depth: &depth };
-        assert!(matches!(prepare_points(&frame, &SceneParams::default()), Err(Error::InvalidFrame(m)) if m.contains("no valid depth")));
+        let mut frame = DepthFrame {
+            width: 640,
+            height: 480,
+            intrinsics: Intrinsics::LMO,
+            depth_scale_mm: 1.0,
+            depth: &depth,
+        };
+        assert!(
+            matches!(prepare_points(&frame, &SceneParams::default()), Err(Error::InvalidFrame(m)) if m.contains("no valid depth"))
+        );
         frame.depth = &depth[..1024];
-        assert!(matches!(prepare_points(&frame, &SceneParams::default()), Err(Error::InvalidFrame(m)) if m.contains("needs 307200 values, got 1024")));
+        assert!(
+            matches!(prepare_points(&frame, &SceneParams::default()), Err(Error::InvalidFrame(m)) if m.contains("needs 307200 values, got 1024"))
+        );
         frame.depth = &depth;
         frame.intrinsics.fx = f32::NAN;
         assert!(prepare_points(&frame, &SceneParams::default()).is_err());
-        frame.intrinsics = Intrinsics { fx: 0.0, ..Intrinsics::LMO };
+        frame.intrinsics = Intrinsics {
+            fx: 0.0,
+            ..Intrinsics::LMO
+        };
         assert!(prepare_points(&frame, &SceneParams::default()).is_err());
     }
 
@@ -232,16 +275,30 @@ mod tests {
         let mut pts = OrientedPoints::default();
         for i in 0..50 {
             for j in 0..50 {
-                pts.push(Point3::new(i as f32 * 4.0, j as f32 * 4.0, 500.0), -Vector3::z());
+                pts.push(
+                    Point3::new(i as f32 * 4.0, j as f32 * 4.0, 500.0),
+                    -Vector3::z(),
+                );
             }
         }
-        let params = SubsampleParams { leaf_mm: 4.0, cluster_angle: 0.5, neighbour_filtering: false };
+        let params = SubsampleParams {
+            leaf_mm: 4.0,
+            cluster_angle: 0.5,
+            neighbour_filtering: false,
+        };
         let scene = PreparedScene::new(&pts, &params).unwrap();
         let q = scene.points.positions[0];
         let mut found = Vec::new();
         scene.within(&q, 30.0, |i| found.push(i));
-        let brute = scene.points.positions.iter().filter(|p| (*p - q).norm() <= 30.0).count();
+        let brute = scene
+            .points
+            .positions
+            .iter()
+            .filter(|p| (*p - q).norm() <= 30.0)
+            .count();
         assert_eq!(found.len(), brute);
-        assert!(found.iter().all(|&i| (scene.points.positions[i] - q).norm() <= 30.0 + 1e-3));
+        assert!(found
+            .iter()
+            .all(|&i| (scene.points.positions[i] - q).norm() <= 30.0 + 1e-3));
     }
 }
