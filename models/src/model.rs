@@ -48,6 +48,10 @@ pub struct ModelParams {
     /// Spacing of the dense surface samples taken before subsampling, as a fraction of the
     /// diameter: 0.01 gives about 20 samples per voxel edge, enough for stable voxel means.
     pub sampling_step_fraction: f32,
+    /// Voxel leaf, as a fraction of the diameter, of the denser surface points kept for
+    /// re-scoring, ICP and the filters (not used for voting). 0.025 keeps about 4× the voting
+    /// points: enough to measure a fit to a few millimetres, cheap enough for 500 poses.
+    pub surface_leaf_fraction: f32,
 }
 
 impl Default for ModelParams {
@@ -60,6 +64,7 @@ impl Default for ModelParams {
             angle_bins: 15,
             alpha_bins: 30,
             sampling_step_fraction: 0.01,
+            surface_leaf_fraction: 0.025,
         }
     }
 }
@@ -99,6 +104,14 @@ impl ModelParams {
                 self.sampling_step_fraction
             ));
         }
+        if !(self.surface_leaf_fraction >= self.sampling_step_fraction
+            && self.surface_leaf_fraction < 1.0)
+        {
+            return bad(format!(
+                "surface_leaf_fraction must be in [sampling_step_fraction, 1), got {}",
+                self.surface_leaf_fraction
+            ));
+        }
         Ok(())
     }
 
@@ -132,6 +145,9 @@ pub struct ModelData {
     /// Subsampled oriented points (mm, unit normals): the model points of the lookup table.
     pub points: Vec<[f32; 3]>,
     pub normals: Vec<[f32; 3]>,
+    /// Denser oriented points of the surface (see [`ModelParams::surface_leaf_fraction`]).
+    pub surface_points: Vec<[f32; 3]>,
+    pub surface_normals: Vec<[f32; 3]>,
     /// Lookup table offsets: `key_count + 1` values.
     pub table_offsets: Vec<u32>,
     /// Lookup table entries (see [`crate::table::pack_entry`]).
@@ -207,6 +223,14 @@ impl ObjectModel {
             )));
         }
         let table = build_table(&points, &params.quantizer(diameter_mm));
+        let surface = subsample(
+            &dense,
+            &SubsampleParams {
+                leaf_mm: params.surface_leaf_fraction * diameter_mm,
+                cluster_angle: params.cluster_angle_deg.to_radians(),
+                neighbour_filtering: false,
+            },
+        );
         let data = ModelData {
             object_id,
             name: name.to_string(),
@@ -214,6 +238,8 @@ impl ObjectModel {
             params: *params,
             points: points.positions.iter().map(|p| [p.x, p.y, p.z]).collect(),
             normals: points.normals.iter().map(|n| [n.x, n.y, n.z]).collect(),
+            surface_points: surface.positions.iter().map(|p| [p.x, p.y, p.z]).collect(),
+            surface_normals: surface.normals.iter().map(|n| [n.x, n.y, n.z]).collect(),
             table_offsets: table.offsets,
             table_entries: table.entries,
             mesh_positions: mesh.positions.iter().map(|p| [p.x, p.y, p.z]).collect(),
@@ -307,6 +333,15 @@ impl ObjectModel {
         OrientedPoints {
             positions: d.points.iter().map(point).collect(),
             normals: d.normals.iter().map(|n| point(n).coords).collect(),
+        }
+    }
+
+    /// The denser surface points used after voting, copied out.
+    pub fn surface_points(&self) -> OrientedPoints {
+        let d = self.data();
+        OrientedPoints {
+            positions: d.surface_points.iter().map(point).collect(),
+            normals: d.surface_normals.iter().map(|n| point(n).coords).collect(),
         }
     }
 

@@ -79,58 +79,96 @@ impl PointImage {
     }
 }
 
-/// Oriented points of every pixel with depth and a normal that could be estimated. Normals come
-/// from central differences over a window of about `normal_radius_mm`, facing the camera.
-pub fn oriented_points(
+/// Per pixel: the camera-space point and its normal (NaN where either is missing), row-major.
+/// What re-scoring, projective ICP and the filters look things up in.
+pub struct SceneImage {
+    pub width: u32,
+    pub height: u32,
+    pub intrinsics: Intrinsics,
+    pub points: Vec<Point3<f32>>,
+    pub normals: Vec<Vector3<f32>>,
+}
+
+impl SceneImage {
+    /// The point and normal at pixel `(u, v)`, if both exist.
+    #[inline]
+    pub fn at(&self, u: i64, v: i64) -> Option<(Point3<f32>, Vector3<f32>)> {
+        if u < 0 || v < 0 || u >= self.width as i64 || v >= self.height as i64 {
+            return None;
+        }
+        let i = (v as u32 * self.width + u as u32) as usize;
+        let n = self.normals[i];
+        n.x.is_finite().then(|| (self.points[i], n))
+    }
+
+    /// The depth (z, mm) at pixel `(u, v)`, if measured, whether or not it has a normal.
+    #[inline]
+    pub fn depth(&self, u: i64, v: i64) -> Option<f32> {
+        if u < 0 || v < 0 || u >= self.width as i64 || v >= self.height as i64 {
+            return None;
+        }
+        let z = self.points[(v as u32 * self.width + u as u32) as usize].z;
+        z.is_finite().then_some(z)
+    }
+
+    /// The oriented points of every pixel that has both.
+    pub fn oriented_points(&self) -> OrientedPoints {
+        let mut out = OrientedPoints::default();
+        for (p, n) in self.points.iter().zip(&self.normals) {
+            if n.x.is_finite() {
+                out.push(*p, *n);
+            }
+        }
+        out
+    }
+}
+
+/// Normals from central differences over a window of about `normal_radius_mm`, facing the
+/// camera; one-sided next to holes and depth edges.
+pub fn estimate_normals(
     image: &PointImage,
     intrinsics: &Intrinsics,
     params: &SceneParams,
-) -> OrientedPoints {
+) -> Vec<Vector3<f32>> {
     let (w, h) = (image.width as i64, image.height as i64);
-    let rows: Vec<OrientedPoints> = (0..h)
+    let none = Vector3::new(f32::NAN, f32::NAN, f32::NAN);
+    (0..h)
         .into_par_iter()
-        .map(|v| {
-            let mut out = OrientedPoints::default();
-            for u in 0..w {
-                let Some(p) = image.at(u, v) else { continue };
+        .flat_map_iter(|v| {
+            (0..w).map(move |u| {
+                let Some(p) = image.at(u, v) else { return none };
                 let k =
                     ((params.normal_radius_mm * intrinsics.fx / p.z).round() as i64).clamp(1, 8);
                 let near = |q: Option<Point3<f32>>| {
                     q.filter(|q| (q.z - p.z).abs() <= params.max_depth_jump_mm)
                 };
-                // One-sided differences where one side is missing or across an edge.
-                let dx = match (near(image.at(u + k, v)), near(image.at(u - k, v))) {
-                    (Some(a), Some(b)) => a - b,
-                    (Some(a), None) => a - p,
-                    (None, Some(b)) => p - b,
-                    (None, None) => continue,
+                let diff = |a: Option<Point3<f32>>, b: Option<Point3<f32>>| match (near(a), near(b))
+                {
+                    (Some(a), Some(b)) => Some(a - b),
+                    (Some(a), None) => Some(a - p),
+                    (None, Some(b)) => Some(p - b),
+                    (None, None) => None,
                 };
-                let dy = match (near(image.at(u, v + k)), near(image.at(u, v - k))) {
-                    (Some(a), Some(b)) => a - b,
-                    (Some(a), None) => a - p,
-                    (None, Some(b)) => p - b,
-                    (None, None) => continue,
+                let (Some(dx), Some(dy)) = (
+                    diff(image.at(u + k, v), image.at(u - k, v)),
+                    diff(image.at(u, v + k), image.at(u, v - k)),
+                ) else {
+                    return none;
                 };
                 let n = dx.cross(&dy);
                 let len = n.norm();
                 if len <= 1e-9 {
-                    continue;
+                    return none;
                 }
-                let mut n: Vector3<f32> = n / len;
+                let n: Vector3<f32> = n / len;
                 if n.dot(&p.coords) > 0.0 {
-                    n = -n;
+                    -n
+                } else {
+                    n
                 }
-                out.push(p, n);
-            }
-            out
+            })
         })
-        .collect();
-    let mut all = OrientedPoints::default();
-    for r in rows {
-        all.positions.extend(r.positions);
-        all.normals.extend(r.normals);
-    }
-    all
+        .collect()
 }
 
 /// The scene prepared for one leaf size: subsampled oriented points and their kd-tree.
@@ -170,19 +208,30 @@ impl PreparedScene {
     }
 }
 
-/// Back-projects and estimates normals for a validated frame; refuses a frame without a single
+/// Validates `frame`, back-projects it and estimates normals; refuses a frame without a single
 /// usable point.
-pub fn prepare_points(frame: &DepthFrame, params: &SceneParams) -> Result<OrientedPoints> {
+pub fn prepare(frame: &DepthFrame, params: &SceneParams) -> Result<SceneImage> {
     frame.validate()?;
     let image = PointImage::from_frame(frame, params);
-    let points = oriented_points(&image, &frame.intrinsics, params);
-    if points.is_empty() {
+    let normals = estimate_normals(&image, &frame.intrinsics, params);
+    if !normals.iter().any(|n| n.x.is_finite()) {
         return Err(Error::InvalidFrame(format!(
             "no valid depth in the {}x{} frame (all values zero or out of {}..{} mm)",
             frame.width, frame.height, params.min_depth_mm, params.max_depth_mm
         )));
     }
-    Ok(points)
+    Ok(SceneImage {
+        width: frame.width,
+        height: frame.height,
+        intrinsics: frame.intrinsics,
+        points: image.points,
+        normals,
+    })
+}
+
+/// [`prepare`], then the oriented points of every pixel that has both.
+pub fn prepare_points(frame: &DepthFrame, params: &SceneParams) -> Result<OrientedPoints> {
+    Ok(prepare(frame, params)?.oriented_points())
 }
 
 #[cfg(test)]

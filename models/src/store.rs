@@ -129,6 +129,13 @@ fn check_consistency(d: &ArchivedModelData) -> std::result::Result<(), String> {
     if d.normals.len() != n {
         return Err(format!("{n} points but {} normals", d.normals.len()));
     }
+    if d.surface_normals.len() != d.surface_points.len() {
+        return Err(format!(
+            "{} surface points but {} normals",
+            d.surface_points.len(),
+            d.surface_normals.len()
+        ));
+    }
     if n > u16::MAX as usize {
         return Err(format!("{n} model points, at most {}", u16::MAX));
     }
