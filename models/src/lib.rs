@@ -16,6 +16,7 @@
 //! Units: millimetres for lengths, radians for angles; a pose maps model coordinates into camera
 //! coordinates, `p_cam = R p_model + t`, OpenCV camera convention.
 
+pub mod bop;
 pub mod camera;
 pub mod clustering;
 pub mod detector;
