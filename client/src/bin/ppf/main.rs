@@ -5,7 +5,11 @@ mod model;
 use clap::{Parser, Subcommand};
 
 #[derive(Parser, Debug)]
-#[command(name = "ppf", version, about = "ppfd command line: models, detection, evaluation")]
+#[command(
+    name = "ppf",
+    version,
+    about = "ppfd command line: models, detection, evaluation"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

@@ -54,7 +54,9 @@ pub fn object_id_from_path(path: &Path) -> Option<u32> {
 }
 
 fn name_of(path: &Path) -> String {
-    path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "model".into())
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "model".into())
 }
 
 pub fn run(cmd: ModelCommand) -> Result<(), Box<dyn std::error::Error>> {
@@ -67,7 +69,9 @@ pub fn run(cmd: ModelCommand) -> Result<(), Box<dyn std::error::Error>> {
 
 fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
     if args.id.is_some() && args.meshes.len() > 1 {
-        return Err("--id applies to a single mesh; BOP file names (obj_NNNNNN.ply) give ids".into());
+        return Err(
+            "--id applies to a single mesh; BOP file names (obj_NNNNNN.ply) give ids".into(),
+        );
     }
     std::fs::create_dir_all(&args.out)
         .map_err(|e| format!("cannot create {}: {e}", args.out.display()))?;
@@ -76,7 +80,10 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
     let params = ModelParams::default();
     let mut failures = 0;
     for (i, path) in args.meshes.iter().enumerate() {
-        let id = args.id.or_else(|| object_id_from_path(path)).unwrap_or(i as u32 + 1);
+        let id = args
+            .id
+            .or_else(|| object_id_from_path(path))
+            .unwrap_or(i as u32 + 1);
         let name = name_of(path);
         bar.set_message(name.clone());
         let result = Mesh::from_ply_file(path)
@@ -113,17 +120,36 @@ fn info(file: &Path) -> Result<(), Box<dyn std::error::Error>> {
     let p = model.params();
     let table = model.table();
     let used = table.offsets.windows(2).filter(|w| w[1] > w[0]).count();
-    let largest = table.offsets.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(0);
+    let largest = table
+        .offsets
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .max()
+        .unwrap_or(0);
     println!("file            {}", file.display());
     println!("format version  {}", store::FORMAT_VERSION);
     println!("object id       {}", model.object_id());
     println!("name            {}", model.name());
     println!("diameter        {:.3} mm", model.diameter_mm());
-    println!("model points    {} (leaf {:.2} mm)", model.point_count(), p.leaf_fraction * model.diameter_mm());
+    println!(
+        "model points    {} (leaf {:.2} mm)",
+        model.point_count(),
+        p.leaf_fraction * model.diameter_mm()
+    );
     println!("surface points  {}", model.surface_points().len());
-    println!("table entries   {} in {} of {} keys (largest key: {})", model.table_entry_count(), used, table.offsets.len() - 1, largest);
+    println!(
+        "table entries   {} in {} of {} keys (largest key: {})",
+        model.table_entry_count(),
+        used,
+        table.offsets.len() - 1,
+        largest
+    );
     let mesh = model.render_mesh();
-    println!("mesh            {} vertices, {} triangles", mesh.positions.len(), mesh.faces.len());
+    println!(
+        "mesh            {} vertices, {} triangles",
+        mesh.positions.len(),
+        mesh.faces.len()
+    );
     println!("size            {:.2} MB", model.byte_size() as f64 / 1e6);
     println!("parameters      {p:?}");
     Ok(())
@@ -138,9 +164,7 @@ fn bench(args: BenchArgs) -> Result<(), Box<dyn std::error::Error>> {
     let dir = std::env::temp_dir().join(format!("ppf-model-bench-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     let repeat = args.repeat.max(1);
-    println!(
-        "| model | build (ms) | points | table entries | size (MB) | load (ms) | D (mm) |"
-    );
+    println!("| model | build (ms) | points | table entries | size (MB) | load (ms) | D (mm) |");
     println!("|---|---:|---:|---:|---:|---:|---:|");
     let params = ModelParams::default();
     for (i, path) in args.meshes.iter().enumerate() {
