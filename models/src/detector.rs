@@ -8,9 +8,14 @@
 use std::time::{Duration, Instant};
 
 use crate::camera::DepthFrame;
+use rayon::prelude::*;
+
 use crate::clustering::{cluster_poses, ClusteringParams};
+use crate::filters::{is_consistent, FilterParams};
+use crate::icp::{refine, IcpParams};
 use crate::model::ObjectModel;
-use crate::scene::{prepare_points, PreparedScene, SceneParams};
+use crate::rescoring::{rescore, RescoringParams, Scored};
+use crate::scene::{prepare, PreparedScene, SceneImage, SceneParams};
 use crate::subsample::SubsampleParams;
 use crate::voting::{vote, VotingParams};
 use crate::{Error, Pose, Result};
@@ -21,6 +26,12 @@ pub struct DetectParams {
     pub scene: SceneParams,
     pub voting: VotingParams,
     pub clustering: ClusteringParams,
+    pub rescoring: RescoringParams,
+    pub icp: IcpParams,
+    pub filters: FilterParams,
+    /// Multi-instance output: a hypothesis whose translation lies within this fraction of the
+    /// diameter of a better one is the same instance and suppressed.
+    pub nms_distance_fraction: f32,
     /// Objects whose diameters differ by at most this ratio share one subsampled scene cloud
     /// (with the leaf of the smallest). 1.0 gives every object its own.
     pub shared_cloud_diameter_ratio: f32,
@@ -135,6 +146,8 @@ pub struct Counts {
     pub reference_points: u32,
     /// Point pairs that voted, summed over objects.
     pub pairs: u64,
+    /// Votes cast (table entries visited), summed over objects.
+    pub votes: u64,
     /// Hypotheses (accumulator peaks) before clustering, summed over objects.
     pub hypotheses: u32,
 }
@@ -149,6 +162,10 @@ pub struct Detections {
     /// Per requested object, its own stage timings (scene preparation is shared and counted once
     /// in `timings`).
     pub per_object_timings: Vec<StageTimings>,
+}
+
+fn clusters_as_poses(clusters: &[crate::clustering::PoseCluster]) -> Vec<(Pose, u32)> {
+    clusters.iter().map(|c| (c.pose, c.votes)).collect()
 }
 
 /// Runs detections; holds only parameters, so one detector serves any set of models.
@@ -196,7 +213,8 @@ impl Detector {
         let start = Instant::now();
         let mut out = Detections::default();
         let t = Instant::now();
-        let points = prepare_points(frame, &self.params.scene)?;
+        let scene_image = prepare(frame, &self.params.scene)?;
+        let points = scene_image.oriented_points();
         out.timings.scene_preparation = t.elapsed();
         out.counts.scene_points = points.len() as u32;
 
@@ -238,17 +256,15 @@ impl Detector {
             timings.clustering = t.elapsed();
             out.counts.reference_points += counts.reference_points;
             out.counts.pairs += counts.pairs;
+            out.counts.votes += counts.votes;
             out.counts.hypotheses += raw.len() as u32;
-            let hypotheses = clusters
-                .iter()
-                .take(opts.hypotheses_per_object)
-                .map(|c| Hypothesis {
-                    pose: c.pose,
-                    score: c.votes as f32,
-                    votes: c.votes,
-                    checks: Checks::default(),
-                })
-                .collect();
+            let hypotheses = self.after_voting(
+                model,
+                &clusters_as_poses(&clusters),
+                &scene_image,
+                opts,
+                &mut timings,
+            );
             out.objects.push(ObjectDetections {
                 object_id: model.object_id(),
                 hypotheses,
@@ -257,5 +273,88 @@ impl Detector {
             out.per_object_timings.push(timings);
         }
         Ok(out)
+    }
+
+    /// Re-scoring of the best clusters, ICP on the best of those, scoring again, the filters,
+    /// and non-maximum suppression (METHOD.md §3.2–3.5).
+    fn after_voting(
+        &self,
+        model: &ObjectModel,
+        clusters: &[(Pose, u32)],
+        scene: &SceneImage,
+        opts: &DetectOptions,
+        timings: &mut StageTimings,
+    ) -> Vec<Hypothesis> {
+        let p = &self.params;
+        let d = model.diameter_mm();
+        let surface = model.surface_points();
+        let t = Instant::now();
+        let top = &clusters[..clusters.len().min(p.rescoring.top_clusters)];
+        let scored = rescore(
+            top,
+            &surface,
+            scene,
+            p.rescoring.tolerance_mm(d),
+            &p.rescoring,
+        );
+        timings.rescoring += t.elapsed();
+
+        let t = Instant::now();
+        let refined: Vec<(Pose, u32)> = scored[..scored.len().min(p.icp.top_poses)]
+            .par_iter()
+            .map(|s| (refine(&surface, &s.pose, scene, d, &p.icp).pose, s.votes))
+            .collect();
+        timings.icp += t.elapsed();
+
+        let t = Instant::now();
+        let rescored = rescore(
+            &refined,
+            &surface,
+            scene,
+            p.rescoring.refined_tolerance_mm(d),
+            &p.rescoring,
+        );
+        timings.rescoring += t.elapsed();
+
+        let t = Instant::now();
+        let mut checked: Vec<(Scored, Checks)> = rescored
+            .into_iter()
+            .map(|s| {
+                let mut checks = Checks(Checks::RESCORED | Checks::REFINED);
+                if is_consistent(&s.fit, &p.filters) {
+                    checks.0 |= Checks::CONSISTENT;
+                }
+                (s, checks)
+            })
+            .collect();
+        // Poses that passed every filter first, each group by score.
+        let all = Checks::CONSISTENT;
+        checked.sort_by(|a, b| {
+            let pa = a.1 .0 & all == all;
+            let pb = b.1 .0 & all == all;
+            pb.cmp(&pa).then(b.0.score.total_cmp(&a.0.score))
+        });
+        let nms = p.nms_distance_fraction * d;
+        let mut out: Vec<Hypothesis> = Vec::new();
+        for (s, checks) in checked {
+            if out.len() == opts.hypotheses_per_object {
+                break;
+            }
+            let t = s.pose.translation.vector;
+            if out
+                .iter()
+                .any(|h| (h.pose.translation.vector - t).norm() < nms)
+            {
+                continue;
+            }
+            out.push(Hypothesis {
+                pose: s.pose,
+                score: s.score,
+                votes: s.votes,
+                checks,
+            });
+        }
+        timings.filters += t.elapsed();
+        out
     }
 }

@@ -22,6 +22,7 @@ pub mod clustering;
 pub mod detector;
 pub mod error;
 pub mod feature;
+pub mod filters;
 pub mod icp;
 pub mod mesh;
 pub mod model;

@@ -31,8 +31,25 @@ pub struct RescoringParams {
     /// diameter. Before ICP, poses are off by up to half an α bin (6°) over a lever of D/2,
     /// about 0.05 D.
     pub tolerance_fraction: f32,
+    /// After ICP, poses are scored again with this tighter tolerance (fraction of the
+    /// diameter)...
+    pub refined_tolerance_fraction: f32,
+    /// ...but never tighter than this, mm: sensor noise at 1–1.5 m is a few millimetres.
+    pub min_tolerance_mm: f32,
     /// ...and with normals within this angle, degrees.
     pub max_normal_angle_deg: f32,
+}
+
+impl RescoringParams {
+    /// The inlier tolerance before ICP for an object of diameter `diameter_mm`, mm.
+    pub fn tolerance_mm(&self, diameter_mm: f32) -> f32 {
+        (self.tolerance_fraction * diameter_mm).max(self.min_tolerance_mm)
+    }
+
+    /// The inlier tolerance after ICP, mm.
+    pub fn refined_tolerance_mm(&self, diameter_mm: f32) -> f32 {
+        (self.refined_tolerance_fraction * diameter_mm).max(self.min_tolerance_mm)
+    }
 }
 
 impl Default for RescoringParams {
@@ -40,6 +57,8 @@ impl Default for RescoringParams {
         Self {
             top_clusters: 500,
             tolerance_fraction: 0.05,
+            refined_tolerance_fraction: 0.03,
+            min_tolerance_mm: 4.0,
             max_normal_angle_deg: 45.0,
         }
     }
@@ -116,16 +135,15 @@ pub struct Scored {
     pub score: f32,
 }
 
-/// Re-scores `poses` (with their votes) and sorts them by score, best first (ties: more
+/// Re-scores `poses` (with their votes) with inlier tolerance `tolerance` (mm) and sorts them by score, best first (ties: more
 /// votes first).
 pub fn rescore(
     poses: &[(Pose, u32)],
     surface: &OrientedPoints,
     scene: &SceneImage,
-    diameter_mm: f32,
+    tolerance: f32,
     params: &RescoringParams,
 ) -> Vec<Scored> {
-    let tolerance = params.tolerance_fraction * diameter_mm;
     let total = surface.len().max(1) as f32;
     let mut scored: Vec<Scored> = poses
         .par_iter()

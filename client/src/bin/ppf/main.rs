@@ -1,6 +1,8 @@
 //! `ppf`: the ppfd command line.
 
+mod detect_offline;
 mod model;
+mod offline;
 
 use clap::{Parser, Subcommand};
 
@@ -20,12 +22,15 @@ enum Command {
     /// Build and inspect object model files.
     #[command(subcommand)]
     Model(model::ModelCommand),
+    /// Detect objects in one frame of a BOP dataset (offline, in this process).
+    Detect(detect_offline::DatasetDetectArgs),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Model(cmd) => model::run(cmd),
+        Command::Detect(args) => detect_offline::run(args),
     };
     if let Err(e) = result {
         eprintln!("error: {e}");
