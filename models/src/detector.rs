@@ -5,16 +5,18 @@
 //!        ─► per object: voting ─► pose clustering ─► re-scoring ─► ICP ─► filters ─► hypotheses
 //! ```
 
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use crate::camera::DepthFrame;
 use rayon::prelude::*;
 
 use crate::clustering::{cluster_poses, ClusteringParams};
-use crate::filters::{is_consistent, FilterParams};
+use crate::filters::{is_consistent, silhouette_fraction, EdgeMap, FilterParams};
 use crate::icp::{refine, IcpParams};
 use crate::model::ObjectModel;
-use crate::rescoring::{rescore, RescoringParams, Scored};
+use crate::render::{bounding_sphere, Renderer};
+use crate::rescoring::{rescore, RescoringParams};
 use crate::scene::{prepare, PreparedScene, SceneImage, SceneParams};
 use crate::subsample::SubsampleParams;
 use crate::voting::{vote, VotingParams};
@@ -244,6 +246,7 @@ impl Detector {
             cloud_of[i] = clouds.len() - 1;
         }
 
+        let edges = OnceLock::new();
         for (i, model) in models.iter().enumerate() {
             check_deadline(start)?;
             let scene = &clouds[cloud_of[i]];
@@ -262,6 +265,7 @@ impl Detector {
                 model,
                 &clusters_as_poses(&clusters),
                 &scene_image,
+                &edges,
                 opts,
                 &mut timings,
             );
@@ -282,6 +286,7 @@ impl Detector {
         model: &ObjectModel,
         clusters: &[(Pose, u32)],
         scene: &SceneImage,
+        edges: &OnceLock<EdgeMap>,
         opts: &DetectOptions,
         timings: &mut StageTimings,
     ) -> Vec<Hypothesis> {
@@ -295,6 +300,7 @@ impl Detector {
             &surface,
             scene,
             p.rescoring.tolerance_mm(d),
+            p.rescoring.conflict_mm(d),
             &p.rescoring,
         );
         timings.rescoring += t.elapsed();
@@ -312,47 +318,69 @@ impl Detector {
             &surface,
             scene,
             p.rescoring.refined_tolerance_mm(d),
+            p.rescoring.conflict_mm(d),
             &p.rescoring,
         );
         timings.rescoring += t.elapsed();
 
         let t = Instant::now();
-        let mut checked: Vec<(Scored, Checks)> = rescored
-            .into_iter()
-            .map(|s| {
-                let mut checks = Checks(Checks::RESCORED | Checks::REFINED);
-                if is_consistent(&s.fit, &p.filters) {
-                    checks.0 |= Checks::CONSISTENT;
-                }
-                (s, checks)
-            })
-            .collect();
-        // Poses that passed every filter first, each group by score.
-        let all = Checks::CONSISTENT;
-        checked.sort_by(|a, b| {
-            let pa = a.1 .0 & all == all;
-            let pb = b.1 .0 & all == all;
-            pb.cmp(&pa).then(b.0.score.total_cmp(&a.0.score))
-        });
+        let mesh = model.render_mesh();
+        let sphere = bounding_sphere(&mesh);
+        let edges = edges.get_or_init(|| EdgeMap::new(scene, &p.filters));
+        let mut renderer = Renderer::new();
         let nms = p.nms_distance_fraction * d;
-        let mut out: Vec<Hypothesis> = Vec::new();
-        for (s, checks) in checked {
-            if out.len() == opts.hypotheses_per_object {
+        let overlaps = |list: &[Hypothesis], pose: &Pose| {
+            list.iter()
+                .any(|h| (h.pose.translation.vector - pose.translation.vector).norm() < nms)
+        };
+        let mut passed: Vec<Hypothesis> = Vec::new();
+        let mut failed: Vec<Hypothesis> = Vec::new();
+        let all = Checks::CONSISTENT | Checks::SILHOUETTE;
+        for s in rescored.iter().take(p.filters.max_candidates) {
+            if passed.len() == opts.hypotheses_per_object {
                 break;
             }
-            let t = s.pose.translation.vector;
-            if out
-                .iter()
-                .any(|h| (h.pose.translation.vector - t).norm() < nms)
-            {
+            if overlaps(&passed, &s.pose) {
                 continue;
             }
-            out.push(Hypothesis {
+            let mut checks = Checks(Checks::RESCORED | Checks::REFINED);
+            if is_consistent(&s.fit, &p.filters) {
+                checks.0 |= Checks::CONSISTENT;
+            }
+            let silhouette = silhouette_fraction(
+                &mut renderer,
+                &mesh,
+                &sphere,
+                &s.pose,
+                scene,
+                edges,
+                p.rescoring.conflict_mm(d),
+            );
+            if silhouette.is_some_and(|f| f >= p.filters.min_silhouette_fraction) {
+                checks.0 |= Checks::SILHOUETTE;
+            }
+            let h = Hypothesis {
                 pose: s.pose,
                 score: s.score,
                 votes: s.votes,
                 checks,
-            });
+            };
+            if checks.0 & all == all {
+                passed.push(h);
+            } else if !overlaps(&failed, &s.pose) {
+                failed.push(h);
+            }
+        }
+        // Poses that failed a filter still fill the list, after those that passed, with their
+        // checks saying so.
+        let mut out = passed;
+        for h in failed {
+            if out.len() == opts.hypotheses_per_object {
+                break;
+            }
+            if !overlaps(&out, &h.pose) {
+                out.push(h);
+            }
         }
         timings.filters += t.elapsed();
         out

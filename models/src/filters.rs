@@ -7,8 +7,13 @@
 //!   depth discontinuities of the scene at a sufficient rate. A model slid along a table top
 //!   fits the plane well but its outline crosses no edge.
 
+use nalgebra::Point3;
+
+use crate::mesh::Mesh;
+use crate::render::{Renderer, Roi};
 use crate::rescoring::Fit;
 use crate::scene::SceneImage;
+use crate::Pose;
 
 /// Parameters of the two filters. Defaults were measured on generated scenes and the LM-O
 /// frame (see the README's results).
@@ -21,12 +26,17 @@ pub struct FilterParams {
     /// are inliers.
     pub min_support_fraction: f32,
     /// A scene pixel is a depth edge when a neighbour within one pixel has no depth or differs
-    /// by more than this, mm.
+    /// by more than `edge_jump_mm` or `edge_jump_fraction` of the depth, whichever is larger
+    /// (depth noise and quantisation of structured-light sensors grow with distance).
     pub edge_jump_mm: f32,
+    pub edge_jump_fraction: f32,
     /// A silhouette pixel matches when a scene edge lies within this many pixels.
     pub edge_radius_px: u32,
     /// Drop a pose when fewer than this fraction of its unoccluded silhouette pixels match.
     pub min_silhouette_fraction: f32,
+    /// The filters run on the refined poses in score order until enough pass; at most this
+    /// many are examined per object.
+    pub max_candidates: usize,
 }
 
 impl Default for FilterParams {
@@ -35,8 +45,10 @@ impl Default for FilterParams {
             max_see_through_fraction: 0.2,
             min_support_fraction: 0.5,
             edge_jump_mm: 10.0,
+            edge_jump_fraction: 0.02,
             edge_radius_px: 2,
             min_silhouette_fraction: 0.3,
+            max_candidates: 50,
         }
     }
 }
@@ -66,10 +78,11 @@ impl EdgeMap {
         for v in 0..h {
             for u in 0..w {
                 let Some(z) = scene.depth(u, v) else { continue };
+                let jump = params.edge_jump_mm.max(params.edge_jump_fraction * z);
                 let mut is_edge = false;
                 for (du, dv) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
                     match scene.depth(u + du, v + dv) {
-                        Some(zn) if (zn - z).abs() <= params.edge_jump_mm => {}
+                        Some(zn) if (zn - z).abs() <= jump => {}
                         _ => is_edge = true,
                     }
                 }
@@ -98,4 +111,65 @@ impl EdgeMap {
             near_edge,
         }
     }
+}
+
+/// The outline of `mesh` rendered at `pose` against the scene's depth edges: the fraction of
+/// the outline's unoccluded pixels that lie near a scene edge (`None` when no outline pixel is
+/// visible, e.g. the pose is outside the view).
+///
+/// `sphere` is the mesh's bounding sphere (model coordinates) that limits rendering to where
+/// the mesh can appear; `occlusion_tolerance_mm` decides when the scene is in front of the
+/// model (an occluded outline pixel says nothing).
+pub fn silhouette_fraction(
+    renderer: &mut Renderer,
+    mesh: &Mesh,
+    sphere: &(Point3<f32>, f32),
+    pose: &Pose,
+    scene: &SceneImage,
+    edges: &EdgeMap,
+    occlusion_tolerance_mm: f32,
+) -> Option<f32> {
+    let roi = Roi::around_sphere(
+        &(pose * sphere.0),
+        sphere.1,
+        &scene.intrinsics,
+        scene.width,
+        scene.height,
+    )?;
+    renderer
+        .render_into(mesh, pose, &scene.intrinsics, roi)
+        .ok()?;
+    let depth = renderer.depth_mm();
+    let (w, h) = (roi.width as i64, roi.height as i64);
+    let at = |x: i64, y: i64| -> f32 {
+        if x < 0 || y < 0 || x >= w || y >= h {
+            0.0
+        } else {
+            depth[(y * w + x) as usize]
+        }
+    };
+    let (mut outline, mut matched) = (0u32, 0u32);
+    for y in 0..h {
+        for x in 0..w {
+            let z = at(x, y);
+            if z <= 0.0 {
+                continue;
+            }
+            if at(x + 1, y) > 0.0 && at(x - 1, y) > 0.0 && at(x, y + 1) > 0.0 && at(x, y - 1) > 0.0
+            {
+                continue;
+            }
+            let (u, v) = (x + roi.u0 as i64, y + roi.v0 as i64);
+            if let Some(zs) = scene.depth(u, v) {
+                if zs < z - occlusion_tolerance_mm {
+                    continue;
+                }
+            }
+            outline += 1;
+            if edges.near_edge[(v * edges.width as i64 + u) as usize] {
+                matched += 1;
+            }
+        }
+    }
+    (outline > 0).then(|| matched as f32 / outline as f32)
 }

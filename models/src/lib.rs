@@ -26,6 +26,7 @@ pub mod filters;
 pub mod icp;
 pub mod mesh;
 pub mod model;
+pub mod render;
 pub mod rescoring;
 pub mod sampling;
 pub mod scene;

@@ -6,7 +6,7 @@ use clap::Args;
 use ppfd_models::bop::BopDataset;
 use ppfd_models::detector::{DetectOptions, Detector};
 
-use crate::offline::{dataset_models, parse_ids, pose_errors};
+use crate::offline::{dataset_models, parse_ids, symmetric_pose_errors};
 
 #[derive(Args, Debug)]
 pub struct DatasetDetectArgs {
@@ -20,12 +20,38 @@ pub struct DatasetDetectArgs {
     /// Object ids, comma separated; default: those in the image's ground truth, else all.
     #[arg(long)]
     pub objects: Option<String>,
+    /// Instead of detecting, print the rank of the first correct pose after each stage.
+    #[arg(long)]
+    pub diagnose: bool,
+    /// Override: every n-th subsampled scene point is a reference point.
+    #[arg(long)]
+    pub reference_step: Option<usize>,
+    /// Override: accumulator peaks per reference point.
+    #[arg(long)]
+    pub peaks: Option<usize>,
     /// Hypotheses to print per object.
     #[arg(long, default_value_t = 3)]
     pub top: usize,
 }
 
+impl DatasetDetectArgs {
+    /// The detector's parameters with this command's overrides.
+    pub fn params(&self) -> ppfd_models::detector::DetectParams {
+        let mut p = ppfd_models::detector::DetectParams::new();
+        if let Some(s) = self.reference_step {
+            p.voting.reference_step = s;
+        }
+        if let Some(k) = self.peaks {
+            p.voting.peaks_per_reference = k;
+        }
+        p
+    }
+}
+
 pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
+    if args.diagnose {
+        return diagnose(&args);
+    }
     let dataset = BopDataset::open(&args.dataset)?;
     let gt = dataset
         .ground_truth(args.scene, args.image)
@@ -42,7 +68,7 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
     };
     let models = dataset_models(&dataset, &ids)?;
     let frame = dataset.depth_frame(args.scene, args.image)?;
-    let detector = Detector::default();
+    let detector = Detector::new(args.params());
     let refs: Vec<_> = models.iter().collect();
     let opts = DetectOptions {
         hypotheses_per_object: args.top.max(10),
@@ -54,6 +80,12 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
     let mut found = 0;
     for (o, model) in det.objects.iter().zip(&models) {
         let d = model.diameter_mm();
+        let syms = dataset
+            .model_info(o.object_id)
+            .map(|i| i.symmetries_discrete.clone())
+            .unwrap_or_default();
+        let pose_errors =
+            |a: &ppfd_models::Pose, b: &ppfd_models::Pose| symmetric_pose_errors(a, b, &syms);
         let truth = gt.iter().find(|g| g.obj_id == o.object_id).map(|g| g.pose);
         let correct_rank = truth.and_then(|t| {
             o.hypotheses.iter().take(10).position(|h| {
@@ -76,11 +108,12 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
                 String::new()
             };
             println!(
-                "| {} | {d:.0} | {} | {:.3} | {} | {dt} | {dr} | {flag} |",
+                "| {} | {d:.0} | {} | {:.3} | {} | {dt} | {dr} | {} | {flag} |",
                 o.object_id,
                 rank + 1,
                 h.score,
-                h.votes
+                h.votes,
+                checks_text(h.checks)
             );
         }
     }
@@ -125,4 +158,122 @@ pub fn checks_text(c: ppfd_models::detector::Checks) -> String {
         .map(|(_, n)| *n)
         .collect::<Vec<_>>()
         .join("")
+}
+
+/// Runs the stages one by one for each object and prints where the first correct pose (within
+/// 0.1 D and 15° of the ground truth) ranks after each.
+pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
+    use ppfd_models::clustering::cluster_poses;
+    use ppfd_models::icp::refine;
+    use ppfd_models::rescoring::rescore;
+    use ppfd_models::scene::{prepare, PreparedScene};
+    use ppfd_models::voting::vote;
+    let dataset = BopDataset::open(&args.dataset)?;
+    let gt = dataset.ground_truth(args.scene, args.image)?.to_vec();
+    let ids = match &args.objects {
+        Some(s) => parse_ids(s)?,
+        None => gt.iter().map(|g| g.obj_id).collect(),
+    };
+    let models = dataset_models(&dataset, &ids)?;
+    let frame = dataset.depth_frame(args.scene, args.image)?;
+    let p = args.params();
+    let scene = prepare(&frame.view(), &p.scene)?;
+    let points = scene.oriented_points();
+    println!("| object | cloud points | on object | normal error (median °) | clusters | rank by votes | after re-scoring | after ICP + re-scoring |");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for model in &models {
+        let d = model.diameter_mm();
+        let truth = gt
+            .iter()
+            .find(|g| g.obj_id == model.object_id())
+            .map(|g| g.pose)
+            .ok_or("no ground truth")?;
+        let syms = dataset
+            .model_info(model.object_id())
+            .map(|i| i.symmetries_discrete.clone())
+            .unwrap_or_default();
+        let ok = |pose: &ppfd_models::Pose| {
+            let (dt, dr) = symmetric_pose_errors(pose, &truth, &syms);
+            dt < 0.1 * d && dr < 15.0
+        };
+        let rank = |poses: Vec<ppfd_models::Pose>| {
+            poses
+                .iter()
+                .position(|q| ok(q))
+                .map_or("-".to_string(), |r| (r + 1).to_string())
+        };
+        let mp = model.params();
+        let cloud = PreparedScene::new(&points, &mp.subsample_params(d))?;
+        // Scene normals against the ground truth: cloud points within 3 mm of the model surface
+        // placed at the true pose.
+        let on_object = {
+            let posed: Vec<_> = surface_of(model)
+                .into_iter()
+                .map(|(q, n)| (truth * q, truth * n))
+                .collect();
+            let mut errs = Vec::new();
+            for (q, n) in cloud.points.positions.iter().zip(&cloud.points.normals) {
+                if let Some((_, mn)) = posed
+                    .iter()
+                    .filter(|(m, _)| (m - q).norm() < 3.0)
+                    .min_by(|a, b| (a.0 - q).norm().total_cmp(&(b.0 - q).norm()))
+                {
+                    errs.push(n.dot(mn).clamp(-1.0, 1.0).acos().to_degrees());
+                }
+            }
+            errs.sort_by(f32::total_cmp);
+            (
+                errs.len(),
+                errs.get(errs.len() / 2).copied().unwrap_or(f32::NAN),
+            )
+        };
+        let (raw, _) = vote(model, &cloud, &p.voting);
+        let clusters = cluster_poses(&raw, d, &p.clustering);
+        let surface = model.surface_points();
+        let top: Vec<_> = clusters
+            .iter()
+            .take(p.rescoring.top_clusters)
+            .map(|c| (c.pose, c.votes))
+            .collect();
+        let scored = rescore(
+            &top,
+            &surface,
+            &scene,
+            p.rescoring.tolerance_mm(d),
+            p.rescoring.conflict_mm(d),
+            &p.rescoring,
+        );
+        let refined: Vec<_> = scored
+            .iter()
+            .take(p.icp.top_poses)
+            .map(|s| (refine(&surface, &s.pose, &scene, d, &p.icp).pose, s.votes))
+            .collect();
+        let rescored = rescore(
+            &refined,
+            &surface,
+            &scene,
+            p.rescoring.refined_tolerance_mm(d),
+            p.rescoring.conflict_mm(d),
+            &p.rescoring,
+        );
+        println!(
+            "| {} | {} | {} | {:.1} | {} | {} | {} | {} |",
+            model.object_id(),
+            cloud.points.len(),
+            on_object.0,
+            on_object.1,
+            clusters.len(),
+            rank(clusters.iter().map(|c| c.pose).collect()),
+            rank(scored.iter().map(|s| s.pose).collect()),
+            rank(rescored.iter().map(|s| s.pose).collect()),
+        );
+    }
+    Ok(())
+}
+
+fn surface_of(
+    model: &ppfd_models::model::ObjectModel,
+) -> Vec<(nalgebra::Point3<f32>, nalgebra::Vector3<f32>)> {
+    let s = model.surface_points();
+    s.positions.into_iter().zip(s.normals).collect()
 }

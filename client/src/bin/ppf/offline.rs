@@ -89,6 +89,19 @@ pub fn pose_errors(est: &Pose, gt: &Pose) -> (f32, f32) {
     (dt, dr)
 }
 
+/// Like [`pose_errors`], the smallest over the object's discrete symmetries (identity
+/// included): a pose turned by a symmetry of the object is as right as the ground truth.
+pub fn symmetric_pose_errors(est: &Pose, gt: &Pose, symmetries: &[Pose]) -> (f32, f32) {
+    let mut best = pose_errors(est, gt);
+    for s in symmetries {
+        let e = pose_errors(est, &(gt * s));
+        if e.0 + e.1 < best.0 + best.1 {
+            best = e;
+        }
+    }
+    best
+}
+
 /// Parses `1,5,6` into ids.
 pub fn parse_ids(s: &str) -> Result<Vec<u32>, String> {
     s.split(',')
