@@ -19,6 +19,7 @@
 pub mod camera;
 pub mod error;
 pub mod mesh;
+pub mod parts;
 
 pub use error::{Error, Result};
 
