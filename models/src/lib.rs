@@ -20,6 +20,7 @@ pub mod camera;
 pub mod error;
 pub mod mesh;
 pub mod parts;
+pub mod render;
 
 pub use error::{Error, Result};
 
