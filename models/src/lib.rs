@@ -21,6 +21,7 @@ pub mod error;
 pub mod mesh;
 pub mod parts;
 pub mod render;
+pub mod synthetic;
 
 pub use error::{Error, Result};
 
