@@ -43,6 +43,9 @@ const SUBPIXEL_BITS: u32 = 8;
 /// Triangles reaching further than this outside the region of interest are clipped, which keeps
 /// the fixed-point edge functions far from overflow.
 const GUARD_PX: f32 = 4096.0;
+/// Images larger than this (in either direction) are refused: it keeps fixed-point pixel
+/// coordinates within `i32`.
+const MAX_IMAGE_PX: u64 = 1 << 20;
 /// Marks a vertex that cannot take the fast path (behind the near plane or outside the guard band).
 const OFF_SCREEN: i32 = i32::MIN;
 
@@ -404,15 +407,25 @@ impl Renderer {
                 "face refers to vertex {bad}, but the mesh has {n} vertices"
             )));
         }
+        let (far_u, far_v) = (
+            self.roi.u0 as u64 + self.roi.width as u64,
+            self.roi.v0 as u64 + self.roi.height as u64,
+        );
+        if far_u > MAX_IMAGE_PX || far_v > MAX_IMAGE_PX {
+            return Err(Error::InvalidParameter(format!(
+                "region of interest {:?} reaches beyond {MAX_IMAGE_PX} pixels",
+                self.roi
+            )));
+        }
         if self.roi.area() == 0 || mesh.faces.is_empty() {
             return Ok(());
         }
         let roi = self.roi;
         let window = Window {
             left: roi.u0 as f32 - GUARD_PX,
-            right: (roi.u0 + roi.width) as f32 + GUARD_PX,
+            right: roi.u0 as f32 + roi.width as f32 + GUARD_PX,
             top: roi.v0 as f32 - GUARD_PX,
-            bottom: (roi.v0 + roi.height) as f32 + GUARD_PX,
+            bottom: roi.v0 as f32 + roi.height as f32 + GUARD_PX,
         };
         let rotation: Matrix3<f32> = *pose.rotation.to_rotation_matrix().matrix();
         let translation = pose.translation.vector;
@@ -481,7 +494,7 @@ struct Window {
 impl Window {
     #[inline]
     fn snap(&self, q: &Point3<f32>, k: &Intrinsics, near_mm: f32) -> [i32; 2] {
-        if q.z < near_mm {
+        if !(q.z >= near_mm && q.z < f32::INFINITY) {
             return [OFF_SCREEN, 0];
         }
         let inv = 1.0 / q.z;
@@ -551,7 +564,9 @@ impl DepthPlane {
 
     #[inline]
     fn inv_z(&self, u: i64, v: i64) -> f32 {
-        (self.a * u as f32 + self.b * v as f32 + self.c).clamp(self.inv_min, self.inv_max)
+        (self.a * u as f32 + self.b * v as f32 + self.c)
+            .max(self.inv_min)
+            .min(self.inv_max)
     }
 }
 
@@ -612,7 +627,8 @@ impl<'a> FaceContext<'a> {
             );
         } else {
             let p = points();
-            if p[0].z < self.near_mm && p[1].z < self.near_mm && p[2].z < self.near_mm {
+            let finite = p.iter().all(|q| q.coords.iter().all(|c| c.is_finite()));
+            if !finite || p.iter().all(|q| q.z < self.near_mm) {
                 return;
             }
             // Front faces (counter-clockwise seen from outside) have their normal toward the camera.
@@ -1198,5 +1214,26 @@ mod tests {
         ));
         let bad = Intrinsics { fx: 0.0, ..K };
         assert!(render_depth(&box_mesh(Vector3::new(1.0, 1.0, 1.0)), &pose, &bad, 64, 48).is_err());
+        // Non-finite vertices draw nothing where they are, and never panic.
+        let mut odd = Part::TPipe.mesh();
+        for (k, p) in odd.positions.iter_mut().enumerate() {
+            match k % 7 {
+                0 => p.x = f32::NAN,
+                3 => p.z = f32::INFINITY,
+                5 => p.y = f32::NEG_INFINITY,
+                _ => {}
+            }
+        }
+        for cull in [true, false] {
+            let mut r = Renderer::new().cull_back_faces(cull);
+            r.render_into(
+                &odd,
+                &Isometry3::translation(0.0, 0.0, 500.0),
+                &K,
+                Roi::full(64, 48),
+            )
+            .unwrap();
+            assert!(r.depth_mm().iter().all(|d| d.is_finite() && *d >= 0.0));
+        }
     }
 }
