@@ -9,6 +9,9 @@ use nalgebra::{Quaternion, Translation3, UnitQuaternion, Vector3, Vector4};
 use crate::voting::Hypothesis;
 use crate::Pose;
 
+/// Members of one cluster tried as the start of its refined average, at most.
+const MAX_DENSITY_CANDIDATES: usize = 256;
+
 /// Parameters of pose clustering.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ClusteringParams {
@@ -18,6 +21,19 @@ pub struct ClusteringParams {
     /// ...and their rotations by less than this angle, degrees. Twice the α bin width (12°)
     /// leaves room for the quantisation of α and of the feature.
     pub rotation_deg: f32,
+    /// After grouping, a cluster's pose is averaged again, `refine_iterations` times, over only
+    /// the members within `refine_translation_fraction` of the diameter and an angle of the
+    /// current average, starting from the member with the most votes around it. The angle is
+    /// `refine_rotation_deg` and shrinks by `refine_rotation_shrink` each time. The wide grouping
+    /// thresholds take in members one feature period away (a gear's tooth, a bolt hole), and
+    /// poses whose rotation about a near-symmetry axis is barely determined; a plain average
+    /// of them is off by degrees. The cluster's votes stay those of all its members. Measured
+    /// on 250 noise-free generated views (best cluster within 0.05 D and 5°): plain average
+    /// 221, two iterations at 8° 231, three shrinking from 8° by 0.6 236.
+    pub refine_rotation_deg: f32,
+    pub refine_rotation_shrink: f32,
+    pub refine_translation_fraction: f32,
+    pub refine_iterations: usize,
 }
 
 impl Default for ClusteringParams {
@@ -25,6 +41,10 @@ impl Default for ClusteringParams {
         Self {
             translation_fraction: 0.1,
             rotation_deg: 24.0,
+            refine_rotation_deg: 8.0,
+            refine_rotation_shrink: 0.6,
+            refine_translation_fraction: 0.05,
+            refine_iterations: 3,
         }
     }
 }
@@ -45,7 +65,37 @@ struct Accumulating {
     quaternion_sum: Vector4<f32>,
     translation_sum: Vector3<f32>,
     votes: u32,
-    members: u32,
+    members: Vec<u32>,
+}
+
+/// The vote-weighted mean of `members` (indices into `hypotheses`) with quaternion signs
+/// aligned to `reference`; `None` when the members carry no weight.
+fn weighted_mean(
+    hypotheses: &[Hypothesis],
+    members: impl Iterator<Item = u32>,
+    reference: &UnitQuaternion<f32>,
+) -> Option<Pose> {
+    let (mut q_sum, mut t_sum, mut w_sum) = (Vector4::zeros(), Vector3::zeros(), 0.0f32);
+    for i in members {
+        let h = &hypotheses[i as usize];
+        let w = h.votes.max(1) as f32;
+        let q = h.pose.rotation.coords;
+        let sign = if reference.coords.dot(&q) < 0.0 {
+            -1.0
+        } else {
+            1.0
+        };
+        q_sum += q * (sign * w);
+        t_sum += h.pose.translation.vector * w;
+        w_sum += w;
+    }
+    if w_sum <= 0.0 || q_sum.norm() <= 1e-9 {
+        return None;
+    }
+    Some(Pose::from_parts(
+        Translation3::from(t_sum / w_sum),
+        UnitQuaternion::from_quaternion(Quaternion::from(q_sum)),
+    ))
 }
 
 /// Clusters `hypotheses` of a model of diameter `diameter_mm`; the result is sorted by votes,
@@ -112,7 +162,7 @@ pub fn cluster_poses(
                 cl.quaternion_sum += q.coords * (sign * w);
                 cl.translation_sum += t * w;
                 cl.votes += h.votes;
-                cl.members += 1;
+                cl.members.push(i as u32);
             }
             None => {
                 grid.entry((cx, cy, cz))
@@ -123,11 +173,13 @@ pub fn cluster_poses(
                     quaternion_sum: q.coords * w,
                     translation_sum: t * w,
                     votes: h.votes,
-                    members: 1,
+                    members: vec![i as u32],
                 });
             }
         }
     }
+    let refine_t = params.refine_translation_fraction * diameter_mm;
+    let refine_dot = (params.refine_rotation_deg.to_radians() / 2.0).cos();
     let mut out: Vec<PoseCluster> = clusters
         .into_iter()
         .map(|c| {
@@ -137,10 +189,56 @@ pub fn cluster_poses(
             } else {
                 c.seed.rotation
             };
+            let mut pose = Pose::from_parts(Translation3::from(c.translation_sum / w), rotation);
+            let close = |a: &Pose, b: &Pose| {
+                (a.translation.vector - b.translation.vector).norm() < refine_t
+                    && a.rotation.coords.dot(&b.rotation.coords).abs() >= refine_dot
+            };
+            if params.refine_iterations > 0 && c.members.len() > 2 {
+                // Start from the densest member: the one whose neighbourhood holds the most
+                // votes (members beyond a few hundred are sampled as candidates).
+                let step = (c.members.len() / MAX_DENSITY_CANDIDATES).max(1);
+                let density = |j: u32| -> u32 {
+                    let pj = &hypotheses[j as usize].pose;
+                    c.members
+                        .iter()
+                        .map(|&i| &hypotheses[i as usize])
+                        .filter(|h| close(&h.pose, pj))
+                        .map(|h| h.votes)
+                        .sum()
+                };
+                if let Some(best) = c
+                    .members
+                    .iter()
+                    .step_by(step)
+                    .copied()
+                    .max_by_key(|&j| density(j))
+                {
+                    pose = hypotheses[best as usize].pose;
+                }
+            }
+            for it in 0..params.refine_iterations {
+                let angle =
+                    params.refine_rotation_deg * params.refine_rotation_shrink.powi(it as i32);
+                let rdot = (angle.to_radians() / 2.0).cos();
+                let close = |a: &Pose, b: &Pose| {
+                    (a.translation.vector - b.translation.vector).norm() < refine_t
+                        && a.rotation.coords.dot(&b.rotation.coords).abs() >= rdot
+                };
+                let near = c
+                    .members
+                    .iter()
+                    .copied()
+                    .filter(|&i| close(&hypotheses[i as usize].pose, &pose));
+                match weighted_mean(hypotheses, near, &pose.rotation) {
+                    Some(p) => pose = p,
+                    None => break,
+                }
+            }
             PoseCluster {
-                pose: Pose::from_parts(Translation3::from(c.translation_sum / w), rotation),
+                pose,
                 votes: c.votes,
-                members: c.members,
+                members: c.members.len() as u32,
             }
         })
         .collect();

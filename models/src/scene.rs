@@ -16,6 +16,9 @@ pub struct SceneParams {
     /// point from its depth (clamped to 1..=8 px). Wider is smoother against axial noise (about
     /// 1.5 mm at 1 m for a Kinect) but rounds edges; 5 mm is about 3 px at 1 m on VGA.
     pub normal_radius_mm: f32,
+    /// When non-zero, the normal window's half-size in pixels, whatever the depth (replaces
+    /// `normal_radius_mm`).
+    pub normal_radius_px: u32,
     /// Neighbours whose depth differs from the centre by more than `max_depth_jump_mm` or
     /// `max_depth_jump_fraction` of the depth, whichever is larger, are taken to be on another
     /// surface and not used for smoothing or normals. Measured on generated views: 15 mm mixes
@@ -39,6 +42,13 @@ pub struct SceneParams {
     /// Plane fit: at most this many samples per window row and column (the window is strided
     /// beyond it), which bounds the cost of wide windows.
     pub plane_samples_per_axis: u32,
+    /// Best-window plane fit: a window beside the pixel replaces the centred one when its
+    /// residual is below this fraction of the centred window's (see
+    /// [`NormalEstimation::BestWindowPlaneFit`]).
+    pub side_window_ratio: f32,
+    /// Best-window plane fit: a window counts when at least this fraction of its pixels have
+    /// depth.
+    pub min_window_fill: f32,
 }
 
 /// How scene normals are estimated from the depth image.
@@ -51,12 +61,22 @@ pub enum NormalEstimation {
     /// Structured-light depth comes in steps of 3–4 mm at 1 m; a fit over the whole window
     /// sees through the staircase better than differences of two smoothed values.
     PlaneFit,
+    /// Least-squares planes over the centred window and over eight windows beside the pixel
+    /// (four sides, four corners); the one with the smallest residual wins, the centred one
+    /// unless another is clearly better. Next to a crease or a depth edge one of the side
+    /// windows lies on the pixel's own surface alone, so normals stay sharp up to the edge
+    /// instead of blending both sides. Sums come from integral images: every window costs the
+    /// same. Where no window fits well (thin structures), the two-pass [`PlaneFit`] is used.
+    ///
+    /// [`PlaneFit`]: NormalEstimation::PlaneFit
+    BestWindowPlaneFit,
 }
 
 impl Default for SceneParams {
     fn default() -> Self {
         Self {
             normal_radius_mm: 5.0,
+            normal_radius_px: 0,
             max_depth_jump_mm: 6.0,
             max_depth_jump_fraction: 0.01,
             smoothing_radius_px: 2,
@@ -66,11 +86,22 @@ impl Default for SceneParams {
             plane_residual_mm: 4.0,
             plane_residual_fraction: 0.004,
             plane_samples_per_axis: 9,
+            side_window_ratio: 0.7,
+            min_window_fill: 0.5,
         }
     }
 }
 
 impl SceneParams {
+    /// Half-size in pixels of the normal window at depth `z_mm` for focal length `fx`.
+    #[inline]
+    pub fn normal_window_px(&self, fx: f32, z_mm: f32) -> i64 {
+        if self.normal_radius_px > 0 {
+            return self.normal_radius_px as i64;
+        }
+        ((self.normal_radius_mm * fx / z_mm).round() as i64).clamp(1, 8)
+    }
+
     /// The largest depth difference between neighbours on one surface at depth `z_mm`.
     #[inline]
     pub fn jump_mm(&self, z_mm: f32) -> f32 {
@@ -194,8 +225,7 @@ pub fn estimate_normals(
         .flat_map_iter(|v| {
             (0..w).map(move |u| {
                 let Some(p) = image.at(u, v) else { return none };
-                let k =
-                    ((params.normal_radius_mm * intrinsics.fx / p.z).round() as i64).clamp(1, 8);
+                let k = params.normal_window_px(intrinsics.fx, p.z);
                 let jump = params.jump_mm(p.z);
                 let near = |q: Option<Point3<f32>>| q.filter(|q| (q.z - p.z).abs() <= jump);
                 let diff = |a: Option<Point3<f32>>, b: Option<Point3<f32>>| match (near(a), near(b))
@@ -264,9 +294,234 @@ impl PreparedScene {
     }
 }
 
+/// Summed-area tables of the moments a least-squares plane `z(u, v)` needs, over the pixels
+/// with depth: `(width + 1) × (height + 1)` entries each, row-major.
+struct PlaneMoments {
+    stride: usize,
+    /// 1, u, v, u², uv, v², z, uz, vz, z² per pixel, summed over `[0, u) × [0, v)`.
+    sums: Vec<[f64; 10]>,
+}
+
+/// A plane `z = a (u − uc) + b (v − vc) + c` fitted over a window, with its residual.
+#[derive(Clone, Copy, Debug)]
+struct WindowPlane {
+    a: f64,
+    b: f64,
+    c: f64,
+    /// Root mean square residual, mm.
+    rms: f64,
+}
+
+impl PlaneMoments {
+    fn new(frame: &DepthFrame, params: &SceneParams) -> Self {
+        let (w, h) = (frame.width as usize, frame.height as usize);
+        let stride = w + 1;
+        let mut sums = vec![[0f64; 10]; stride * (h + 1)];
+        for v in 0..h {
+            let mut row = [0f64; 10];
+            for u in 0..w {
+                let raw = frame.depth[v * w + u];
+                let z = raw as f32 * frame.depth_scale_mm;
+                if raw != 0 && z >= params.min_depth_mm && z <= params.max_depth_mm {
+                    let (x, y, z) = (u as f64, v as f64, z as f64);
+                    let m = [1.0, x, y, x * x, x * y, y * y, z, x * z, y * z, z * z];
+                    for k in 0..10 {
+                        row[k] += m[k];
+                    }
+                }
+                let above = sums[v * stride + u + 1];
+                let cell = &mut sums[(v + 1) * stride + u + 1];
+                for k in 0..10 {
+                    cell[k] = above[k] + row[k];
+                }
+            }
+        }
+        Self { stride, sums }
+    }
+
+    /// The plane over pixels `[u0, u1] × [v0, v1]` (inclusive, inside the image) expressed
+    /// about `(uc, vc)`; `None` with fewer than `min_count` pixels or a degenerate layout.
+    fn fit(
+        &self,
+        u0: usize,
+        v0: usize,
+        u1: usize,
+        v1: usize,
+        uc: f64,
+        vc: f64,
+        min_count: f64,
+    ) -> Option<WindowPlane> {
+        let at = |u: usize, v: usize| &self.sums[v * self.stride + u];
+        let (a, b, c, d) = (
+            at(u1 + 1, v1 + 1),
+            at(u0, v1 + 1),
+            at(u1 + 1, v0),
+            at(u0, v0),
+        );
+        let mut s = [0f64; 10];
+        for k in 0..10 {
+            s[k] = a[k] - b[k] - c[k] + d[k];
+        }
+        let n = s[0];
+        if n < min_count.max(6.0) {
+            return None;
+        }
+        // Moments about (uc, vc).
+        let sx = s[1] - uc * n;
+        let sy = s[2] - vc * n;
+        let sxx = s[3] - 2.0 * uc * s[1] + uc * uc * n;
+        let sxy = s[4] - uc * s[2] - vc * s[1] + uc * vc * n;
+        let syy = s[5] - 2.0 * vc * s[2] + vc * vc * n;
+        let sz = s[6];
+        let sxz = s[7] - uc * sz;
+        let syz = s[8] - vc * sz;
+        let m = nalgebra::Matrix3::new(sxx, sxy, sx, sxy, syy, sy, sx, sy, n);
+        let rhs = nalgebra::Vector3::new(sxz, syz, sz);
+        let x = m.cholesky()?.solve(&rhs);
+        // Residual about the mean depth keeps the subtraction well conditioned.
+        let mean = sz / n;
+        let szz_centred = s[9] - sz * mean;
+        let explained = x[0] * sxz + x[1] * syz + x[2] * sz - sz * mean;
+        let rss = (szz_centred - explained).max(0.0);
+        Some(WindowPlane {
+            a: x[0],
+            b: x[1],
+            c: x[2],
+            rms: (rss / (n - 3.0)).sqrt(),
+        })
+    }
+}
+
+/// Per pixel, the best of nine window planes (see [`NormalEstimation::BestWindowPlaneFit`]):
+/// the camera-space point on it and its normal facing the camera. Where no window fits within
+/// the depth-jump tolerance, the two-pass fit of [`plane_fit`] decides.
+pub fn best_window_plane_fit(
+    frame: &DepthFrame,
+    params: &SceneParams,
+) -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
+    let (w, h) = (frame.width as i64, frame.height as i64);
+    let k = frame.intrinsics;
+    let moments = PlaneMoments::new(frame, params);
+    let z_of = |u: i64, v: i64| -> Option<f32> {
+        let raw = frame.depth[(v * w + u) as usize];
+        let z = raw as f32 * frame.depth_scale_mm;
+        (raw != 0 && z >= params.min_depth_mm && z <= params.max_depth_mm).then_some(z)
+    };
+    let nan_p = Point3::new(f32::NAN, f32::NAN, f32::NAN);
+    let nan_n = Vector3::new(f32::NAN, f32::NAN, f32::NAN);
+    let mut fallback = Vec::new();
+    let mut out: Vec<(Point3<f32>, Vector3<f32>)> = (0..h)
+        .into_par_iter()
+        .flat_map_iter(|v| {
+            let moments = &moments;
+            (0..w).map(move |u| {
+                let Some(z) = z_of(u, v) else {
+                    return (nan_p, nan_n);
+                };
+                let r = params.normal_window_px(k.fx, z);
+                let (uc, vc) = (u as f64, v as f64);
+                let fill = params.min_window_fill as f64;
+                let window = |du: i64, dv: i64| {
+                    // The window of radius r centred at (u + du·r, v + dv·r), clipped to the image.
+                    let (cu, cv) = (u + du * r, v + dv * r);
+                    let (u0, u1) = ((cu - r).max(0), (cu + r).min(w - 1));
+                    let (v0, v1) = ((cv - r).max(0), (cv + r).min(h - 1));
+                    if u0 > u1 || v0 > v1 {
+                        return None;
+                    }
+                    let area = ((u1 - u0 + 1) * (v1 - v0 + 1)) as f64;
+                    moments.fit(
+                        u0 as usize,
+                        v0 as usize,
+                        u1 as usize,
+                        v1 as usize,
+                        uc,
+                        vc,
+                        fill * area,
+                    )
+                };
+                let mut best = window(0, 0);
+                let mut best_rms = best.map_or(f64::INFINITY, |p| p.rms);
+                let side_limit = best_rms * params.side_window_ratio as f64;
+                for (du, dv) in [
+                    (-1, 0),
+                    (1, 0),
+                    (0, -1),
+                    (0, 1),
+                    (-1, -1),
+                    (1, -1),
+                    (-1, 1),
+                    (1, 1),
+                ] {
+                    if let Some(p) = window(du, dv) {
+                        if p.rms < side_limit.min(best_rms) || (best.is_none() && p.rms < best_rms)
+                        {
+                            best = Some(p);
+                            best_rms = p.rms;
+                        }
+                    }
+                }
+                // A window mixing two surfaces fits badly; leave such pixels to the fit that
+                // drops pixels across depth jumps.
+                let limit = 0.5 * params.jump_mm(z) as f64;
+                let Some(plane) = best.filter(|p| p.rms <= limit) else {
+                    return (
+                        k.backproject(u as f32, v as f32, z),
+                        Vector3::new(f32::INFINITY, 0.0, 0.0),
+                    );
+                };
+                let (zu, zv, zc) = (plane.a as f32, plane.b as f32, plane.c as f32);
+                normal_of_plane(&k, u as f32, v as f32, zu, zv, zc)
+                    .unwrap_or((k.backproject(u as f32, v as f32, z), nan_n))
+            })
+        })
+        .collect();
+    // Pixels marked for the fallback (normal x = +inf).
+    for (i, (_, n)) in out.iter().enumerate() {
+        if n.x == f32::INFINITY {
+            fallback.push(i);
+        }
+    }
+    if !fallback.is_empty() {
+        let (points, normals) = plane_fit(frame, params);
+        for i in fallback {
+            out[i] = (points[i], normals[i]);
+        }
+    }
+    out.into_iter().unzip()
+}
+
+/// The camera-space point at pixel `(u, v)` of the depth surface `z` with pixel gradient
+/// `(zu, zv)` and its unit normal facing the camera.
+#[inline]
+fn normal_of_plane(
+    k: &Intrinsics,
+    u: f32,
+    v: f32,
+    zu: f32,
+    zv: f32,
+    zc: f32,
+) -> Option<(Point3<f32>, Vector3<f32>)> {
+    if !(zc > 0.0) {
+        return None;
+    }
+    let ray = Vector3::new((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);
+    let pu = ray * zu + Vector3::new(zc / k.fx, 0.0, 0.0);
+    let pv = ray * zv + Vector3::new(0.0, zc / k.fy, 0.0);
+    let n = pu.cross(&pv);
+    let len = n.norm();
+    if !(len > 1e-12) {
+        return None;
+    }
+    let n = n / len;
+    let p = k.backproject(u, v, zc);
+    Some((p, if n.dot(&p.coords) > 0.0 { -n } else { n }))
+}
+
 /// Per pixel, a plane fitted to the depth around it (see [`NormalEstimation::PlaneFit`]): the
-/// camera-space point on the plane and the plane's normal facing the camera (NaN where there is
-/// no depth or too few neighbours on the same surface).
+/// camera-space point on the plane and the plane's normal facing the camera. Without depth both
+/// are NaN; with too few neighbours on the same surface the point is the measured one and the
+/// normal NaN.
 pub fn plane_fit(
     frame: &DepthFrame,
     params: &SceneParams,
@@ -289,7 +544,7 @@ pub fn plane_fit(
                     return (nan_p, nan_n);
                 };
                 let raw_point = k.backproject(u as f32, v as f32, z);
-                let r = ((params.normal_radius_mm * k.fx / z).round() as i64).clamp(1, 8);
+                let r = params.normal_window_px(k.fx, z);
                 let stride = ((2 * r + 1) + max_samples - 1) / max_samples;
                 let jump = params.jump_mm(z);
                 let residual = params
@@ -354,18 +609,7 @@ pub fn plane_fit(
                     }
                 }
                 let (zu, zv, zc) = plane.unwrap();
-                let (uf, vf) = (u as f32, v as f32);
-                let ray = Vector3::new((uf - k.cx) / k.fx, (vf - k.cy) / k.fy, 1.0);
-                let pu = ray * zu + Vector3::new(zc / k.fx, 0.0, 0.0);
-                let pv = ray * zv + Vector3::new(0.0, zc / k.fy, 0.0);
-                let n = pu.cross(&pv);
-                let len = n.norm();
-                if len <= 1e-12 || !(zc > 0.0) {
-                    return (raw_point, nan_n);
-                }
-                let n = n / len;
-                let p = k.backproject(uf, vf, zc);
-                (p, if n.dot(&p.coords) > 0.0 { -n } else { n })
+                normal_of_plane(&k, u as f32, v as f32, zu, zv, zc).unwrap_or((raw_point, nan_n))
             })
         })
         .collect();
@@ -382,8 +626,12 @@ pub fn prepare(frame: &DepthFrame, params: &SceneParams) -> Result<SceneImage> {
             let normals = estimate_normals(&image, &frame.intrinsics, params);
             (image, normals)
         }
-        NormalEstimation::PlaneFit => {
-            let (points, normals) = plane_fit(frame, params);
+        NormalEstimation::PlaneFit | NormalEstimation::BestWindowPlaneFit => {
+            let (points, normals) = if params.normal_estimation == NormalEstimation::PlaneFit {
+                plane_fit(frame, params)
+            } else {
+                best_window_plane_fit(frame, params)
+            };
             (
                 PointImage {
                     width: frame.width,

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use clap::Args;
 use ppfd_models::bop::BopDataset;
 use ppfd_models::detector::{DetectOptions, Detector};
+use rayon::prelude::*;
 
 use crate::offline::{dataset_models, parse_ids, symmetric_pose_errors};
 
@@ -78,16 +79,20 @@ pub fn set_param(p: &mut ppfd_models::detector::DetectParams, kv: &str) -> Resul
     };
     match key {
         "scene.normal_radius_mm" => p.scene.normal_radius_mm = f()?,
+        "scene.normal_radius_px" => p.scene.normal_radius_px = u()? as u32,
         "scene.max_depth_jump_mm" => p.scene.max_depth_jump_mm = f()?,
         "scene.max_depth_jump_fraction" => p.scene.max_depth_jump_fraction = f()?,
         "scene.smoothing_radius_px" => p.scene.smoothing_radius_px = u()? as u32,
         "scene.plane_residual_mm" => p.scene.plane_residual_mm = f()?,
         "scene.plane_residual_fraction" => p.scene.plane_residual_fraction = f()?,
         "scene.plane_samples_per_axis" => p.scene.plane_samples_per_axis = u()? as u32,
+        "scene.side_window_ratio" => p.scene.side_window_ratio = f()?,
+        "scene.min_window_fill" => p.scene.min_window_fill = f()?,
         "scene.normal_estimation" => {
             p.scene.normal_estimation = match value {
                 "plane" => NormalEstimation::PlaneFit,
                 "differences" => NormalEstimation::CentralDifferences,
+                "best-window" => NormalEstimation::BestWindowPlaneFit,
                 _ => return Err(format!("{key}: plane or differences, got {value:?}")),
             }
         }
@@ -106,6 +111,10 @@ pub fn set_param(p: &mut ppfd_models::detector::DetectParams, kv: &str) -> Resul
         "rescoring.max_normal_angle_deg" => p.rescoring.max_normal_angle_deg = f()?,
         "rescoring.conflict_fraction" => p.rescoring.conflict_fraction = f()?,
         "rescoring.min_conflict_mm" => p.rescoring.min_conflict_mm = f()?,
+        "rescoring.silhouette_weight" => p.rescoring.silhouette_weight = f()?,
+        "rescoring.silhouette_mesh_cell_fraction" => {
+            p.rescoring.silhouette_mesh_cell_fraction = f()?
+        }
         "icp.top_poses" => p.icp.top_poses = u()?,
         "icp.iterations" => p.icp.iterations = u()?,
         "icp.initial_distance_fraction" => p.icp.initial_distance_fraction = f()?,
@@ -240,8 +249,10 @@ pub fn checks_text(c: ppfd_models::detector::Checks) -> String {
 /// 0.1 D and 15° of the ground truth) ranks after each.
 pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
     use ppfd_models::clustering::cluster_poses;
+    use ppfd_models::filters::{simplified_mesh, EdgeMap};
     use ppfd_models::icp::refine;
-    use ppfd_models::rescoring::rescore;
+    use ppfd_models::render::bounding_sphere;
+    use ppfd_models::rescoring::{rescore, with_silhouettes};
     use ppfd_models::scene::{prepare, PreparedScene};
     use ppfd_models::voting::vote;
     let dataset = BopDataset::open(&args.dataset)?;
@@ -255,6 +266,7 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
     let p = args.params()?;
     let scene = prepare(&frame.view(), &p.scene)?;
     let points = scene.oriented_points();
+    let edges = EdgeMap::new(&scene, &p.filters);
     println!("| object | cloud points | on object | normal error (median °) | clusters | rank by votes | after re-scoring | after ICP + re-scoring | best cluster t err (mm) | R err (°) | voting + clustering (ms) |");
     println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     let (mut in_top10, mut first_after_icp) = (0, 0);
@@ -323,7 +335,7 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             .take(p.rescoring.top_clusters)
             .map(|c| (c.pose, c.votes))
             .collect();
-        let scored = rescore(
+        let mut scored = rescore(
             &top,
             &surface,
             &scene,
@@ -331,12 +343,28 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             p.rescoring.conflict_mm(d),
             &p.rescoring,
         );
+        let mesh = simplified_mesh(
+            &model.render_mesh(),
+            p.rescoring.silhouette_mesh_cell_fraction * d,
+        );
+        let sphere = bounding_sphere(&mesh);
+        if p.rescoring.silhouette_weight > 0.0 {
+            with_silhouettes(
+                &mut scored,
+                &mesh,
+                &sphere,
+                &scene,
+                &edges,
+                p.rescoring.conflict_mm(d),
+                p.rescoring.silhouette_weight,
+            );
+        }
         let refined: Vec<_> = scored
-            .iter()
+            .par_iter()
             .take(p.icp.top_poses)
             .map(|s| (refine(&surface, &s.pose, &scene, d, &p.icp).pose, s.votes))
             .collect();
-        let rescored = rescore(
+        let mut rescored = rescore(
             &refined,
             &surface,
             &scene,
@@ -344,6 +372,17 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             p.rescoring.conflict_mm(d),
             &p.rescoring,
         );
+        if p.rescoring.silhouette_weight > 0.0 {
+            with_silhouettes(
+                &mut rescored,
+                &mesh,
+                &sphere,
+                &scene,
+                &edges,
+                p.rescoring.conflict_mm(d),
+                p.rescoring.silhouette_weight,
+            );
+        }
         let final_poses: Vec<_> = rescored.iter().map(|s| s.pose).collect();
         if first_correct(&final_poses) == Some(0) {
             first_after_icp += 1;
