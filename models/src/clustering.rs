@@ -34,6 +34,9 @@ pub struct ClusteringParams {
     pub refine_rotation_shrink: f32,
     pub refine_translation_fraction: f32,
     pub refine_iterations: usize,
+    /// Start the refinement from the member with the most votes around it rather than from
+    /// the plain average.
+    pub refine_from_densest: bool,
 }
 
 impl Default for ClusteringParams {
@@ -41,10 +44,11 @@ impl Default for ClusteringParams {
         Self {
             translation_fraction: 0.1,
             rotation_deg: 24.0,
-            refine_rotation_deg: 8.0,
-            refine_rotation_shrink: 0.6,
+            refine_rotation_deg: 10.0,
+            refine_rotation_shrink: 1.0,
             refine_translation_fraction: 0.05,
-            refine_iterations: 3,
+            refine_iterations: 5,
+            refine_from_densest: false,
         }
     }
 }
@@ -194,7 +198,7 @@ pub fn cluster_poses(
                 (a.translation.vector - b.translation.vector).norm() < refine_t
                     && a.rotation.coords.dot(&b.rotation.coords).abs() >= refine_dot
             };
-            if params.refine_iterations > 0 && c.members.len() > 2 {
+            if params.refine_from_densest && params.refine_iterations > 0 && c.members.len() > 2 {
                 // Start from the densest member: the one whose neighbourhood holds the most
                 // votes (members beyond a few hundred are sampled as candidates).
                 let step = (c.members.len() / MAX_DENSITY_CANDIDATES).max(1);

@@ -322,7 +322,7 @@ impl Detector {
                 scene,
                 edges,
                 conflict,
-                p.rescoring.silhouette_weight,
+                &p.rescoring,
             );
         }
         timings.rescoring += t.elapsed();
@@ -351,7 +351,7 @@ impl Detector {
                 scene,
                 edges,
                 conflict,
-                p.rescoring.silhouette_weight,
+                &p.rescoring,
             );
         }
         timings.rescoring += t.elapsed();

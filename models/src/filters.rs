@@ -35,6 +35,11 @@ pub struct FilterParams {
     pub edge_radius_px: u32,
     /// Drop a pose when fewer than this fraction of its unoccluded silhouette pixels match.
     pub min_silhouette_fraction: f32,
+    /// An outline pixel expects a scene edge only where the scene this many pixels outside the
+    /// outline lies farther than the model by a depth jump (or has no depth): where an object
+    /// rests on a table, the table meets its outline at the same depth and no edge can be
+    /// seen. 0 expects an edge everywhere.
+    pub contour_probe_px: u32,
     /// The filters run on the refined poses in score order until enough pass; at most this
     /// many are examined per object.
     pub max_candidates: usize,
@@ -49,6 +54,7 @@ impl Default for FilterParams {
             edge_jump_fraction: 0.02,
             edge_radius_px: 2,
             min_silhouette_fraction: 0.3,
+            contour_probe_px: 3,
             max_candidates: 50,
         }
     }
@@ -70,6 +76,10 @@ pub struct EdgeMap {
     pub width: u32,
     pub height: u32,
     pub near_edge: Vec<bool>,
+    /// The depth-jump rule and outline probe the map was made with.
+    jump_mm: f32,
+    jump_fraction: f32,
+    probe_px: u32,
 }
 
 impl EdgeMap {
@@ -110,7 +120,38 @@ impl EdgeMap {
             width: scene.width,
             height: scene.height,
             near_edge,
+            jump_mm: params.edge_jump_mm,
+            jump_fraction: params.edge_jump_fraction,
+            probe_px: params.contour_probe_px,
         }
+    }
+}
+
+/// How the rendered outline of a pose meets the scene's depth edges.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct OutlineCounts {
+    /// Outline pixels in the image.
+    pub total: u32,
+    /// Outline pixels not hidden behind the scene (the scene is not well in front) where the
+    /// scene just outside lies well behind, so that an edge should be seen.
+    pub visible: u32,
+    /// Visible outline pixels with a scene depth edge near them.
+    pub matched: u32,
+}
+
+impl OutlineCounts {
+    /// `matched / visible`: the fraction of the visible outline on scene edges.
+    pub fn fraction(&self) -> Option<f32> {
+        (self.visible > 0).then(|| self.matched as f32 / self.visible as f32)
+    }
+
+    /// Like [`fraction`](Self::fraction), but a pose whose outline is mostly hidden is not
+    /// judged on the little that shows: the denominator is at least `min_visible` of the whole
+    /// outline. A model placed behind the scene with one short piece of outline on an edge
+    /// would otherwise score as well as a pose whose whole outline matches.
+    pub fn fraction_of_at_least(&self, min_visible: f32) -> Option<f32> {
+        let denominator = (self.visible as f32).max(min_visible * self.total as f32);
+        (denominator > 0.0).then(|| self.matched as f32 / denominator)
     }
 }
 
@@ -130,6 +171,28 @@ pub fn silhouette_fraction(
     edges: &EdgeMap,
     occlusion_tolerance_mm: f32,
 ) -> Option<f32> {
+    outline_counts(
+        renderer,
+        mesh,
+        sphere,
+        pose,
+        scene,
+        edges,
+        occlusion_tolerance_mm,
+    )?
+    .fraction()
+}
+
+/// The counts behind [`silhouette_fraction`]; `None` when the mesh is out of view.
+pub fn outline_counts(
+    renderer: &mut Renderer,
+    mesh: &Mesh,
+    sphere: &(Point3<f32>, f32),
+    pose: &Pose,
+    scene: &SceneImage,
+    edges: &EdgeMap,
+    occlusion_tolerance_mm: f32,
+) -> Option<OutlineCounts> {
     let roi = Roi::around_sphere(
         &(pose * sphere.0),
         sphere.1,
@@ -149,7 +212,7 @@ pub fn silhouette_fraction(
             depth[(y * w + x) as usize]
         }
     };
-    let (mut outline, mut matched) = (0u32, 0u32);
+    let mut counts = OutlineCounts::default();
     for y in 0..h {
         for x in 0..w {
             let z = at(x, y);
@@ -160,19 +223,38 @@ pub fn silhouette_fraction(
             {
                 continue;
             }
+            counts.total += 1;
             let (u, v) = (x + roi.u0 as i64, y + roi.v0 as i64);
             if let Some(zs) = scene.depth(u, v) {
                 if zs < z - occlusion_tolerance_mm {
                     continue;
                 }
             }
-            outline += 1;
+            if edges.probe_px > 0 {
+                // Look outwards (away from the rendered region) for background behind.
+                let r = edges.probe_px as i64;
+                let jump = edges.jump_mm.max(edges.jump_fraction * z);
+                let mut expected = false;
+                for (dx, dy) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
+                    if at(x + dx, y + dy) > 0.0 {
+                        continue;
+                    }
+                    match scene.depth(u + dx * r, v + dy * r) {
+                        Some(zs) if zs <= z + jump => {}
+                        _ => expected = true,
+                    }
+                }
+                if !expected {
+                    continue;
+                }
+            }
+            counts.visible += 1;
             if edges.near_edge[(v * edges.width as i64 + u) as usize] {
-                matched += 1;
+                counts.matched += 1;
             }
         }
     }
-    (outline > 0).then(|| matched as f32 / outline as f32)
+    Some(counts)
 }
 
 /// Reusable buffers of [`silhouette_fraction_of_points`].

@@ -39,8 +39,8 @@ pub enum Part {
     /// A spur gear (24 teeth, 140 mm tip diameter, eight of them cut away to two unequal flats)
     /// with a hub on one side, a keyed bore and two unequal lightening holes.
     ToothedDisc,
-    /// A tee fitting: a square hub with three round pipe stubs of unequal length (the branch
-    /// narrower), bored through into a common cavity, and an off-centre foot under the hub.
+    /// A tee fitting: a hub taller than wide with three round pipe stubs of unequal length (the
+    /// branch narrower), bored through into a common cavity, and an off-centre foot under it.
     TPipe,
 }
 
@@ -356,7 +356,9 @@ fn toothed_disc() -> Mesh {
 }
 
 fn t_pipe() -> Mesh {
-    const HUB: f64 = 30.0; // half-size of the square hub
+    const HUB: f64 = 30.0; // half-size of the hub along x and y
+    const HUB_Z: f64 = 38.0; // ... and along z: taller than wide, so no quarter turn about the run
+                             // axis maps it onto itself
     const CAVITY: f64 = 18.0; // half-size of the cavity where the bores meet
     const RUN_R: f64 = 22.0;
     const RUN_BORE_R: f64 = 15.0;
@@ -410,7 +412,8 @@ fn t_pipe() -> Mesh {
     let mut hub_holes: Vec<(Vector3<f64>, Vec<u32>)> = Vec::new();
     let mut cavity_holes: Vec<(Vector3<f64>, Vec<u32>)> = Vec::new();
     for s in &stubs {
-        let root = b.ring(o + s.axis * HUB, s.u, s.v, s.outer_r, 40);
+        let hub_half = if s.axis.z != 0.0 { HUB_Z } else { HUB };
+        let root = b.ring(o + s.axis * hub_half, s.u, s.v, s.outer_r, 40);
         let end_outer = b.ring(o + s.axis * s.end, s.u, s.v, s.outer_r, 40);
         let end_bore = b.ring(o + s.axis * s.end, s.u, s.v, s.bore_r, 32);
         let bore_root = b.ring(o + s.axis * CAVITY, s.u, s.v, s.bore_r, 32);
@@ -422,17 +425,20 @@ fn t_pipe() -> Mesh {
     }
     // A mounting foot off-centre under the hub: from below, where the branch is hidden, the run
     // and the square hub alone would repeat every half turn about x.
-    let foot_centre = Point3::new(10.0, 12.0, -HUB);
+    let foot_centre = Point3::new(10.0, 12.0, -HUB_Z);
     let foot_root = b.ring(foot_centre, x, y, FOOT_R, 24);
     let foot_end = b.ring(foot_centre - z * FOOT_H, x, y, FOOT_R, 24);
     b.strip(&foot_root, &foot_end);
     b.planar(&foot_end, &[]);
     hub_holes.push((-z, foot_root));
-    for (half, holes) in [(HUB, &hub_holes), (CAVITY, &cavity_holes)] {
+    for (half, holes) in [
+        (Vector3::new(HUB, HUB, HUB_Z), &hub_holes),
+        (Vector3::repeat(CAVITY), &cavity_holes),
+    ] {
         let corners: Vec<u32> = (0..8)
             .map(|i| {
-                let s = |bit: usize| if i & bit == 0 { -half } else { half };
-                b.vertex(Point3::new(s(1), s(2), s(4)))
+                let s = |bit: usize, h: f64| if i & bit == 0 { -h } else { h };
+                b.vertex(Point3::new(s(1, half.x), s(2, half.y), s(4, half.z)))
             })
             .collect();
         let faces = [

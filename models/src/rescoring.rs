@@ -50,6 +50,9 @@ pub struct RescoringParams {
     pub min_conflict_mm: f32,
     /// Exponent of the silhouette agreement in the score; 0 scores by the fit alone.
     pub silhouette_weight: f32,
+    /// The silhouette agreement divides by at least this fraction of the whole outline, hidden
+    /// parts included (see [`crate::filters::OutlineCounts::fraction_of_at_least`]).
+    pub min_visible_outline: f32,
     /// Silhouettes are rendered from a copy of the model's mesh with vertices merged on a grid
     /// of this fraction of the diameter: the outline moves by less than a cell, rendering gets
     /// 2–3 times cheaper on scanned meshes.
@@ -83,7 +86,8 @@ impl Default for RescoringParams {
             max_normal_angle_deg: 45.0,
             conflict_fraction: 0.1,
             min_conflict_mm: 15.0,
-            silhouette_weight: 1.0,
+            silhouette_weight: 1.5,
+            min_visible_outline: 0.5,
             silhouette_mesh_cell_fraction: 0.025,
         }
     }
@@ -207,7 +211,7 @@ pub fn rescore(
 
 /// Measures the silhouette agreement of every pose in `scored` (rendering `mesh`, whose
 /// bounding sphere is `sphere`, against the scene's `edges`), folds it into the score with
-/// exponent `weight` and sorts best first (ties: more votes first). A pose whose outline is
+/// exponent `params.silhouette_weight` and sorts best first (ties: more votes first). A pose whose outline is
 /// nowhere visible gets agreement 0.
 pub fn with_silhouettes(
     scored: &mut [Scored],
@@ -216,12 +220,13 @@ pub fn with_silhouettes(
     scene: &SceneImage,
     edges: &crate::filters::EdgeMap,
     occlusion_tolerance_mm: f32,
-    weight: f32,
+    params: &RescoringParams,
 ) {
+    let weight = params.silhouette_weight;
     scored
         .par_iter_mut()
         .for_each_init(crate::render::Renderer::new, |renderer, s| {
-            let f = crate::filters::silhouette_fraction(
+            let f = crate::filters::outline_counts(
                 renderer,
                 mesh,
                 sphere,
@@ -230,6 +235,7 @@ pub fn with_silhouettes(
                 edges,
                 occlusion_tolerance_mm,
             )
+            .and_then(|c| c.fraction_of_at_least(params.min_visible_outline))
             .unwrap_or(0.0);
             s.silhouette = Some(f);
             s.score = s.fit_score * f.powf(weight);

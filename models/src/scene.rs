@@ -76,7 +76,7 @@ impl Default for SceneParams {
     fn default() -> Self {
         Self {
             normal_radius_mm: 5.0,
-            normal_radius_px: 0,
+            normal_radius_px: 3,
             max_depth_jump_mm: 6.0,
             max_depth_jump_fraction: 0.01,
             smoothing_radius_px: 2,

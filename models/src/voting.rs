@@ -43,7 +43,7 @@ pub struct VotingParams {
 impl Default for VotingParams {
     fn default() -> Self {
         Self {
-            reference_step: 5,
+            reference_step: 2,
             neighbour_keys: true,
             vote_once: true,
             peaks_per_reference: 3,

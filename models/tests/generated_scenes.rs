@@ -1,12 +1,17 @@
 //! Detection on generated scenes: generated parts at random poses, with and without sensor
 //! noise and occluders. Runs anywhere (no data files).
 
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use ppfd_models::clustering::cluster_poses;
 use ppfd_models::detector::{DetectOptions, DetectParams, Detector};
+use ppfd_models::mesh::Mesh;
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_models::parts::Part;
+use ppfd_models::render::bounding_sphere;
 use ppfd_models::scene::{prepare, PreparedScene};
-use ppfd_models::synthetic::{random_pose_in_view, NoiseModel, Rng, SyntheticScene};
+use ppfd_models::synthetic::{
+    random_pose_in_view, NoiseModel, Occluder, Placement, Rng, SceneSpec, SyntheticScene,
+};
 use ppfd_models::voting::vote;
 use ppfd_models::Pose;
 
@@ -29,26 +34,33 @@ fn best_cluster(model: &ObjectModel, scene: &SyntheticScene, params: &DetectPara
     cluster_poses(&raw, model.diameter_mm(), &params.clustering)[0].pose
 }
 
-#[test]
-#[ignore = "target of the detection issue not reached yet: about 13-19 of 50 best clusters within 0.05 D and 5 deg"]
-fn noise_free_single_object_at_random_poses() {
-    let params = DetectParams::new();
-    let mut rng = Rng::new(11);
-    let mut hits = 0;
-    let runs = 50;
-    let models: Vec<ObjectModel> = Part::ALL
+/// One model of each generated part.
+fn part_models() -> Vec<ObjectModel> {
+    Part::ALL
         .iter()
         .map(|p| {
             ObjectModel::build(&p.mesh(), p.object_id(), p.name(), &ModelParams::default()).unwrap()
         })
-        .collect();
+        .collect()
+}
+
+/// `runs` scenes made by `scene_of(run, part, model, pose)` for poses drawn from `seed`, parts
+/// in turn; returns how many best clusters lie within 0.05 D and 5° of the truth.
+fn best_cluster_hits(
+    runs: usize,
+    seed: u64,
+    scene_of: impl Fn(usize, Part, &ObjectModel, Pose) -> SyntheticScene,
+) -> usize {
+    let params = DetectParams::new();
+    let mut rng = Rng::new(seed);
+    let models = part_models();
+    let mut hits = 0;
     for i in 0..runs {
         let part = Part::ALL[i % Part::ALL.len()];
         let model = &models[i % Part::ALL.len()];
         let d = model.diameter_mm();
         let pose = random_pose_in_view(&mut rng, d, (600.0, 1000.0));
-        let scene =
-            SyntheticScene::single(&part.mesh(), part.object_id(), pose, None, i as u64).unwrap();
+        let scene = scene_of(i, part, model, pose);
         let best = best_cluster(model, &scene, &params);
         let (dt, dr) = errors(&best, &pose);
         if dt < 0.05 * d && dr < 5.0 {
@@ -60,8 +72,78 @@ fn noise_free_single_object_at_random_poses() {
             );
         }
     }
+    hits
+}
+
+#[test]
+fn noise_free_single_object_at_random_poses() {
+    let runs = 50;
+    let hits = best_cluster_hits(runs, 11, |i, part, _, pose| {
+        SyntheticScene::single(&part.mesh(), part.object_id(), pose, None, i as u64).unwrap()
+    });
     eprintln!("noise-free: {hits}/{runs} best clusters within 0.05 D and 5 deg");
     assert!(hits as f32 >= 0.95 * runs as f32, "{hits}/{runs}");
+}
+
+/// `mesh` at `pose` in front of the camera (no table), with Kinect-like noise and two round
+/// bars across the view between it and the camera, one upright left of its centre, one level
+/// above it: together they hide some 10–35 % of it.
+fn occluded_scene(mesh: &Mesh, object_id: u32, pose: Pose, seed: u64) -> SyntheticScene {
+    let (centre, radius) = bounding_sphere(mesh);
+    let c = pose * centre;
+    let z = c.z - radius - 80.0;
+    let scale = z / c.z;
+    let at = |dx: f32, dy: f32| Translation3::new((c.x + dx) * scale, (c.y + dy) * scale, z);
+    let bar_radius = 0.2 * radius * scale;
+    let length = 3.0 * radius * scale;
+    let upright = Occluder::Cylinder {
+        radius_mm: bar_radius,
+        height_mm: length,
+        pose: Isometry3::from_parts(
+            at(-0.75 * radius, 0.0),
+            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f32::consts::FRAC_PI_2),
+        ),
+    };
+    let level = Occluder::Cylinder {
+        radius_mm: bar_radius,
+        height_mm: length,
+        pose: Isometry3::from_parts(
+            at(0.0, 0.75 * radius),
+            UnitQuaternion::from_axis_angle(&Vector3::y_axis(), std::f32::consts::FRAC_PI_2),
+        ),
+    };
+    SceneSpec::new(seed)
+        .table(false)
+        .camera(Isometry3::identity())
+        .object_with(object_id, mesh, Placement::At(pose))
+        .noise(Some(NoiseModel::kinect()))
+        .occluder(upright)
+        .occluder(level)
+        .build()
+        .unwrap()
+}
+
+#[test]
+#[ignore = "target of the detection issue not reached: about 80 % of best clusters within 0.05 D and 5 deg (the rotation about a part's near-symmetry axis is the weak spot)"]
+fn noisy_single_object_behind_two_occluders() {
+    let runs = 40;
+    let visible = std::cell::RefCell::new(Vec::new());
+    let hits = best_cluster_hits(runs, 12, |i, part, _, pose| {
+        let scene = occluded_scene(&part.mesh(), part.object_id(), pose, i as u64);
+        visible.borrow_mut().push(scene.visible_fraction[0]);
+        scene
+    });
+    let visible = visible.into_inner();
+    let mean_visible = visible.iter().sum::<f32>() / visible.len() as f32;
+    eprintln!(
+        "noise and two occluders: {hits}/{runs} best clusters within 0.05 D and 5 deg \
+         (mean visible fraction {mean_visible:.2})"
+    );
+    assert!(
+        mean_visible < 0.9,
+        "the occluders hide too little: {mean_visible}"
+    );
+    assert!(hits as f32 >= 0.85 * runs as f32, "{hits}/{runs}");
 }
 
 #[test]

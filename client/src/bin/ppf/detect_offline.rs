@@ -104,6 +104,12 @@ pub fn set_param(p: &mut ppfd_models::detector::DetectParams, kv: &str) -> Resul
         "voting.vote_once" => p.voting.vote_once = b()?,
         "clustering.translation_fraction" => p.clustering.translation_fraction = f()?,
         "clustering.rotation_deg" => p.clustering.rotation_deg = f()?,
+        "clustering.refine_rotation_deg" => p.clustering.refine_rotation_deg = f()?,
+        "clustering.refine_rotation_shrink" => p.clustering.refine_rotation_shrink = f()?,
+        "clustering.refine_translation_fraction" => p.clustering.refine_translation_fraction = f()?,
+        "clustering.refine_iterations" => p.clustering.refine_iterations = u()?,
+        "clustering.refine_from_densest" => p.clustering.refine_from_densest = b()?,
+        "voting.interpolate_alpha" => p.voting.interpolate_alpha = b()?,
         "rescoring.top_clusters" => p.rescoring.top_clusters = u()?,
         "rescoring.tolerance_fraction" => p.rescoring.tolerance_fraction = f()?,
         "rescoring.refined_tolerance_fraction" => p.rescoring.refined_tolerance_fraction = f()?,
@@ -112,6 +118,7 @@ pub fn set_param(p: &mut ppfd_models::detector::DetectParams, kv: &str) -> Resul
         "rescoring.conflict_fraction" => p.rescoring.conflict_fraction = f()?,
         "rescoring.min_conflict_mm" => p.rescoring.min_conflict_mm = f()?,
         "rescoring.silhouette_weight" => p.rescoring.silhouette_weight = f()?,
+        "rescoring.min_visible_outline" => p.rescoring.min_visible_outline = f()?,
         "rescoring.silhouette_mesh_cell_fraction" => {
             p.rescoring.silhouette_mesh_cell_fraction = f()?
         }
@@ -126,6 +133,7 @@ pub fn set_param(p: &mut ppfd_models::detector::DetectParams, kv: &str) -> Resul
         "filters.edge_jump_fraction" => p.filters.edge_jump_fraction = f()?,
         "filters.edge_radius_px" => p.filters.edge_radius_px = u()? as u32,
         "filters.min_silhouette_fraction" => p.filters.min_silhouette_fraction = f()?,
+        "filters.contour_probe_px" => p.filters.contour_probe_px = u()? as u32,
         "filters.max_candidates" => p.filters.max_candidates = u()?,
         "shared_cloud_diameter_ratio" => p.shared_cloud_diameter_ratio = f()?,
         _ => return Err(format!("unknown parameter {key:?}")),
@@ -356,7 +364,7 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
                 &scene,
                 &edges,
                 p.rescoring.conflict_mm(d),
-                p.rescoring.silhouette_weight,
+                &p.rescoring,
             );
         }
         let refined: Vec<_> = scored
@@ -380,7 +388,7 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
                 &scene,
                 &edges,
                 p.rescoring.conflict_mm(d),
-                p.rescoring.silhouette_weight,
+                &p.rescoring,
             );
         }
         let final_poses: Vec<_> = rescored.iter().map(|s| s.pose).collect();
