@@ -21,8 +21,12 @@ pub struct Intrinsics {
 
 impl Intrinsics {
     /// The LM-O (Kinect v1) camera, 640×480: the embedded default for generated scenes.
-    pub const LMO: Intrinsics =
-        Intrinsics { fx: 572.4114, fy: 573.57043, cx: 325.2611, cy: 242.04899 };
+    pub const LMO: Intrinsics = Intrinsics {
+        fx: 572.4114,
+        fy: 573.57043,
+        cx: 325.2611,
+        cy: 242.04899,
+    };
 
     /// Refuses focal lengths that are zero, negative or not finite, and non-finite centres.
     pub fn validate(&self) -> Result<()> {
@@ -51,7 +55,11 @@ impl Intrinsics {
     /// The camera-space point at pixel `(u, v)` with depth `z_mm`.
     #[inline]
     pub fn backproject(&self, u: f32, v: f32, z_mm: f32) -> Point3<f32> {
-        Point3::new((u - self.cx) * z_mm / self.fx, (v - self.cy) * z_mm / self.fy, z_mm)
+        Point3::new(
+            (u - self.cx) * z_mm / self.fx,
+            (v - self.cy) * z_mm / self.fy,
+            z_mm,
+        )
     }
 }
 
