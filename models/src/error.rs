@@ -31,6 +31,9 @@ pub enum Error {
     /// A model store file was refused (truncated, corrupted, wrong version or parameters).
     #[error("{path}: model file refused: {reason}")]
     ModelStore { path: PathBuf, reason: String },
+    /// The caller's deadline passed before the detection finished.
+    #[error("deadline exceeded after {elapsed:?}")]
+    DeadlineExceeded { elapsed: std::time::Duration },
     /// A dataset file (BOP layout) is missing or malformed; `field` names what was wrong.
     #[error("{path}: {reason}")]
     Dataset { path: PathBuf, reason: String },

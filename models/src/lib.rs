@@ -17,8 +17,18 @@
 //! coordinates, `p_cam = R p_model + t`, OpenCV camera convention.
 
 pub mod camera;
+pub mod clustering;
+pub mod detector;
 pub mod error;
+pub mod feature;
 pub mod mesh;
+pub mod model;
+pub mod sampling;
+pub mod scene;
+pub mod store;
+pub mod subsample;
+pub mod table;
+pub mod voting;
 
 pub use error::{Error, Result};
 

@@ -1,6 +1,18 @@
 //! Triangle meshes: an object's surface, in millimetres.
+//!
+//! A [`Mesh`] comes from a PLY file ([`Mesh::from_ply_file`], [`Mesh::from_ply_reader`]) or from
+//! generated triangles ([`Mesh::from_triangles`]). Either way every vertex carries a unit normal.
+
+use std::path::Path;
 
 use nalgebra::{Point3, Vector3};
+
+use crate::{Error, Pose, Result};
+
+mod ply;
+
+/// Largest deviation from 1 that [`Mesh::validate`] accepts in a normal's length.
+const UNIT_NORMAL_TOLERANCE: f32 = 1e-3;
 
 /// A triangle mesh with one unit normal per vertex.
 ///
@@ -15,4 +27,417 @@ pub struct Mesh {
     pub normals: Vec<Vector3<f32>>,
     /// Triangles as indices into `positions` (counter-clockwise seen from outside).
     pub faces: Vec<[u32; 3]>,
+}
+
+/// An axis-aligned box, millimetres.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BoundingBox {
+    /// The corner with the smallest coordinates.
+    pub min: Point3<f32>,
+    /// The corner with the largest coordinates.
+    pub max: Point3<f32>,
+}
+
+impl BoundingBox {
+    /// Edge lengths along x, y and z.
+    pub fn size(&self) -> Vector3<f32> {
+        self.max - self.min
+    }
+
+    /// The centre of the box.
+    pub fn centre(&self) -> Point3<f32> {
+        nalgebra::center(&self.min, &self.max)
+    }
+
+    /// Length of the box's diagonal: an upper bound of the diameter of what it holds.
+    pub fn diagonal(&self) -> f32 {
+        self.size().norm()
+    }
+}
+
+impl Mesh {
+    /// Reads a PLY file (ASCII, binary little or big endian).
+    ///
+    /// Vertices need `x`, `y`, `z` (float, double or integer); `nx`, `ny`, `nz` are optional and
+    /// normalised when present; other vertex properties and other elements are ignored. Faces
+    /// are read from the `face` element's `vertex_indices` (or `vertex_index`) list of any
+    /// integer type; polygons are fan-triangulated and degenerate triangles (a repeated index or
+    /// zero area) are skipped. Vertices without normals in the file (or with a zero-length one)
+    /// get the area-weighted normal of their faces, as in [`Mesh::from_triangles`].
+    ///
+    /// Errors: [`Error::Io`] when the file cannot be opened, [`Error::Ply`] naming what is wrong
+    /// and where for anything malformed (truncated data, a missing coordinate, a non-finite
+    /// value, a face index out of range, no vertices, a vertex that can get no normal).
+    pub fn from_ply_file(path: impl AsRef<Path>) -> Result<Mesh> {
+        let path = path.as_ref();
+        let file = std::fs::File::open(path).map_err(|source| Error::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        ply::read_mesh(file, path)
+    }
+
+    /// Reads a PLY mesh from any reader, exactly as [`Mesh::from_ply_file`] does; errors name
+    /// `name_for_errors` as the path.
+    pub fn from_ply_reader<R: std::io::Read>(
+        reader: R,
+        name_for_errors: impl AsRef<Path>,
+    ) -> Result<Mesh> {
+        ply::read_mesh(reader, name_for_errors.as_ref())
+    }
+
+    /// Builds a mesh from vertex positions and triangles, with area-weighted vertex normals.
+    ///
+    /// Degenerate triangles (a repeated index or zero area) are dropped. A vertex whose triangle
+    /// normals cancel out (a two-sided sheet) takes the normal of its largest triangle. Refuses (with
+    /// [`Error::InvalidMesh`]) an empty vertex list, non-finite positions, indices out of range,
+    /// and vertices that lie on no triangle of non-zero area (they can get no normal).
+    pub fn from_triangles(positions: Vec<Point3<f32>>, faces: &[[u32; 3]]) -> Result<Mesh> {
+        if positions.is_empty() {
+            return Err(Error::InvalidMesh("the mesh has no vertices".into()));
+        }
+        if let Some(i) = positions
+            .iter()
+            .position(|p| !p.coords.iter().all(|c| c.is_finite()))
+        {
+            return Err(Error::InvalidMesh(format!(
+                "vertex {i} has a non-finite position {:?}",
+                positions[i].coords.as_slice()
+            )));
+        }
+        let mut kept = Vec::with_capacity(faces.len());
+        for (f, face) in faces.iter().enumerate() {
+            if let Some(&bad) = face.iter().find(|&&v| v as usize >= positions.len()) {
+                return Err(Error::InvalidMesh(format!(
+                    "face {f}: vertex index {bad} is out of range (the mesh has {} vertices)",
+                    positions.len()
+                )));
+            }
+            if !is_degenerate(&positions, *face) {
+                kept.push(*face);
+            }
+        }
+        let mut normals = Vec::with_capacity(positions.len());
+        for (i, normal) in vertex_normals_from_faces(&positions, &kept)
+            .into_iter()
+            .enumerate()
+        {
+            match normal {
+                Some(n) => normals.push(n),
+                None => {
+                    return Err(Error::InvalidMesh(format!(
+                        "vertex {i} lies on no triangle of non-zero area, so it has no normal"
+                    )))
+                }
+            }
+        }
+        Ok(Mesh {
+            positions,
+            normals,
+            faces: kept,
+        })
+    }
+
+    /// Checks the invariants the rest of the crate relies on: at least one vertex, one normal
+    /// per vertex, finite positions, unit normals (within 1e-3), face indices in range.
+    pub fn validate(&self) -> Result<()> {
+        if self.positions.is_empty() {
+            return Err(Error::InvalidMesh("the mesh has no vertices".into()));
+        }
+        if self.normals.len() != self.positions.len() {
+            return Err(Error::InvalidMesh(format!(
+                "{} vertices need as many normals, got {}",
+                self.positions.len(),
+                self.normals.len()
+            )));
+        }
+        for (i, (p, n)) in self.positions.iter().zip(&self.normals).enumerate() {
+            if !p.coords.iter().all(|c| c.is_finite()) {
+                return Err(Error::InvalidMesh(format!(
+                    "vertex {i} has a non-finite position {:?}",
+                    p.coords.as_slice()
+                )));
+            }
+            let length = n.norm();
+            if length.is_nan() || (length - 1.0).abs() > UNIT_NORMAL_TOLERANCE {
+                return Err(Error::InvalidMesh(format!(
+                    "vertex {i}: normal {:?} has length {length}, expected 1",
+                    n.as_slice()
+                )));
+            }
+        }
+        for (f, face) in self.faces.iter().enumerate() {
+            if let Some(&bad) = face.iter().find(|&&v| v as usize >= self.positions.len()) {
+                return Err(Error::InvalidMesh(format!(
+                    "face {f}: vertex index {bad} is out of range (the mesh has {} vertices)",
+                    self.positions.len()
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// The smallest axis-aligned box holding every vertex; `None` for a mesh with no vertices.
+    pub fn bounding_box(&self) -> Option<BoundingBox> {
+        let first = *self.positions.first()?;
+        let (min, max) = self.positions.iter().fold((first, first), |(lo, hi), p| {
+            (
+                lo.coords.inf(&p.coords).into(),
+                hi.coords.sup(&p.coords).into(),
+            )
+        });
+        Some(BoundingBox { min, max })
+    }
+
+    /// Total area of the triangles, square millimetres (0 for a mesh without faces).
+    pub fn surface_area(&self) -> f32 {
+        let twice: f64 = self
+            .faces
+            .iter()
+            .map(|&[a, b, c]| {
+                let [a, b, c] = [a, b, c].map(|i| self.positions[i as usize].cast::<f64>());
+                (b - a).cross(&(c - a)).norm()
+            })
+            .sum();
+        (0.5 * twice) as f32
+    }
+
+    /// This mesh moved by `pose`: positions transformed, normals rotated, faces unchanged.
+    pub fn transformed(&self, pose: &Pose) -> Mesh {
+        Mesh {
+            positions: self.positions.iter().map(|p| pose * p).collect(),
+            normals: self.normals.iter().map(|n| pose.rotation * n).collect(),
+            faces: self.faces.clone(),
+        }
+    }
+}
+
+/// True when a triangle has a repeated index or (numerically) zero area.
+fn is_degenerate(positions: &[Point3<f32>], [a, b, c]: [u32; 3]) -> bool {
+    if a == b || b == c || a == c {
+        return true;
+    }
+    let [pa, pb, pc] = [a, b, c].map(|i| positions[i as usize].cast::<f64>());
+    let (e1, e2) = (pb - pa, pc - pa);
+    let twice_area = e1.cross(&e2).norm();
+    // Relative test: sin of the angle at `a` below 1e-9 is collinear up to rounding.
+    twice_area.is_nan() || twice_area <= 1e-9 * e1.norm() * e2.norm()
+}
+
+/// Per vertex, the area-weighted mean of its triangles' normals, or `None` for a vertex on no
+/// triangle of non-zero area.
+///
+/// Where the normals cancel out (a two-sided sheet: the same triangle twice with opposite
+/// windings), the vertex takes the normal of its largest triangle instead: either side is as
+/// good as the other, and the vertex keeps its place in the mesh.
+fn vertex_normals_from_faces(
+    positions: &[Point3<f32>],
+    faces: &[[u32; 3]],
+) -> Vec<Option<Vector3<f32>>> {
+    // f64 so that large meshes do not lose small triangles.
+    let mut sums = vec![Vector3::<f64>::zeros(); positions.len()];
+    let mut total_area = vec![0.0f64; positions.len()];
+    let mut largest = vec![(0.0f64, Vector3::<f64>::zeros()); positions.len()];
+    for &[a, b, c] in faces {
+        let [pa, pb, pc] = [a, b, c].map(|i| positions[i as usize].cast::<f64>());
+        let weighted = (pb - pa).cross(&(pc - pa));
+        let area = weighted.norm();
+        for i in [a, b, c].map(|i| i as usize) {
+            sums[i] += weighted;
+            total_area[i] += area;
+            if area > largest[i].0 {
+                largest[i] = (area, weighted);
+            }
+        }
+    }
+    (0..positions.len())
+        .map(|i| {
+            if sums[i].norm() > 1e-6 * total_area[i] {
+                unit_f32(&sums[i])
+            } else {
+                unit_f32(&largest[i].1)
+            }
+        })
+        .collect()
+}
+
+/// `v` scaled to unit length in f32, or `None` when it has no direction.
+fn unit_f32(v: &Vector3<f64>) -> Option<Vector3<f32>> {
+    let length = v.norm();
+    if !(length > 0.0 && length.is_finite()) {
+        return None;
+    }
+    let n = (v / length).cast::<f32>();
+    // Re-normalise in f32 so that the stored length is 1 to f32 precision.
+    Some(n / n.norm())
+}
+
+/// The shared test data (`../shared/data` beside the workspace, or `$PPFD_SHARED_DATA`), or
+/// `None` with a printed reason when it is absent; absent data fails the test under `CI=true`.
+#[cfg(test)]
+pub(crate) fn shared_test_data() -> Option<std::path::PathBuf> {
+    let root = std::env::var_os("PPFD_SHARED_DATA")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data").into());
+    if root.is_dir() {
+        return Some(root);
+    }
+    let ci = std::env::var("CI").is_ok_and(|v| v == "true");
+    assert!(
+        !ci,
+        "CI=true but the shared test data is missing at {}",
+        root.display()
+    );
+    println!("skipped: no shared test data at {}", root.display());
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    /// A 20 mm cube centred at the origin, as 12 outward-facing triangles.
+    fn cube() -> Mesh {
+        let positions: Vec<Point3<f32>> = (0..8u32)
+            .map(|i| {
+                let s = |bit: u32| if i & bit != 0 { 10.0 } else { -10.0 };
+                Point3::new(s(1), s(2), s(4))
+            })
+            .collect();
+        let quads = [
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+        ];
+        let faces: Vec<[u32; 3]> = quads
+            .iter()
+            .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+            .collect();
+        Mesh::from_triangles(positions, &faces).unwrap()
+    }
+
+    #[test]
+    fn cube_normals_point_outward_and_are_unit() {
+        let mesh = cube();
+        mesh.validate().unwrap();
+        for (p, n) in mesh.positions.iter().zip(&mesh.normals) {
+            assert!((n.norm() - 1.0).abs() < 1e-6);
+            assert!(
+                n.dot(&p.coords.normalize()) > 0.5,
+                "normal {n:?} at {p:?} points inward"
+            );
+        }
+    }
+
+    #[test]
+    fn cube_area_and_box() {
+        let mesh = cube();
+        assert!(
+            (mesh.surface_area() - 2400.0).abs() < 1e-3,
+            "area {}",
+            mesh.surface_area()
+        );
+        let bb = mesh.bounding_box().unwrap();
+        assert_eq!(bb.min, Point3::new(-10.0, -10.0, -10.0));
+        assert_eq!(bb.max, Point3::new(10.0, 10.0, 10.0));
+        assert_eq!(bb.size(), Vector3::new(20.0, 20.0, 20.0));
+        assert_eq!(bb.centre(), Point3::origin());
+        assert!(Mesh::default().bounding_box().is_none());
+    }
+
+    #[test]
+    fn degenerate_triangles_are_dropped() {
+        let positions = vec![
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(1.0, 0.0, 0.0),
+            Point3::new(0.0, 1.0, 0.0),
+            Point3::new(2.0, 0.0, 0.0),
+        ];
+        // Repeated index, then collinear points, then one good triangle.
+        let mesh = Mesh::from_triangles(positions, &[[0, 0, 1], [0, 1, 3], [0, 1, 2], [1, 3, 2]]);
+        let mesh = mesh.unwrap();
+        assert_eq!(mesh.faces, vec![[0, 1, 2], [1, 3, 2]]);
+        assert!(mesh
+            .normals
+            .iter()
+            .all(|n| (n - Vector3::z()).norm() < 1e-6));
+    }
+
+    #[test]
+    fn two_sided_sheet_gets_the_normal_of_its_largest_triangle() {
+        let positions = vec![
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(1.0, 0.0, 0.0),
+            Point3::new(0.0, 1.0, 0.0),
+        ];
+        let mesh = Mesh::from_triangles(positions, &[[0, 1, 2], [1, 0, 2]]).unwrap();
+        for n in &mesh.normals {
+            assert!((n.z.abs() - 1.0).abs() < 1e-6, "{n:?}");
+        }
+    }
+
+    #[test]
+    fn vertex_on_no_face_is_refused() {
+        let positions = vec![
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(1.0, 0.0, 0.0),
+            Point3::new(0.0, 1.0, 0.0),
+            Point3::new(5.0, 5.0, 5.0),
+        ];
+        let err = Mesh::from_triangles(positions, &[[0, 1, 2]]).unwrap_err();
+        assert!(matches!(err, Error::InvalidMesh(_)));
+        assert!(err.to_string().contains("vertex 3"), "{err}");
+    }
+
+    #[test]
+    fn transformed_moves_points_and_rotates_normals() {
+        let mesh = cube();
+        let pose = Pose::from_parts(
+            Translation3::new(100.0, -50.0, 700.0),
+            UnitQuaternion::from_euler_angles(0.3, -1.1, 2.0),
+        );
+        let moved = mesh.transformed(&pose);
+        moved.validate().unwrap();
+        assert_eq!(moved.faces, mesh.faces);
+        for i in 0..mesh.positions.len() {
+            let expected = pose.rotation * mesh.positions[i] + pose.translation.vector;
+            assert!((moved.positions[i] - expected).norm() < 1e-3);
+            assert!((moved.normals[i] - pose.rotation * mesh.normals[i]).norm() < 1e-6);
+        }
+        assert!((moved.surface_area() - mesh.surface_area()).abs() < 1e-2);
+    }
+
+    #[test]
+    fn validate_catches_broken_meshes() {
+        let good = cube();
+        let mut short = good.clone();
+        short.normals.pop();
+        assert!(short
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("normals"));
+        let mut long_normal = good.clone();
+        long_normal.normals[3] *= 2.0;
+        assert!(long_normal
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("vertex 3"));
+        let mut bad_face = good.clone();
+        bad_face.faces[5] = [0, 1, 8];
+        assert!(bad_face
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("face 5"));
+        let mut nan = good;
+        nan.positions[2].x = f32::NAN;
+        assert!(nan.validate().unwrap_err().to_string().contains("vertex 2"));
+        assert!(Mesh::default().validate().is_err());
+    }
 }

@@ -1,0 +1,208 @@
+//! Pose clustering (METHOD.md §3.1): hypotheses sorted by votes are grouped greedily around the
+//! best one not yet grouped; a cluster's score is its members' summed votes and its pose their
+//! vote-weighted average, rotations averaged as sign-aligned unit quaternions and renormalised.
+
+use std::collections::HashMap;
+
+use nalgebra::{Quaternion, Translation3, UnitQuaternion, Vector3, Vector4};
+
+use crate::voting::Hypothesis;
+use crate::Pose;
+
+/// Parameters of pose clustering.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ClusteringParams {
+    /// Two poses belong together when their translations differ by less than this fraction of
+    /// the model diameter. METHOD.md suggests about 0.1 D.
+    pub translation_fraction: f32,
+    /// ...and their rotations by less than this angle, degrees. Twice the α bin width (12°)
+    /// leaves room for the quantisation of α and of the feature.
+    pub rotation_deg: f32,
+}
+
+impl Default for ClusteringParams {
+    fn default() -> Self {
+        Self {
+            translation_fraction: 0.1,
+            rotation_deg: 24.0,
+        }
+    }
+}
+
+/// A group of similar hypotheses.
+#[derive(Clone, Debug)]
+pub struct PoseCluster {
+    /// The averaged pose.
+    pub pose: Pose,
+    /// Summed votes of the members.
+    pub votes: u32,
+    /// Number of members.
+    pub members: u32,
+}
+
+struct Accumulating {
+    seed: Pose,
+    quaternion_sum: Vector4<f32>,
+    translation_sum: Vector3<f32>,
+    votes: u32,
+    members: u32,
+}
+
+/// Clusters `hypotheses` of a model of diameter `diameter_mm`; the result is sorted by votes,
+/// best first.
+pub fn cluster_poses(
+    hypotheses: &[Hypothesis],
+    diameter_mm: f32,
+    params: &ClusteringParams,
+) -> Vec<PoseCluster> {
+    let mut order: Vec<usize> = (0..hypotheses.len()).collect();
+    order.sort_by(|&a, &b| {
+        hypotheses[b]
+            .votes
+            .cmp(&hypotheses[a].votes)
+            .then(a.cmp(&b))
+    });
+    let max_t = params.translation_fraction * diameter_mm;
+    let max_t2 = max_t * max_t;
+    // |q1 · q2| = cos(θ/2) for the angle θ between two rotations.
+    let min_dot = (params.rotation_deg.to_radians() / 2.0).cos();
+    let inv_cell = 1.0 / max_t;
+    let cell_of = |t: &Vector3<f32>| {
+        (
+            (t.x * inv_cell).floor() as i32,
+            (t.y * inv_cell).floor() as i32,
+            (t.z * inv_cell).floor() as i32,
+        )
+    };
+    let mut clusters: Vec<Accumulating> = Vec::new();
+    let mut grid: HashMap<(i32, i32, i32), Vec<u32>> = HashMap::new();
+    for i in order {
+        let h = &hypotheses[i];
+        let t = h.pose.translation.vector;
+        let q = h.pose.rotation;
+        let (cx, cy, cz) = cell_of(&t);
+        let mut joined = None;
+        'search: for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    let Some(list) = grid.get(&(cx + dx, cy + dy, cz + dz)) else {
+                        continue;
+                    };
+                    for &c in list {
+                        let seed = &clusters[c as usize].seed;
+                        if (seed.translation.vector - t).norm_squared() < max_t2
+                            && seed.rotation.coords.dot(&q.coords).abs() >= min_dot
+                        {
+                            joined = Some(c as usize);
+                            break 'search;
+                        }
+                    }
+                }
+            }
+        }
+        let w = h.votes as f32;
+        match joined {
+            Some(c) => {
+                let cl = &mut clusters[c];
+                let sign = if cl.seed.rotation.coords.dot(&q.coords) < 0.0 {
+                    -1.0
+                } else {
+                    1.0
+                };
+                cl.quaternion_sum += q.coords * (sign * w);
+                cl.translation_sum += t * w;
+                cl.votes += h.votes;
+                cl.members += 1;
+            }
+            None => {
+                grid.entry((cx, cy, cz))
+                    .or_default()
+                    .push(clusters.len() as u32);
+                clusters.push(Accumulating {
+                    seed: h.pose,
+                    quaternion_sum: q.coords * w,
+                    translation_sum: t * w,
+                    votes: h.votes,
+                    members: 1,
+                });
+            }
+        }
+    }
+    let mut out: Vec<PoseCluster> = clusters
+        .into_iter()
+        .map(|c| {
+            let w = c.votes.max(1) as f32;
+            let rotation = if c.quaternion_sum.norm() > 1e-9 {
+                UnitQuaternion::from_quaternion(Quaternion::from(c.quaternion_sum))
+            } else {
+                c.seed.rotation
+            };
+            PoseCluster {
+                pose: Pose::from_parts(Translation3::from(c.translation_sum / w), rotation),
+                votes: c.votes,
+                members: c.members,
+            }
+        })
+        .collect();
+    out.sort_by(|a, b| b.votes.cmp(&a.votes));
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Unit;
+
+    fn hyp(t: [f32; 3], axis: [f32; 3], angle_deg: f32, votes: u32) -> Hypothesis {
+        Hypothesis {
+            pose: Pose::from_parts(
+                Translation3::new(t[0], t[1], t[2]),
+                UnitQuaternion::from_axis_angle(
+                    &Unit::new_normalize(Vector3::from(axis)),
+                    angle_deg.to_radians(),
+                ),
+            ),
+            votes,
+            scene_point: 0,
+            model_point: 0,
+        }
+    }
+
+    #[test]
+    fn close_poses_merge_and_far_ones_do_not() {
+        let hs = vec![
+            hyp([0.0, 0.0, 800.0], [0.0, 0.0, 1.0], 30.0, 10),
+            hyp([3.0, 0.0, 800.0], [0.0, 0.0, 1.0], 36.0, 10),
+            hyp([0.0, 0.0, 800.0], [0.0, 0.0, 1.0], 120.0, 5), // rotated away
+            hyp([50.0, 0.0, 800.0], [0.0, 0.0, 1.0], 30.0, 4), // translated away
+        ];
+        let cl = cluster_poses(&hs, 100.0, &ClusteringParams::default());
+        assert_eq!(cl.len(), 3);
+        assert_eq!(cl[0].votes, 20);
+        assert_eq!(cl[0].members, 2);
+        let angle = cl[0].pose.rotation.angle().to_degrees();
+        assert!((angle - 33.0).abs() < 0.01, "{angle}");
+        assert!((cl[0].pose.translation.x - 1.5).abs() < 1e-4);
+    }
+
+    #[test]
+    fn averaged_rotation_is_orthonormal_even_across_quaternion_signs() {
+        // The same rotation as q and -q, plus neighbours: the mean must stay a rotation.
+        let mut hs = Vec::new();
+        for (i, a) in [170.0f32, 175.0, 179.0, -179.0, -175.0].iter().enumerate() {
+            let mut h = hyp([0.0, 0.0, 900.0], [0.3, 0.5, 0.8], *a, 3 + i as u32);
+            if i % 2 == 0 {
+                h.pose.rotation = UnitQuaternion::new_unchecked(-h.pose.rotation.into_inner());
+            }
+            hs.push(h);
+        }
+        let cl = cluster_poses(&hs, 100.0, &ClusteringParams::default());
+        assert_eq!(cl.len(), 1);
+        let r = cl[0].pose.rotation.to_rotation_matrix().into_inner();
+        let err = (r.transpose() * r - nalgebra::Matrix3::identity()).norm();
+        assert!(err < 1e-5, "{err}");
+        assert!((r.determinant() - 1.0).abs() < 1e-5);
+        // The mean is near 180 degrees about the axis, not a collapse to identity.
+        assert!(cl[0].pose.rotation.angle().to_degrees() > 170.0);
+    }
+}

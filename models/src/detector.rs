@@ -1,0 +1,261 @@
+//! The detector: runs the whole pipeline on one depth frame for a set of object models.
+//!
+//! ```text
+//! frame ─► scene points (once) ─► subsampled cloud + kd-tree (per diameter group)
+//!        ─► per object: voting ─► pose clustering ─► re-scoring ─► ICP ─► filters ─► hypotheses
+//! ```
+
+use std::time::{Duration, Instant};
+
+use crate::camera::DepthFrame;
+use crate::clustering::{cluster_poses, ClusteringParams};
+use crate::model::ObjectModel;
+use crate::scene::{prepare_points, PreparedScene, SceneParams};
+use crate::subsample::SubsampleParams;
+use crate::voting::{vote, VotingParams};
+use crate::{Error, Pose, Result};
+
+/// Parameters of the whole detection pipeline, one struct per stage.
+#[derive(Clone, Debug, Default)]
+pub struct DetectParams {
+    pub scene: SceneParams,
+    pub voting: VotingParams,
+    pub clustering: ClusteringParams,
+    /// Objects whose diameters differ by at most this ratio share one subsampled scene cloud
+    /// (with the leaf of the smallest). 1.0 gives every object its own.
+    pub shared_cloud_diameter_ratio: f32,
+}
+
+impl DetectParams {
+    /// The paper's settings and this project's measured defaults.
+    pub fn new() -> Self {
+        Self {
+            shared_cloud_diameter_ratio: 1.25,
+            ..Default::default()
+        }
+    }
+}
+
+/// Per-call options.
+#[derive(Clone, Copy, Debug)]
+pub struct DetectOptions {
+    /// How many hypotheses to return per object, best first.
+    pub hypotheses_per_object: usize,
+    /// Give up (with [`Error::DeadlineExceeded`]) once this instant has passed.
+    pub deadline: Option<Instant>,
+}
+
+impl Default for DetectOptions {
+    fn default() -> Self {
+        Self {
+            hypotheses_per_object: 5,
+            deadline: None,
+        }
+    }
+}
+
+/// Which checks a hypothesis went through and passed (bit set).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Checks(pub u32);
+
+impl Checks {
+    /// Re-scored from the camera's view.
+    pub const RESCORED: u32 = 1;
+    /// Refined by projective ICP.
+    pub const REFINED: u32 = 2;
+    /// Passed the non-consistent-points filter.
+    pub const CONSISTENT: u32 = 4;
+    /// Passed the silhouette vs. scene edges filter.
+    pub const SILHOUETTE: u32 = 8;
+
+    pub fn has(&self, bit: u32) -> bool {
+        self.0 & bit != 0
+    }
+}
+
+/// One pose hypothesis for one object.
+#[derive(Clone, Copy, Debug)]
+pub struct Hypothesis {
+    /// Model to camera, mm.
+    pub pose: Pose,
+    /// The final score (votes until re-scoring runs; then the re-scoring's fit score).
+    pub score: f32,
+    /// Summed votes of the pose cluster.
+    pub votes: u32,
+    pub checks: Checks,
+}
+
+/// The hypotheses of one object, best first.
+#[derive(Clone, Debug)]
+pub struct ObjectDetections {
+    pub object_id: u32,
+    pub hypotheses: Vec<Hypothesis>,
+}
+
+/// Wall time per stage, summed over objects.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StageTimings {
+    pub scene_preparation: Duration,
+    pub kd_tree: Duration,
+    pub voting: Duration,
+    pub clustering: Duration,
+    pub rescoring: Duration,
+    pub icp: Duration,
+    pub filters: Duration,
+}
+
+impl StageTimings {
+    pub fn total(&self) -> Duration {
+        self.scene_preparation
+            + self.kd_tree
+            + self.voting
+            + self.clustering
+            + self.rescoring
+            + self.icp
+            + self.filters
+    }
+
+    fn add(&mut self, o: &StageTimings) {
+        self.scene_preparation += o.scene_preparation;
+        self.kd_tree += o.kd_tree;
+        self.voting += o.voting;
+        self.clustering += o.clustering;
+        self.rescoring += o.rescoring;
+        self.icp += o.icp;
+        self.filters += o.filters;
+    }
+}
+
+/// Sizes of the work done.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Counts {
+    /// Oriented points back-projected from the frame.
+    pub scene_points: u32,
+    /// Reference points, summed over objects.
+    pub reference_points: u32,
+    /// Point pairs that voted, summed over objects.
+    pub pairs: u64,
+    /// Hypotheses (accumulator peaks) before clustering, summed over objects.
+    pub hypotheses: u32,
+}
+
+/// The result of one detection.
+#[derive(Clone, Debug, Default)]
+pub struct Detections {
+    /// One entry per requested object, in request order.
+    pub objects: Vec<ObjectDetections>,
+    pub timings: StageTimings,
+    pub counts: Counts,
+    /// Per requested object, its own stage timings (scene preparation is shared and counted once
+    /// in `timings`).
+    pub per_object_timings: Vec<StageTimings>,
+}
+
+/// Runs detections; holds only parameters, so one detector serves any set of models.
+#[derive(Clone, Debug)]
+pub struct Detector {
+    params: DetectParams,
+}
+
+impl Default for Detector {
+    fn default() -> Self {
+        Self::new(DetectParams::new())
+    }
+}
+
+impl Detector {
+    pub fn new(params: DetectParams) -> Self {
+        Self { params }
+    }
+
+    pub fn params(&self) -> &DetectParams {
+        &self.params
+    }
+
+    /// Detects each of `models` in `frame`.
+    pub fn detect(
+        &self,
+        frame: &DepthFrame,
+        models: &[&ObjectModel],
+        opts: &DetectOptions,
+    ) -> Result<Detections> {
+        if models.is_empty() {
+            return Err(Error::InvalidParameter("no objects requested".into()));
+        }
+        if opts.hypotheses_per_object == 0 {
+            return Err(Error::InvalidParameter(
+                "hypotheses_per_object must be at least 1".into(),
+            ));
+        }
+        let check_deadline = |start: Instant| match opts.deadline {
+            Some(d) if Instant::now() > d => Err(Error::DeadlineExceeded {
+                elapsed: start.elapsed(),
+            }),
+            _ => Ok(()),
+        };
+        let start = Instant::now();
+        let mut out = Detections::default();
+        let t = Instant::now();
+        let points = prepare_points(frame, &self.params.scene)?;
+        out.timings.scene_preparation = t.elapsed();
+        out.counts.scene_points = points.len() as u32;
+
+        // Group objects by diameter so that similar sizes share one subsampled cloud.
+        let mut order: Vec<usize> = (0..models.len()).collect();
+        order.sort_by(|&a, &b| models[a].diameter_mm().total_cmp(&models[b].diameter_mm()));
+        let mut cloud_of = vec![0usize; models.len()];
+        let mut clouds: Vec<PreparedScene> = Vec::new();
+        let mut group_start_diameter = f32::NAN;
+        for &i in &order {
+            let d = models[i].diameter_mm();
+            if clouds.is_empty()
+                || d > group_start_diameter * self.params.shared_cloud_diameter_ratio
+            {
+                check_deadline(start)?;
+                group_start_diameter = d;
+                let p = models[i].params();
+                let sub = SubsampleParams {
+                    leaf_mm: p.leaf_fraction * d,
+                    cluster_angle: p.cluster_angle_deg.to_radians(),
+                    neighbour_filtering: p.neighbour_filtering,
+                };
+                let t = Instant::now();
+                clouds.push(PreparedScene::new(&points, &sub)?);
+                out.timings.kd_tree += t.elapsed();
+            }
+            cloud_of[i] = clouds.len() - 1;
+        }
+
+        for (i, model) in models.iter().enumerate() {
+            check_deadline(start)?;
+            let scene = &clouds[cloud_of[i]];
+            let mut timings = StageTimings::default();
+            let t = Instant::now();
+            let (raw, counts) = vote(model, scene, &self.params.voting);
+            timings.voting = t.elapsed();
+            let t = Instant::now();
+            let clusters = cluster_poses(&raw, model.diameter_mm(), &self.params.clustering);
+            timings.clustering = t.elapsed();
+            out.counts.reference_points += counts.reference_points;
+            out.counts.pairs += counts.pairs;
+            out.counts.hypotheses += raw.len() as u32;
+            let hypotheses = clusters
+                .iter()
+                .take(opts.hypotheses_per_object)
+                .map(|c| Hypothesis {
+                    pose: c.pose,
+                    score: c.votes as f32,
+                    votes: c.votes,
+                    checks: Checks::default(),
+                })
+                .collect();
+            out.objects.push(ObjectDetections {
+                object_id: model.object_id(),
+                hypotheses,
+            });
+            out.timings.add(&timings);
+            out.per_object_timings.push(timings);
+        }
+        Ok(out)
+    }
+}

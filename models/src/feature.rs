@@ -1,0 +1,477 @@
+//! The point pair feature (Drost et al. 2010) and its quantisation, with the paper's
+//! quantisation-error neighbour rule (Vidal et al. 2018, Fig. 4).
+//!
+//! For two oriented points `(m1, n1)`, `(m2, n2)` with `d = m2 − m1` the feature is
+//! `F = (‖d‖, ∠(n1, d), ∠(n2, d), ∠(n1, n2))`. A [`Quantizer`] turns it into a key of the dense
+//! lookup table; [`Quantizer::keys_with_neighbours`] also yields the neighbouring cells that sensor
+//! noise could have pushed the value into.
+//!
+//! [`LocalFrame`] is the transform `T` that moves a reference point to the origin and turns its
+//! normal onto +x; [`LocalFrame::alpha`] is the angle about x that brings a second point into the
+//! half-plane `y = 0, z > 0`. A model pair and a scene pair that match give the pose
+//! `T_s⁻¹ · R_x(α_m − α_s) · T_m`.
+
+use std::f32::consts::PI;
+
+use nalgebra::{Isometry3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+
+/// The four values of a point pair feature: distance in millimetres, three angles in radians in
+/// `[0, π]`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PointPairFeature {
+    /// `‖d‖`, millimetres.
+    pub distance_mm: f32,
+    /// `∠(n1, d)`.
+    pub angle_n1_d: f32,
+    /// `∠(n2, d)`.
+    pub angle_n2_d: f32,
+    /// `∠(n1, n2)`.
+    pub angle_n1_n2: f32,
+}
+
+/// Angle between two unit vectors, robust to rounding just outside `[-1, 1]`.
+#[inline]
+fn angle_between_unit(a: &Vector3<f32>, b: &Vector3<f32>) -> f32 {
+    a.dot(b).clamp(-1.0, 1.0).acos()
+}
+
+impl PointPairFeature {
+    /// The feature of the ordered pair; `None` when the points coincide (no direction).
+    /// Normals must be unit length.
+    #[inline]
+    pub fn compute(
+        p1: &Point3<f32>,
+        n1: &Vector3<f32>,
+        p2: &Point3<f32>,
+        n2: &Vector3<f32>,
+    ) -> Option<Self> {
+        let d = p2 - p1;
+        let distance_mm = d.norm();
+        if distance_mm <= f32::EPSILON {
+            return None;
+        }
+        let d = d / distance_mm;
+        Some(Self {
+            distance_mm,
+            angle_n1_d: angle_between_unit(n1, &d),
+            angle_n2_d: angle_between_unit(n2, &d),
+            angle_n1_n2: angle_between_unit(n1, n2),
+        })
+    }
+}
+
+/// Number of cells of the key space for the given bin counts.
+pub const fn key_count(distance_bins: u32, angle_bins: u32) -> usize {
+    (distance_bins * angle_bins * angle_bins * angle_bins) as usize
+}
+
+/// Turns features into lookup-table keys.
+///
+/// Distance bins are `distance_step_mm` wide starting at 0 (the paper: `D / 20`); angle bins
+/// split `[0, π]` evenly (the paper: 15 bins of 12°).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Quantizer {
+    pub distance_step_mm: f32,
+    pub distance_bins: u32,
+    pub angle_bins: u32,
+}
+
+/// At most this many keys come out of the neighbour rule: the exact cell plus up to 15.
+pub const MAX_KEYS: usize = 16;
+
+impl Quantizer {
+    /// A quantiser whose distance bins cover `[0, diameter_mm]`.
+    pub fn new(diameter_mm: f32, distance_bins: u32, angle_bins: u32) -> Self {
+        Self {
+            distance_step_mm: diameter_mm / distance_bins as f32,
+            distance_bins,
+            angle_bins,
+        }
+    }
+
+    /// Size of the key space.
+    pub fn key_count(&self) -> usize {
+        key_count(self.distance_bins, self.angle_bins)
+    }
+
+    #[inline]
+    fn angle_step(&self) -> f32 {
+        PI / self.angle_bins as f32
+    }
+
+    /// Continuous bin coordinates of the four dimensions (bin index + fraction inside the bin).
+    #[inline]
+    fn coordinates(&self, f: &PointPairFeature) -> [f32; 4] {
+        let a = self.angle_step();
+        [
+            f.distance_mm / self.distance_step_mm,
+            f.angle_n1_d / a,
+            f.angle_n2_d / a,
+            f.angle_n1_n2 / a,
+        ]
+    }
+
+    #[inline]
+    fn bins(&self) -> [u32; 4] {
+        [
+            self.distance_bins,
+            self.angle_bins,
+            self.angle_bins,
+            self.angle_bins,
+        ]
+    }
+
+    #[inline]
+    fn pack(&self, b: [u32; 4]) -> u32 {
+        ((b[0] * self.angle_bins + b[1]) * self.angle_bins + b[2]) * self.angle_bins + b[3]
+    }
+
+    /// Bin of one dimension. A value exactly on the upper end (distance = diameter, angle = π)
+    /// belongs to the last bin; a distance past it has no bin.
+    #[inline]
+    fn bin_of(x: f32, bins: u32, clamp: bool) -> Option<u32> {
+        let b = x.floor();
+        if b < 0.0 {
+            return if clamp { Some(0) } else { None };
+        }
+        let b = b as u32;
+        if b < bins {
+            Some(b)
+        } else if clamp || x <= bins as f32 {
+            Some(bins - 1)
+        } else {
+            None
+        }
+    }
+
+    /// The key of the cell the feature falls in; `None` if its distance is beyond the last bin.
+    #[inline]
+    pub fn key(&self, f: &PointPairFeature) -> Option<u32> {
+        let c = self.coordinates(f);
+        let n = self.bins();
+        let mut b = [0u32; 4];
+        for i in 0..4 {
+            b[i] = Self::bin_of(c[i], n[i], i > 0)?;
+        }
+        Some(self.pack(b))
+    }
+
+    /// The paper's rule (Fig. 4c): per dimension, a value in the lower third of its bin also
+    /// uses the bin below, one in the upper third also the bin above. Writes the cartesian
+    /// product (the exact key first, at most [`MAX_KEYS`]) into `out` and returns how many.
+    /// Angle bins clamp at 0 and π; distance bins outside the table are dropped.
+    #[inline]
+    pub fn keys_with_neighbours(&self, f: &PointPairFeature, out: &mut [u32; MAX_KEYS]) -> usize {
+        let c = self.coordinates(f);
+        let n = self.bins();
+        // Per dimension: the exact bin and, optionally, one neighbour.
+        let mut choices = [[0u32; 2]; 4];
+        let mut counts = [1usize; 4];
+        for i in 0..4 {
+            let Some(b) = Self::bin_of(c[i], n[i], i > 0) else {
+                return 0;
+            };
+            choices[i][0] = b;
+            let frac = c[i] - b as f32;
+            if frac < 1.0 / 3.0 && b > 0 {
+                choices[i][1] = b - 1;
+                counts[i] = 2;
+            } else if frac > 2.0 / 3.0 && b + 1 < n[i] {
+                choices[i][1] = b + 1;
+                counts[i] = 2;
+            }
+        }
+        let mut len = 0;
+        for i0 in 0..counts[0] {
+            for i1 in 0..counts[1] {
+                for i2 in 0..counts[2] {
+                    for i3 in 0..counts[3] {
+                        out[len] = self.pack([
+                            choices[0][i0],
+                            choices[1][i1],
+                            choices[2][i2],
+                            choices[3][i3],
+                        ]);
+                        len += 1;
+                    }
+                }
+            }
+        }
+        len
+    }
+}
+
+/// The transform of a reference point into its local coordinates: the point to the origin, its
+/// normal onto +x (Drost et al. 2010).
+#[derive(Clone, Copy, Debug)]
+pub struct LocalFrame {
+    rotation: Rotation3<f32>,
+    origin: Point3<f32>,
+}
+
+impl LocalFrame {
+    /// The frame of the oriented point `(p, n)`; `n` must be unit length.
+    pub fn new(p: &Point3<f32>, n: &Vector3<f32>) -> Self {
+        let x = Vector3::x();
+        let cos = n.dot(&x).clamp(-1.0, 1.0);
+        let rotation = if cos > 1.0 - 1e-7 {
+            Rotation3::identity()
+        } else if cos < -1.0 + 1e-7 {
+            // Antiparallel: any half turn about an axis perpendicular to x.
+            Rotation3::from_axis_angle(&Vector3::z_axis(), PI)
+        } else {
+            let axis = nalgebra::Unit::new_normalize(n.cross(&x));
+            Rotation3::from_axis_angle(&axis, cos.acos())
+        };
+        Self {
+            rotation,
+            origin: *p,
+        }
+    }
+
+    /// `T · q`: a point in this frame's local coordinates.
+    #[inline]
+    pub fn transform(&self, q: &Point3<f32>) -> Vector3<f32> {
+        self.rotation * (q - self.origin)
+    }
+
+    /// `α`: the angle about x that brings `T · q` into the half-plane `y = 0, z > 0`, in
+    /// `(−π, π]`.
+    #[inline]
+    pub fn alpha(&self, q: &Point3<f32>) -> f32 {
+        let v = self.transform(q);
+        v.y.atan2(v.z)
+    }
+
+    /// `T` as an isometry.
+    pub fn isometry(&self) -> Isometry3<f32> {
+        let r = UnitQuaternion::from_rotation_matrix(&self.rotation);
+        Isometry3::from_parts(Translation3::from(r * -self.origin.coords), r)
+    }
+}
+
+/// The pose `T_s⁻¹ · R_x(α) · T_m` that maps a model reference point onto a scene reference
+/// point, turned by `α = α_m − α_s` about the shared normal.
+pub fn pose_from_alignment(
+    scene_frame: &LocalFrame,
+    model_frame: &LocalFrame,
+    alpha: f32,
+) -> Isometry3<f32> {
+    let rx = Isometry3::rotation(Vector3::x() * alpha);
+    scene_frame.isometry().inverse() * rx * model_frame.isometry()
+}
+
+/// Wraps an angle into `[−π, π)`.
+#[inline]
+pub fn wrap_angle(a: f32) -> f32 {
+    let mut a = (a + PI).rem_euclid(2.0 * PI) - PI;
+    if a >= PI {
+        a -= 2.0 * PI;
+    }
+    a
+}
+
+/// Bin of a wrapped angle in `[−π, π)` among `bins` equal bins.
+#[inline]
+pub fn alpha_bin(alpha: f32, bins: u32) -> u32 {
+    let b = ((alpha + PI) * (bins as f32 / (2.0 * PI))) as i64;
+    b.clamp(0, bins as i64 - 1) as u32
+}
+
+/// Centre angle of an α bin, in `[−π, π)`.
+#[inline]
+pub fn alpha_of_bin(bin: u32, bins: u32) -> f32 {
+    -PI + (bin as f32 + 0.5) * (2.0 * PI / bins as f32)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Unit;
+
+    fn oriented(p: [f32; 3], n: [f32; 3]) -> (Point3<f32>, Vector3<f32>) {
+        (Point3::from(p), Vector3::from(n).normalize())
+    }
+
+    fn some_pose() -> Isometry3<f32> {
+        Isometry3::from_parts(
+            Translation3::new(12.0, -40.0, 730.0),
+            UnitQuaternion::from_axis_angle(
+                &Unit::new_normalize(Vector3::new(0.3, -0.8, 0.5)),
+                2.1,
+            ),
+        )
+    }
+
+    #[test]
+    fn feature_is_invariant_under_rigid_transform() {
+        let (p1, n1) = oriented([1.0, 2.0, 3.0], [0.2, 0.9, -0.1]);
+        let (p2, n2) = oriented([40.0, -10.0, 25.0], [-0.7, 0.1, 0.6]);
+        let f = PointPairFeature::compute(&p1, &n1, &p2, &n2).unwrap();
+        let t = some_pose();
+        let g = PointPairFeature::compute(&(t * p1), &(t * n1), &(t * p2), &(t * n2)).unwrap();
+        assert!((f.distance_mm - g.distance_mm).abs() < 1e-3);
+        assert!((f.angle_n1_d - g.angle_n1_d).abs() < 1e-4);
+        assert!((f.angle_n2_d - g.angle_n2_d).abs() < 1e-4);
+        assert!((f.angle_n1_n2 - g.angle_n1_n2).abs() < 1e-4);
+        // and the angles are real angles, not cosines
+        let d = (p2 - p1).normalize();
+        assert!((f.angle_n1_d - n1.dot(&d).acos()).abs() < 1e-6);
+    }
+
+    #[test]
+    fn coincident_points_have_no_feature() {
+        let (p, n) = oriented([1.0, 2.0, 3.0], [0.0, 0.0, 1.0]);
+        assert!(PointPairFeature::compute(&p, &n, &p, &n).is_none());
+    }
+
+    #[test]
+    fn pose_from_a_transformed_pair_is_that_pose() {
+        let pairs = [
+            (
+                [1.0, 2.0, 3.0],
+                [0.2, 0.9, -0.1],
+                [40.0, -10.0, 25.0],
+                [-0.7, 0.1, 0.6],
+            ),
+            (
+                [0.0, 0.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [0.0, 30.0, 5.0],
+                [0.0, 1.0, 0.0],
+            ),
+            (
+                [5.0, 5.0, 5.0],
+                [-1.0, 0.0, 0.0],
+                [5.0, -20.0, 9.0],
+                [0.0, 0.0, 1.0],
+            ),
+            (
+                [3.0, -7.0, 1.0],
+                [0.0, 0.0, -1.0],
+                [-13.0, 8.0, 10.0],
+                [0.5, 0.5, 0.5],
+            ),
+        ];
+        let truth = some_pose();
+        for (a, na, b, nb) in pairs {
+            let (m1, n1) = oriented(a, na);
+            let (m2, _) = oriented(b, nb);
+            let (s1, sn1, s2) = (truth * m1, truth * n1, truth * m2);
+            let model_frame = LocalFrame::new(&m1, &n1);
+            let scene_frame = LocalFrame::new(&s1, &sn1);
+            let alpha = model_frame.alpha(&m2) - scene_frame.alpha(&s2);
+            let pose = pose_from_alignment(&scene_frame, &model_frame, alpha);
+            let dr = (pose.rotation.to_rotation_matrix().matrix()
+                - truth.rotation.to_rotation_matrix().matrix())
+            .abs()
+            .max();
+            let dt = (pose.translation.vector - truth.translation.vector)
+                .abs()
+                .max();
+            assert!(dr < 1e-4, "rotation differs by {dr}");
+            assert!(dt / 730.0 < 1e-4, "translation differs by {dt} mm");
+        }
+    }
+
+    #[test]
+    fn local_frame_puts_normal_on_x_and_point_at_origin() {
+        for n in [
+            [0.0, 0.0, 1.0],
+            [1.0, 0.0, 0.0],
+            [-1.0, 0.0, 0.0],
+            [0.3, -0.4, 0.5],
+        ] {
+            let (p, n) = oriented([3.0, 4.0, 5.0], n);
+            let f = LocalFrame::new(&p, &n);
+            assert!(f.transform(&p).norm() < 1e-5);
+            let rotated = f.isometry() * n;
+            assert!((rotated - Vector3::x()).norm() < 1e-5, "{rotated:?}");
+        }
+    }
+
+    #[test]
+    fn alpha_brings_point_into_the_positive_z_half_plane() {
+        let (p, n) = oriented([0.0, 0.0, 0.0], [0.3, 0.1, 0.9]);
+        let f = LocalFrame::new(&p, &n);
+        let q = Point3::new(10.0, -20.0, 7.0);
+        let a = f.alpha(&q);
+        let v = Rotation3::from_axis_angle(&Vector3::x_axis(), a) * f.transform(&q);
+        assert!(v.y.abs() < 1e-4 && v.z > 0.0, "{v:?}");
+    }
+
+    #[test]
+    fn exact_key_and_bins() {
+        let q = Quantizer::new(100.0, 20, 15);
+        assert_eq!(q.key_count(), 67_500);
+        let step = PI / 15.0;
+        let f = PointPairFeature {
+            distance_mm: 12.5,      // bin 2 (step 5 mm), middle
+            angle_n1_d: 0.5 * step, // bin 0
+            angle_n2_d: 7.5 * step, // bin 7
+            angle_n1_n2: PI,        // last bin
+        };
+        assert_eq!(q.key(&f), Some(((2 * 15) * 15 + 7) * 15 + 14));
+        // distance exactly the diameter is in the last bin, beyond it in none
+        let mut g = f;
+        g.distance_mm = 100.0;
+        assert_eq!(q.key(&g).map(|k| k / (15 * 15 * 15)), Some(19));
+        g.distance_mm = 100.5;
+        assert_eq!(q.key(&g), None);
+    }
+
+    #[test]
+    fn neighbour_rule_follows_thirds() {
+        let q = Quantizer::new(100.0, 20, 15);
+        let step = PI / 15.0;
+        let mut out = [0u32; MAX_KEYS];
+        // All four values in the middle third: only the exact key.
+        let mid = PointPairFeature {
+            distance_mm: 12.5,
+            angle_n1_d: 3.5 * step,
+            angle_n2_d: 7.5 * step,
+            angle_n1_n2: 9.5 * step,
+        };
+        assert_eq!(q.keys_with_neighbours(&mid, &mut out), 1);
+        assert_eq!(out[0], q.key(&mid).unwrap());
+        // All four near a bin border (and not at the table's ends): 2^4 keys, all distinct.
+        let border = PointPairFeature {
+            distance_mm: 10.5,      // lower third of bin 2 -> also bin 1
+            angle_n1_d: 3.9 * step, // upper third -> also bin 4
+            angle_n2_d: 7.1 * step, // lower third -> also bin 6
+            angle_n1_n2: 9.8 * step,
+        };
+        let n = q.keys_with_neighbours(&border, &mut out);
+        assert_eq!(n, 16);
+        let mut keys = out[..n].to_vec();
+        assert_eq!(keys[0], q.key(&border).unwrap());
+        keys.sort();
+        keys.dedup();
+        assert_eq!(keys.len(), 16);
+        let d = |k: u32| k / 3375;
+        let a1 = |k: u32| (k / 225) % 15;
+        assert!(keys.iter().all(|&k| d(k) == 1 || d(k) == 2));
+        assert!(keys.iter().all(|&k| a1(k) == 3 || a1(k) == 4));
+        // Angles clamp at 0 and pi, distance bin below 0 is dropped: no neighbours there.
+        let edge = PointPairFeature {
+            distance_mm: 0.5,
+            angle_n1_d: 0.0,
+            angle_n2_d: PI,
+            angle_n1_n2: 0.1 * step,
+        };
+        assert_eq!(q.keys_with_neighbours(&edge, &mut out), 1);
+    }
+
+    #[test]
+    fn alpha_wraps_and_bins() {
+        assert!((wrap_angle(3.0 * PI / 2.0) + PI / 2.0).abs() < 1e-5);
+        assert!((wrap_angle(-3.0 * PI / 2.0) - PI / 2.0).abs() < 1e-5);
+        assert!(wrap_angle(PI) < PI && wrap_angle(PI) >= -PI);
+        assert_eq!(alpha_bin(-PI, 30), 0);
+        assert_eq!(alpha_bin(PI - 1e-4, 30), 29);
+        assert_eq!(alpha_bin(0.01, 30), 15);
+        for b in 0..30 {
+            assert_eq!(alpha_bin(alpha_of_bin(b, 30), 30), b);
+        }
+    }
+}

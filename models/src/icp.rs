@@ -1,0 +1,109 @@
+//! Projective ICP (Rusinkiewicz & Levoy 2001), point-to-plane (METHOD.md §3.3).
+//!
+//! Correspondences come from projecting each visible model surface point into the depth image
+//! and taking the scene point measured at that pixel: no search. Each iteration solves the
+//! linearised point-to-plane problem (a 6×6 system) and rejects pairs farther apart than a
+//! distance that shrinks from iteration to iteration.
+
+use nalgebra::{Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+
+use crate::scene::SceneImage;
+use crate::subsample::OrientedPoints;
+use crate::Pose;
+
+/// Parameters of projective ICP.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IcpParams {
+    /// How many of the best re-scored poses are refined. The paper: 200.
+    pub top_poses: usize,
+    /// Iterations per pose.
+    pub iterations: usize,
+    /// Correspondences farther apart than this fraction of the diameter are rejected in the
+    /// first iteration; the limit halves each iteration down to `final_distance_fraction`.
+    pub initial_distance_fraction: f32,
+    pub final_distance_fraction: f32,
+    /// Pairs whose normals differ by more than this angle are rejected, degrees.
+    pub max_normal_angle_deg: f32,
+    /// Stop early when an update moves less than this, mm and radians.
+    pub convergence_translation_mm: f32,
+    pub convergence_rotation: f32,
+}
+
+impl Default for IcpParams {
+    fn default() -> Self {
+        Self {
+            top_poses: 200,
+            iterations: 8,
+            initial_distance_fraction: 0.1,
+            final_distance_fraction: 0.02,
+            max_normal_angle_deg: 60.0,
+            convergence_translation_mm: 0.05,
+            convergence_rotation: 1e-4,
+        }
+    }
+}
+
+/// What one ICP run did.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct IcpResult {
+    pub pose: Pose,
+    /// Correspondences used in the last iteration.
+    pub correspondences: u32,
+    /// Root mean square point-to-plane distance in the last iteration, mm.
+    pub rms_mm: f32,
+    pub iterations: u32,
+}
+
+/// Refines `pose` of the model `surface` against `scene`.
+pub fn refine(surface: &OrientedPoints, pose: &Pose, scene: &SceneImage, diameter_mm: f32, params: &IcpParams) -> IcpResult {
+    let k = &scene.intrinsics;
+    let cos_max = params.max_normal_angle_deg.to_radians().cos();
+    let mut pose = *pose;
+    let mut result = IcpResult { pose, ..Default::default() };
+    let mut max_d = params.initial_distance_fraction * diameter_mm;
+    let min_d = params.final_distance_fraction * diameter_mm;
+    for it in 0..params.iterations {
+        let mut ata = Matrix6::<f64>::zeros();
+        let mut atb = Vector6::<f64>::zeros();
+        let mut count = 0u32;
+        let mut sq = 0f64;
+        for (p, n) in surface.positions.iter().zip(&surface.normals) {
+            let pc: Point3<f32> = pose * p;
+            let nc: Vector3<f32> = pose * n;
+            if pc.z <= 0.0 || nc.dot(&pc.coords) >= 0.0 {
+                continue;
+            }
+            let uv = k.project(&pc);
+            let Some((q, qn)) = scene.at(uv.x.round() as i64, uv.y.round() as i64) else { continue };
+            let d = pc - q;
+            if d.norm_squared() > max_d * max_d || qn.dot(&nc) < cos_max {
+                continue;
+            }
+            // r = (p × n)·ω + n·δt + (p − q)·n, linear in the small motion (ω, δt).
+            let c = pc.coords.cross(&qn);
+            let row = Vector6::new(c.x as f64, c.y as f64, c.z as f64, qn.x as f64, qn.y as f64, qn.z as f64);
+            let r = d.dot(&qn) as f64;
+            ata += row * row.transpose();
+            atb -= row * r;
+            sq += r * r;
+            count += 1;
+        }
+        result.correspondences = count;
+        result.iterations = it as u32 + 1;
+        if count < 6 {
+            break;
+        }
+        result.rms_mm = (sq / count as f64).sqrt() as f32;
+        let Some(x) = ata.cholesky().map(|c| c.solve(&atb)) else { break };
+        let omega = Vector3::new(x[0] as f32, x[1] as f32, x[2] as f32);
+        let dt = Vector3::new(x[3] as f32, x[4] as f32, x[5] as f32);
+        let update = Pose::from_parts(Translation3::from(dt), UnitQuaternion::from_scaled_axis(omega));
+        pose = update * pose;
+        result.pose = pose;
+        max_d = (max_d * 0.5).max(min_d);
+        if dt.norm() < params.convergence_translation_mm && omega.norm() < params.convergence_rotation {
+            break;
+        }
+    }
+    result
+}

@@ -1,0 +1,1032 @@
+//! PLY input: the header decides what is read, one element at a time, so that every error can
+//! say which element (and, for ASCII, which line) was wrong.
+
+use std::io::{BufRead, BufReader, ErrorKind, Read};
+use std::path::Path;
+
+use nalgebra::{Point3, Vector3};
+use ply_rs_bw::parser::{ParseError, Parser, Reader};
+use ply_rs_bw::ply::{
+    ElementDef, Encoding, Header, Property, PropertyAccess, PropertyAccessResult, PropertyType,
+    ScalarType,
+};
+
+use super::{is_degenerate, unit_f32, vertex_normals_from_faces, Mesh};
+use crate::{Error, Result};
+
+/// Names of the face element's index list, in order of preference.
+const FACE_INDEX_NAMES: [&str; 2] = ["vertex_indices", "vertex_index"];
+
+/// Caps what a header's element count can make us allocate before the data is seen.
+const MAX_PREALLOCATED: usize = 1 << 16;
+
+/// One vertex as stored in the file: `x y z nx ny nz` (zero where the header has no such
+/// property), whatever their scalar type.
+#[derive(Clone, Copy, Default)]
+struct VertexRecord {
+    values: [f64; 6],
+}
+
+impl PropertyAccess for VertexRecord {
+    fn new() -> Self {
+        Self::default()
+    }
+
+    fn set_property(&mut self, name: &str, property: Property) -> PropertyAccessResult {
+        let slot = match name {
+            "x" => 0,
+            "y" => 1,
+            "z" => 2,
+            "nx" => 3,
+            "ny" => 4,
+            "nz" => 5,
+            _ => return PropertyAccessResult::Ignored,
+        };
+        match scalar_as_f64(&property) {
+            Some(v) => {
+                self.values[slot] = v;
+                PropertyAccessResult::Set
+            }
+            None => PropertyAccessResult::UnsupportedType,
+        }
+    }
+}
+
+/// One face as stored in the file: its vertex indices, widened so that negative ones survive
+/// until they are reported.
+#[derive(Default)]
+struct FaceRecord {
+    indices: Vec<i64>,
+}
+
+impl PropertyAccess for FaceRecord {
+    fn new() -> Self {
+        Self::default()
+    }
+
+    fn set_property(&mut self, name: &str, property: Property) -> PropertyAccessResult {
+        if !FACE_INDEX_NAMES.contains(&name) {
+            return PropertyAccessResult::Ignored;
+        }
+        fn widen<T: Copy + Into<i64>>(values: &[T]) -> Vec<i64> {
+            values.iter().map(|&v| v.into()).collect()
+        }
+        self.indices = match &property {
+            Property::ListChar(v) => widen(v),
+            Property::ListUChar(v) => widen(v),
+            Property::ListShort(v) => widen(v),
+            Property::ListUShort(v) => widen(v),
+            Property::ListInt(v) => widen(v),
+            Property::ListUInt(v) => widen(v),
+            _ => return PropertyAccessResult::UnsupportedType,
+        };
+        PropertyAccessResult::Set
+    }
+}
+
+/// An element this reader does not use: read past, nothing kept.
+struct Skipped;
+
+impl PropertyAccess for Skipped {
+    fn new() -> Self {
+        Skipped
+    }
+}
+
+fn scalar_as_f64(property: &Property) -> Option<f64> {
+    Some(match *property {
+        Property::Char(v) => v.into(),
+        Property::UChar(v) => v.into(),
+        Property::Short(v) => v.into(),
+        Property::UShort(v) => v.into(),
+        Property::Int(v) => v.into(),
+        Property::UInt(v) => v.into(),
+        Property::Float(v) => v.into(),
+        Property::Double(v) => v,
+        _ => return None,
+    })
+}
+
+/// What the header promises, checked before any data is read.
+struct Layout {
+    has_normals: bool,
+}
+
+impl Layout {
+    fn from_header(header: &Header) -> std::result::Result<Layout, String> {
+        let vertex = header.elements.get("vertex").ok_or_else(|| {
+            "the mesh is empty: the header declares no 'vertex' element".to_string()
+        })?;
+        if vertex.count == 0 {
+            return Err("the mesh is empty: the header declares 0 vertices".into());
+        }
+        let is_number = |name: &str| -> std::result::Result<bool, String> {
+            match vertex.properties.get(name).map(|p| &p.data_type) {
+                None => Ok(false),
+                Some(PropertyType::Scalar(_)) => Ok(true),
+                Some(PropertyType::List(..)) => Err(format!(
+                    "vertex property '{name}' is a list, expected one number"
+                )),
+            }
+        };
+        for axis in ["x", "y", "z"] {
+            if !is_number(axis)? {
+                return Err(format!(
+                    "the 'vertex' element has no '{axis}' property (vertices need x, y and z)"
+                ));
+            }
+        }
+        let normal_axes = [is_number("nx")?, is_number("ny")?, is_number("nz")?];
+        let has_normals = normal_axes.iter().all(|&b| b);
+        if !has_normals && normal_axes.iter().any(|&b| b) {
+            return Err("vertex normals need nx, ny and nz; the header declares only some".into());
+        }
+        if let Some(face) = header.elements.get("face") {
+            let lists: Vec<_> = FACE_INDEX_NAMES
+                .iter()
+                .filter_map(|n| face.properties.get(*n))
+                .collect();
+            match lists.as_slice() {
+                [] => {
+                    return Err(
+                        "the 'face' element has no 'vertex_indices' (or 'vertex_index') \
+                                property"
+                            .into(),
+                    )
+                }
+                [one] => match &one.data_type {
+                    PropertyType::List(_, ScalarType::Float | ScalarType::Double) => {
+                        return Err(format!(
+                            "face property '{}' holds floating-point values, expected integer \
+                             vertex indices",
+                            one.name
+                        ))
+                    }
+                    PropertyType::List(..) => {}
+                    PropertyType::Scalar(_) => {
+                        return Err(format!(
+                            "face property '{}' is a single number, expected a list of vertex \
+                             indices",
+                            one.name
+                        ))
+                    }
+                },
+                _ => {
+                    return Err(
+                        "the 'face' element has both 'vertex_indices' and 'vertex_index'; \
+                                expected one"
+                            .into(),
+                    )
+                }
+            }
+        }
+        Ok(Layout { has_normals })
+    }
+}
+
+/// Reads a whole mesh; see [`Mesh::from_ply_file`] for what is accepted.
+pub(super) fn read_mesh<R: Read>(source: R, path: &Path) -> Result<Mesh> {
+    let fail = |reason: String| Error::Ply {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let mut reader = Reader::new(BufReader::new(source));
+    let header = Parser::<Skipped>::new()
+        .read_header(&mut reader)
+        .map_err(|e| fail(format!("bad header: {}", flatten(&e))))?;
+    let layout = Layout::from_header(&header).map_err(fail)?;
+
+    let mut vertices: Vec<VertexRecord> = Vec::new();
+    let mut faces: Vec<FaceRecord> = Vec::new();
+    let mut line = reader.line();
+    for (name, element) in &header.elements {
+        let input = reader.get_mut();
+        match name.as_str() {
+            "vertex" => {
+                vertices = read_element(input, &header, element, &mut line).map_err(fail)?
+            }
+            "face" => faces = read_element(input, &header, element, &mut line).map_err(fail)?,
+            _ => drop(read_element::<Skipped>(input, &header, element, &mut line).map_err(fail)?),
+        }
+    }
+    build_mesh(&vertices, &faces, layout.has_normals).map_err(fail)
+}
+
+/// The plural a message uses for `element`'s items.
+fn noun(element: &ElementDef) -> String {
+    match element.name.as_str() {
+        "vertex" => "vertices".into(),
+        "face" => "faces".into(),
+        other => format!("'{other}' elements"),
+    }
+}
+
+/// Reads the `element.count` items of one element, tracking the ASCII line number.
+fn read_element<E: PropertyAccess>(
+    input: &mut impl BufRead,
+    header: &Header,
+    element: &ElementDef,
+    line_number: &mut usize,
+) -> std::result::Result<Vec<E>, String> {
+    let parser = Parser::<E>::new();
+    let mut items = Vec::with_capacity(element.count.min(MAX_PREALLOCATED));
+    let truncated = |i: usize| {
+        format!(
+            "truncated: the data ends after {i} of the {} {} the header declares",
+            element.count,
+            noun(element)
+        )
+    };
+    let item_name = match element.name.as_str() {
+        "vertex" | "face" => element.name.clone(),
+        other => format!("'{other}' element"),
+    };
+    match header.encoding {
+        Encoding::Ascii => {
+            let scalars_only = element
+                .properties
+                .values()
+                .all(|p| matches!(p.data_type, PropertyType::Scalar(_)));
+            let mut text = String::new();
+            for i in 0..element.count {
+                text.clear();
+                let read = input
+                    .read_line(&mut text)
+                    .map_err(|e| format!("{item_name} {i} (line {line_number}): {e}"))?;
+                if read == 0 {
+                    return Err(truncated(i));
+                }
+                if scalars_only {
+                    let found = text.split_whitespace().count();
+                    if found != element.properties.len() {
+                        return Err(format!(
+                            "{item_name} {i} (line {line_number}): expected {} values, found \
+                             {found}; does the file hold all {} {} its header declares?",
+                            element.properties.len(),
+                            element.count,
+                            noun(element)
+                        ));
+                    }
+                }
+                let item = parser.read_ascii_element(&text, element).map_err(|e| {
+                    format!("{item_name} {i} (line {line_number}): {}", flatten(&e))
+                })?;
+                items.push(item);
+                *line_number += 1;
+            }
+        }
+        Encoding::BinaryLittleEndian | Encoding::BinaryBigEndian => {
+            let big = header.encoding == Encoding::BinaryBigEndian;
+            for i in 0..element.count {
+                let item = if big {
+                    parser.read_big_endian_element(input, element)
+                } else {
+                    parser.read_little_endian_element(input, element)
+                };
+                let item = item.map_err(|e| {
+                    if e.kind() == ErrorKind::UnexpectedEof {
+                        truncated(i)
+                    } else {
+                        format!("{item_name} {i}: {}", flatten(&e))
+                    }
+                })?;
+                items.push(item);
+            }
+        }
+    }
+    Ok(items)
+}
+
+/// Turns the records into a mesh: finite positions, fan-triangulated faces with indices in
+/// range, unit normals from the file or from the faces.
+fn build_mesh(
+    vertices: &[VertexRecord],
+    faces: &[FaceRecord],
+    has_normals: bool,
+) -> std::result::Result<Mesh, String> {
+    let mut positions = Vec::with_capacity(vertices.len());
+    for (i, v) in vertices.iter().enumerate() {
+        let p = Point3::new(v.values[0], v.values[1], v.values[2]).cast::<f32>();
+        if !p.coords.iter().all(|c| c.is_finite()) {
+            return Err(format!(
+                "vertex {i}: coordinates ({:?}, {:?}, {:?}) are not finite numbers",
+                v.values[0], v.values[1], v.values[2]
+            ));
+        }
+        positions.push(p);
+    }
+
+    let vertex_count = positions.len();
+    let mut triangles = Vec::with_capacity(faces.len());
+    let mut skipped = 0usize;
+    for (f, face) in faces.iter().enumerate() {
+        let mut indices = Vec::with_capacity(face.indices.len());
+        for &index in &face.indices {
+            match u32::try_from(index) {
+                Ok(v) if (v as usize) < vertex_count => indices.push(v),
+                _ => {
+                    return Err(format!(
+                        "face {f}: vertex index {index} is out of range (the mesh has \
+                         {vertex_count} vertices, valid indices are 0..{vertex_count})"
+                    ))
+                }
+            }
+        }
+        if indices.len() < 3 {
+            skipped += 1;
+            continue;
+        }
+        for k in 1..indices.len() - 1 {
+            let triangle = [indices[0], indices[k], indices[k + 1]];
+            if is_degenerate(&positions, triangle) {
+                skipped += 1;
+            } else {
+                triangles.push(triangle);
+            }
+        }
+    }
+    if skipped > 0 {
+        tracing::debug!(
+            skipped,
+            kept = triangles.len(),
+            "degenerate PLY faces skipped"
+        );
+    }
+
+    let mut face_normals = None;
+    let mut normals = Vec::with_capacity(vertex_count);
+    if has_normals {
+        for (i, v) in vertices.iter().enumerate() {
+            let n = Vector3::new(v.values[3], v.values[4], v.values[5]);
+            if !n.iter().all(|c| c.is_finite()) {
+                return Err(format!(
+                    "vertex {i}: normal ({}, {}, {}) is not finite",
+                    n.x, n.y, n.z
+                ));
+            }
+            let unit = match unit_f32(&n) {
+                Some(unit) => unit,
+                None if triangles.is_empty() => {
+                    return Err(format!(
+                        "vertex {i}: the normal has zero length and there are no faces to \
+                         compute one from"
+                    ))
+                }
+                None => {
+                    let from_faces = face_normals
+                        .get_or_insert_with(|| vertex_normals_from_faces(&positions, &triangles));
+                    from_faces[i].ok_or_else(|| {
+                        format!(
+                            "vertex {i}: the normal has zero length and the vertex lies on no \
+                             face of non-zero area to compute one from"
+                        )
+                    })?
+                }
+            };
+            normals.push(unit);
+        }
+    } else {
+        if triangles.is_empty() {
+            return Err(
+                "no normals and no faces to compute them from (the file has no \
+                        nx/ny/nz and no non-degenerate faces)"
+                    .into(),
+            );
+        }
+        for (i, normal) in vertex_normals_from_faces(&positions, &triangles)
+            .into_iter()
+            .enumerate()
+        {
+            normals.push(normal.ok_or_else(|| {
+                format!(
+                    "vertex {i}: the file has no normals and the vertex lies on no face of \
+                     non-zero area to compute one from"
+                )
+            })?);
+        }
+    }
+    Ok(Mesh {
+        positions,
+        normals,
+        faces: triangles,
+    })
+}
+
+/// A parser message on one line, without the grammar's internal debug dump.
+fn flatten(error: &ParseError) -> String {
+    let text = error.to_string().replace("\r\n'", "'").replace("\n'", "'");
+    text.split(['\n', '\t'])
+        .map(str::trim)
+        .filter(|s| !s.is_empty() && !s.starts_with("Error: ParseError"))
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::PathBuf;
+
+    #[derive(Clone, Copy, Debug)]
+    enum Format {
+        Ascii,
+        Le,
+        Be,
+    }
+
+    /// A PLY file described in the test: vertex properties with their types, rows of values,
+    /// and optionally a face list with its count/index types.
+    struct Fixture<'a> {
+        vertex_props: &'a [(&'a str, &'a str)],
+        vertices: Vec<Vec<f64>>,
+        /// (count type, index type, property name)
+        face_list: Option<(&'a str, &'a str, &'a str)>,
+        faces: Vec<Vec<i64>>,
+    }
+
+    fn put(out: &mut Vec<u8>, ty: &str, v: f64, format: Format) {
+        macro_rules! bytes {
+            ($t:ty) => {{
+                let x = v as $t;
+                match format {
+                    Format::Le => out.extend_from_slice(&x.to_le_bytes()),
+                    _ => out.extend_from_slice(&x.to_be_bytes()),
+                }
+            }};
+        }
+        match ty {
+            "char" => bytes!(i8),
+            "uchar" => bytes!(u8),
+            "short" => bytes!(i16),
+            "ushort" => bytes!(u16),
+            "int" => bytes!(i32),
+            "uint" => bytes!(u32),
+            "float" => bytes!(f32),
+            "double" => bytes!(f64),
+            other => panic!("unknown type {other}"),
+        }
+    }
+
+    fn ascii_value(ty: &str, v: f64) -> String {
+        match ty {
+            "float" | "double" => format!("{v}"),
+            _ => format!("{}", v as i64),
+        }
+    }
+
+    impl Fixture<'_> {
+        fn header(&self, format: Format, vertex_count: usize) -> String {
+            let name = match format {
+                Format::Ascii => "ascii",
+                Format::Le => "binary_little_endian",
+                Format::Be => "binary_big_endian",
+            };
+            let mut h = format!("ply\nformat {name} 1.0\ncomment test fixture\n");
+            h += &format!("element vertex {vertex_count}\n");
+            for (n, t) in self.vertex_props {
+                h += &format!("property {t} {n}\n");
+            }
+            if let Some((count_ty, index_ty, name)) = self.face_list {
+                h += &format!("element face {}\n", self.faces.len());
+                h += &format!("property list {count_ty} {index_ty} {name}\n");
+                h += "property uchar flags\n";
+            }
+            h + "end_header\n"
+        }
+
+        fn bytes(&self, format: Format) -> Vec<u8> {
+            self.bytes_with_vertex_count(format, self.vertices.len())
+        }
+
+        fn bytes_with_vertex_count(&self, format: Format, declared: usize) -> Vec<u8> {
+            let mut out = self.header(format, declared).into_bytes();
+            for row in &self.vertices {
+                assert_eq!(row.len(), self.vertex_props.len());
+                match format {
+                    Format::Ascii => {
+                        let tokens: Vec<String> = row
+                            .iter()
+                            .zip(self.vertex_props)
+                            .map(|(v, (_, t))| ascii_value(t, *v))
+                            .collect();
+                        out.extend_from_slice((tokens.join(" ") + "\n").as_bytes());
+                    }
+                    _ => {
+                        for (v, (_, t)) in row.iter().zip(self.vertex_props) {
+                            put(&mut out, t, *v, format);
+                        }
+                    }
+                }
+            }
+            if let Some((count_ty, index_ty, _)) = self.face_list {
+                for face in &self.faces {
+                    match format {
+                        Format::Ascii => {
+                            let mut tokens = vec![face.len().to_string()];
+                            tokens.extend(face.iter().map(|i| i.to_string()));
+                            tokens.push("7".into());
+                            out.extend_from_slice((tokens.join(" ") + "\n").as_bytes());
+                        }
+                        _ => {
+                            put(&mut out, count_ty, face.len() as f64, format);
+                            for &i in face {
+                                put(&mut out, index_ty, i as f64, format);
+                            }
+                            put(&mut out, "uchar", 7.0, format);
+                        }
+                    }
+                }
+            }
+            out
+        }
+    }
+
+    const XYZ: &[(&str, &str)] = &[("x", "float"), ("y", "float"), ("z", "float")];
+    const XYZ_RGB: &[(&str, &str)] = &[
+        ("x", "float"),
+        ("y", "float"),
+        ("z", "float"),
+        ("red", "uchar"),
+        ("green", "uchar"),
+        ("blue", "uchar"),
+        ("s", "float"),
+    ];
+    const XYZ_N: &[(&str, &str)] = &[
+        ("x", "float"),
+        ("y", "float"),
+        ("z", "float"),
+        ("nx", "float"),
+        ("ny", "float"),
+        ("nz", "float"),
+    ];
+
+    fn cube_corners() -> Vec<[f64; 3]> {
+        (0..8)
+            .map(|i| {
+                let s = |bit: i32| if i & bit != 0 { 10.0 } else { -10.0 };
+                [s(1), s(2), s(4)]
+            })
+            .collect()
+    }
+
+    /// The cube's six sides as quads, counter-clockwise seen from outside.
+    fn cube_quads() -> Vec<Vec<i64>> {
+        [
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+        ]
+        .iter()
+        .map(|q| q.to_vec())
+        .collect()
+    }
+
+    fn cube_fixture() -> Fixture<'static> {
+        let vertices = cube_corners()
+            .iter()
+            .enumerate()
+            .map(|(i, c)| vec![c[0], c[1], c[2], 200.0, i as f64, 3.0, 0.25])
+            .collect();
+        Fixture {
+            vertex_props: XYZ_RGB,
+            vertices,
+            face_list: Some(("uchar", "int", "vertex_indices")),
+            faces: cube_quads(),
+        }
+    }
+
+    fn read(bytes: &[u8]) -> Result<Mesh> {
+        Mesh::from_ply_reader(bytes, "fixture.ply")
+    }
+
+    /// Asserts a PLY error whose message holds every one of `needles`.
+    fn expect_ply_error(result: Result<Mesh>, needles: &[&str]) -> String {
+        match result {
+            Err(Error::Ply { path, reason }) => {
+                assert_eq!(path, PathBuf::from("fixture.ply"));
+                for needle in needles {
+                    assert!(
+                        reason.contains(needle),
+                        "message {reason:?} lacks {needle:?}"
+                    );
+                }
+                reason
+            }
+            Err(other) => panic!("expected a PLY error, got {other}"),
+            Ok(mesh) => panic!(
+                "expected a PLY error, got a mesh of {} vertices",
+                mesh.positions.len()
+            ),
+        }
+    }
+
+    #[test]
+    fn ascii_and_both_binary_encodings_agree() {
+        let fixture = cube_fixture();
+        let ascii = read(&fixture.bytes(Format::Ascii)).unwrap();
+        let le = read(&fixture.bytes(Format::Le)).unwrap();
+        let be = read(&fixture.bytes(Format::Be)).unwrap();
+        assert_eq!(ascii.positions.len(), 8);
+        assert_eq!(ascii.faces.len(), 12, "six quads fan into twelve triangles");
+        for other in [&le, &be] {
+            assert_eq!(ascii.positions, other.positions);
+            assert_eq!(ascii.normals, other.normals);
+            assert_eq!(ascii.faces, other.faces);
+        }
+        assert!((ascii.surface_area() - 2400.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn normals_from_faces_point_outward_and_are_unit() {
+        let mesh = read(&cube_fixture().bytes(Format::Le)).unwrap();
+        mesh.validate().unwrap();
+        for (p, n) in mesh.positions.iter().zip(&mesh.normals) {
+            assert!((n.norm() - 1.0).abs() < 1e-6, "normal {n:?} is not unit");
+            assert!(
+                n.dot(&p.coords.normalize()) > 0.5,
+                "normal {n:?} at {p:?} points inward"
+            );
+        }
+    }
+
+    #[test]
+    fn double_coordinates_and_normals() {
+        let props: &[(&str, &str)] = &[
+            ("x", "double"),
+            ("y", "double"),
+            ("z", "double"),
+            ("nx", "double"),
+            ("ny", "double"),
+            ("nz", "double"),
+        ];
+        let fixture = Fixture {
+            vertex_props: props,
+            vertices: vec![
+                vec![0.1, -2.5e3, 1e-7, 0.0, 0.0, 2.0],
+                vec![3.0, 4.0, 5.0, 3.0, 4.0, 0.0],
+            ],
+            face_list: None,
+            faces: vec![],
+        };
+        for format in [Format::Ascii, Format::Le, Format::Be] {
+            let mesh = read(&fixture.bytes(format)).unwrap();
+            assert_eq!(
+                mesh.positions[0],
+                Point3::new(0.1f64 as f32, -2500.0, 1e-7f64 as f32)
+            );
+            assert_eq!(mesh.normals[0], Vector3::z(), "{format:?}");
+            assert!(
+                (mesh.normals[1] - Vector3::new(0.6, 0.8, 0.0)).norm() < 1e-6,
+                "{format:?}"
+            );
+            assert!(mesh.faces.is_empty());
+        }
+    }
+
+    #[test]
+    fn non_unit_normals_are_normalised() {
+        let fixture = Fixture {
+            vertex_props: XYZ_N,
+            vertices: vec![
+                vec![0.0, 0.0, 0.0, 0.0, 0.0, 4.0],
+                vec![1.0, 0.0, 0.0, 0.01, 0.0, 0.0],
+                vec![0.0, 1.0, 0.0, -1.0, -1.0, -1.0],
+            ],
+            face_list: None,
+            faces: vec![],
+        };
+        let mesh = read(&fixture.bytes(Format::Ascii)).unwrap();
+        mesh.validate().unwrap();
+        assert_eq!(mesh.normals[0], Vector3::z());
+        assert_eq!(mesh.normals[1], Vector3::x());
+        let s = -1.0 / 3f32.sqrt();
+        assert!((mesh.normals[2] - Vector3::new(s, s, s)).norm() < 1e-6);
+    }
+
+    #[test]
+    fn zero_normal_is_recomputed_from_faces() {
+        let fixture = Fixture {
+            vertex_props: XYZ_N,
+            vertices: vec![
+                vec![0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+                vec![1.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+                vec![0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            ],
+            face_list: Some(("uchar", "uint", "vertex_indices")),
+            faces: vec![vec![0, 1, 2]],
+        };
+        let mesh = read(&fixture.bytes(Format::Be)).unwrap();
+        assert_eq!(mesh.normals[0], Vector3::z());
+    }
+
+    #[test]
+    fn zero_normal_without_faces_names_the_vertex() {
+        let fixture = Fixture {
+            vertex_props: XYZ_N,
+            vertices: vec![
+                vec![0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+                vec![1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+            ],
+            face_list: None,
+            faces: vec![],
+        };
+        expect_ply_error(
+            read(&fixture.bytes(Format::Ascii)),
+            &["vertex 1", "zero length"],
+        );
+    }
+
+    #[test]
+    fn no_normals_and_no_faces_is_refused() {
+        let fixture = Fixture {
+            vertex_props: XYZ,
+            vertices: vec![vec![0.0, 0.0, 0.0], vec![1.0, 0.0, 0.0]],
+            face_list: None,
+            faces: vec![],
+        };
+        expect_ply_error(
+            read(&fixture.bytes(Format::Le)),
+            &["no normals and no faces"],
+        );
+    }
+
+    #[test]
+    fn any_integer_index_type_and_either_list_name() {
+        let reference = read(&cube_fixture().bytes(Format::Le)).unwrap();
+        for (count_ty, index_ty, name) in [
+            ("uchar", "uchar", "vertex_index"),
+            ("ushort", "ushort", "vertex_indices"),
+            ("int", "short", "vertex_index"),
+            ("uint", "uint", "vertex_indices"),
+            ("char", "char", "vertex_indices"),
+        ] {
+            let mut fixture = cube_fixture();
+            fixture.face_list = Some((count_ty, index_ty, name));
+            for format in [Format::Ascii, Format::Le, Format::Be] {
+                let mesh = read(&fixture.bytes(format)).unwrap();
+                assert_eq!(
+                    mesh.faces, reference.faces,
+                    "{count_ty} {index_ty} {name} {format:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn degenerate_faces_are_skipped() {
+        let mut fixture = cube_fixture();
+        fixture
+            .vertices
+            .push(vec![-10.0, -10.0, 0.0, 0.0, 0.0, 0.0, 0.0]);
+        // A repeated index, a collinear triangle (vertex 8 lies on the edge 0-4), a two-index face.
+        fixture
+            .faces
+            .extend([vec![0, 0, 1], vec![0, 8, 4], vec![1, 2]]);
+        fixture.faces.push(vec![0, 4, 6, 2]);
+        let mesh = read(&fixture.bytes(Format::Le));
+        // Vertex 8 is on no face of non-zero area, so without normals it must be refused...
+        expect_ply_error(mesh, &["vertex 8"]);
+        // ...and with normals in the file it is kept while the bad faces are dropped.
+        let with_normals = Fixture {
+            vertex_props: XYZ_N,
+            vertices: fixture
+                .vertices
+                .iter()
+                .map(|v| vec![v[0], v[1], v[2], 0.0, 0.0, 1.0])
+                .collect(),
+            face_list: fixture.face_list,
+            faces: fixture.faces.clone(),
+        };
+        let mesh = read(&with_normals.bytes(Format::Ascii)).unwrap();
+        assert_eq!(mesh.positions.len(), 9);
+        assert_eq!(
+            mesh.faces.len(),
+            14,
+            "12 cube triangles and the repeated quad's two"
+        );
+    }
+
+    #[test]
+    fn truncated_payload_is_reported() {
+        let bytes = cube_fixture().bytes(Format::Le);
+        let cut = &bytes[..bytes.len() - 20];
+        expect_ply_error(read(cut), &["truncated", "faces", "of the 6"]);
+        // Cut inside the vertices too.
+        let header_len = cube_fixture().header(Format::Le, 8).len();
+        let cut = &bytes[..header_len + 3 * 19 + 5];
+        expect_ply_error(read(cut), &["truncated", "after 3 of the 8 vertices"]);
+    }
+
+    #[test]
+    fn fewer_vertices_than_the_header_declares() {
+        let fixture = cube_fixture();
+        // Header says 11, the file holds 8 vertex lines followed by the faces.
+        let ascii = fixture.bytes_with_vertex_count(Format::Ascii, 11);
+        let reason = expect_ply_error(read(&ascii), &["vertex 8", "11 vertices"]);
+        assert!(reason.contains("line"), "{reason}");
+        // Without faces the data simply ends early.
+        let no_faces = Fixture {
+            face_list: None,
+            faces: vec![],
+            ..cube_fixture()
+        };
+        let ascii = no_faces.bytes_with_vertex_count(Format::Ascii, 11);
+        expect_ply_error(read(&ascii), &["after 8 of the 11 vertices"]);
+        let binary = no_faces.bytes_with_vertex_count(Format::Be, 11);
+        expect_ply_error(read(&binary), &["after 8 of the 11 vertices"]);
+    }
+
+    #[test]
+    fn missing_coordinate_property() {
+        let props: &[(&str, &str)] = &[("x", "float"), ("z", "float"), ("nx", "float")];
+        let fixture = Fixture {
+            vertex_props: props,
+            vertices: vec![vec![1.0, 2.0, 3.0]],
+            face_list: None,
+            faces: vec![],
+        };
+        expect_ply_error(read(&fixture.bytes(Format::Ascii)), &["no 'y' property"]);
+    }
+
+    #[test]
+    fn nan_coordinate_names_the_vertex() {
+        let mut fixture = cube_fixture();
+        fixture.vertices[3][1] = f64::NAN;
+        expect_ply_error(
+            read(&fixture.bytes(Format::Le)),
+            &["vertex 3", "not finite"],
+        );
+        // ASCII has no spelling for NaN that the grammar accepts: that is a parse error.
+        let text = String::from_utf8(cube_fixture().bytes(Format::Ascii)).unwrap();
+        let text = text.replacen("\n10 -10 -10 ", "\n10 nan -10 ", 1);
+        // 15 header lines, then vertex 0 on line 16.
+        expect_ply_error(read(text.as_bytes()), &["vertex 1 (line 17)"]);
+    }
+
+    #[test]
+    fn infinite_coordinate_names_the_vertex() {
+        let mut fixture = cube_fixture();
+        fixture.vertices[6][2] = f64::INFINITY;
+        expect_ply_error(
+            read(&fixture.bytes(Format::Be)),
+            &["vertex 6", "inf", "not finite"],
+        );
+        // A double beyond f32's range is infinite once stored.
+        let props: &[(&str, &str)] = &[("x", "double"), ("y", "double"), ("z", "double")];
+        let fixture = Fixture {
+            vertex_props: props,
+            vertices: vec![
+                vec![0.0, 0.0, 0.0],
+                vec![1e300, 0.0, 0.0],
+                vec![0.0, 1.0, 0.0],
+            ],
+            face_list: Some(("uchar", "int", "vertex_indices")),
+            faces: vec![vec![0, 1, 2]],
+        };
+        expect_ply_error(
+            read(&fixture.bytes(Format::Le)),
+            &["vertex 1", "not finite"],
+        );
+    }
+
+    #[test]
+    fn face_index_out_of_range_names_face_and_index() {
+        let mut fixture = cube_fixture();
+        fixture.faces[4] = vec![0, 2, 9, 1];
+        for format in [Format::Ascii, Format::Le] {
+            expect_ply_error(
+                read(&fixture.bytes(format)),
+                &["face 4", "vertex index 9", "8 vertices"],
+            );
+        }
+        fixture.faces[4] = vec![0, -2, 3];
+        expect_ply_error(
+            read(&fixture.bytes(Format::Be)),
+            &["face 4", "vertex index -2"],
+        );
+    }
+
+    #[test]
+    fn empty_mesh_is_refused() {
+        let fixture = Fixture {
+            vertices: vec![],
+            face_list: None,
+            faces: vec![],
+            ..cube_fixture()
+        };
+        expect_ply_error(
+            read(&fixture.bytes(Format::Ascii)),
+            &["empty", "0 vertices"],
+        );
+        let no_vertex_element = b"ply\nformat ascii 1.0\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n";
+        expect_ply_error(read(no_vertex_element), &["empty", "no 'vertex' element"]);
+    }
+
+    #[test]
+    fn garbage_header_is_refused() {
+        expect_ply_error(read(b"\x89PNG\r\n\x1a\n garbage"), &["bad header"]);
+        expect_ply_error(read(b"hello world\n"), &["bad header", "magic number"]);
+        expect_ply_error(read(b""), &["bad header"]);
+        let bad_line =
+            b"ply\nformat ascii 1.0\nelement vertex eight\nproperty float x\nend_header\n";
+        expect_ply_error(read(bad_line), &["bad header", "Line 3"]);
+        let no_end = b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\n";
+        expect_ply_error(read(no_end), &["bad header", "end_header"]);
+    }
+
+    #[test]
+    fn float_face_indices_are_refused() {
+        let mut fixture = cube_fixture();
+        fixture.face_list = Some(("uchar", "float", "vertex_indices"));
+        expect_ply_error(
+            read(&fixture.bytes(Format::Le)),
+            &["floating-point", "vertex_indices"],
+        );
+    }
+
+    #[test]
+    fn missing_file_is_an_io_error() {
+        let err = Mesh::from_ply_file("/nonexistent/dir/obj_000001.ply").unwrap_err();
+        assert!(matches!(err, Error::Io { .. }), "{err}");
+        assert!(err.to_string().contains("obj_000001.ply"));
+    }
+
+    /// Every PLY file of the shared data set loads, with the header's vertex count and unit
+    /// normals.
+    #[test]
+    fn every_shared_ply_file_loads() {
+        let Some(root) = crate::mesh::shared_test_data() else {
+            return;
+        };
+        let mut files = Vec::new();
+        let mut dirs = vec![root];
+        while let Some(dir) = dirs.pop() {
+            for entry in std::fs::read_dir(&dir).unwrap() {
+                let path = entry.unwrap().path();
+                if path.is_dir() {
+                    dirs.push(path);
+                } else if path
+                    .extension()
+                    .is_some_and(|e| e.eq_ignore_ascii_case("ply"))
+                {
+                    files.push(path);
+                }
+            }
+        }
+        assert!(
+            files.len() >= 19,
+            "expected the shared PLY files, found {}",
+            files.len()
+        );
+        for path in &files {
+            let mesh = Mesh::from_ply_file(path).unwrap_or_else(|e| panic!("{e}"));
+            let header = Parser::<Skipped>::new()
+                .read_ply_header(&mut std::fs::File::open(path).unwrap())
+                .unwrap();
+            assert_eq!(
+                mesh.positions.len(),
+                header.elements["vertex"].count,
+                "{}",
+                path.display()
+            );
+            mesh.validate()
+                .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            for (i, n) in mesh.normals.iter().enumerate() {
+                assert!(
+                    (n.norm() - 1.0).abs() < 1e-5,
+                    "{}: normal {i} {n:?}",
+                    path.display()
+                );
+            }
+        }
+    }
+
+    /// Normals computed from the faces of BOP's evaluation meshes (which have none in the file)
+    /// point away from the object's centre almost everywhere: the windings are read right.
+    #[test]
+    fn normals_from_faces_of_real_meshes_point_outward() {
+        let Some(root) = crate::mesh::shared_test_data() else {
+            return;
+        };
+        for obj in [1, 5, 9] {
+            let path = root.join(format!("lmo/models_eval/obj_{obj:06}.ply"));
+            let mesh = Mesh::from_ply_file(&path).unwrap();
+            let centre = mesh.bounding_box().unwrap().centre();
+            let outward = mesh
+                .positions
+                .iter()
+                .zip(&mesh.normals)
+                .filter(|(p, n)| n.dot(&(*p - centre)) > 0.0)
+                .count();
+            let fraction = outward as f32 / mesh.positions.len() as f32;
+            assert!(
+                fraction > 0.8,
+                "{}: only {fraction} of normals point outward",
+                path.display()
+            );
+        }
+    }
+}

@@ -1,0 +1,129 @@
+//! View-dependent re-scoring (METHOD.md §3.2): how well the part of the model that the camera
+//! would see at a pose fits the scene.
+//!
+//! Each surface point of the model is moved into the camera by the pose. Only points whose
+//! normal faces the camera can be seen. Each one is projected into the depth image and compared
+//! with the depth measured there:
+//!
+//! - within the tolerance: an **inlier**, the scene supports the model there;
+//! - the scene well in front: the point is **occluded** (by clutter or another object) and says
+//!   nothing either way;
+//! - the scene well behind: the sensor **sees through** the model, which cannot be if the pose
+//!   were right (the non-consistent-points filter uses this);
+//! - no depth there: unknown.
+//!
+//! The score of a pose is its number of inliers divided by the model's surface point count:
+//! the fraction of the whole model surface that the scene confirms.
+
+use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
+
+use crate::scene::SceneImage;
+use crate::subsample::OrientedPoints;
+use crate::Pose;
+
+/// Parameters of re-scoring.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RescoringParams {
+    /// How many of the best pose clusters are re-scored. The paper: 500.
+    pub top_clusters: usize,
+    /// A visible point is an inlier within this depth difference, as a fraction of the
+    /// diameter. Before ICP, poses are off by up to half an α bin (6°) over a lever of D/2,
+    /// about 0.05 D.
+    pub tolerance_fraction: f32,
+    /// ...and with normals within this angle, degrees.
+    pub max_normal_angle_deg: f32,
+}
+
+impl Default for RescoringParams {
+    fn default() -> Self {
+        Self { top_clusters: 500, tolerance_fraction: 0.05, max_normal_angle_deg: 45.0 }
+    }
+}
+
+/// How the visible part of a model at a pose meets the scene.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Fit {
+    /// Surface points facing the camera and projecting into the image.
+    pub facing: u32,
+    /// Facing points where the scene has depth.
+    pub measured: u32,
+    /// Facing points within tolerance of the scene (and with agreeing normals).
+    pub inliers: u32,
+    /// Facing points with the scene well in front of them.
+    pub occluded: u32,
+    /// Facing points with the scene well behind them.
+    pub see_through: u32,
+}
+
+impl Fit {
+    /// Points that should be seen: measured and not hidden behind something else.
+    pub fn visible(&self) -> u32 {
+        self.measured - self.occluded
+    }
+}
+
+/// Measures the fit of `surface` (model coordinates) at `pose` against `scene`.
+pub fn fit(surface: &OrientedPoints, pose: &Pose, scene: &SceneImage, tolerance_mm: f32, max_normal_angle_deg: f32) -> Fit {
+    let k = &scene.intrinsics;
+    let cos_max = max_normal_angle_deg.to_radians().cos();
+    let mut f = Fit::default();
+    for (p, n) in surface.positions.iter().zip(&surface.normals) {
+        let pc: Point3<f32> = pose * p;
+        let nc: Vector3<f32> = pose * n;
+        if pc.z <= 0.0 || nc.dot(&pc.coords) >= 0.0 {
+            continue;
+        }
+        let uv = k.project(&pc);
+        let (u, v) = (uv.x.round() as i64, uv.y.round() as i64);
+        if u < 0 || v < 0 || u >= scene.width as i64 || v >= scene.height as i64 {
+            continue;
+        }
+        f.facing += 1;
+        let Some(z) = scene.depth(u, v) else { continue };
+        f.measured += 1;
+        let dz = z - pc.z;
+        if dz < -tolerance_mm {
+            f.occluded += 1;
+        } else if dz > tolerance_mm {
+            f.see_through += 1;
+        } else if let Some((_, sn)) = scene.at(u, v) {
+            if sn.dot(&nc) >= cos_max {
+                f.inliers += 1;
+            }
+        }
+    }
+    f
+}
+
+/// A pose with its re-scoring result.
+#[derive(Clone, Copy, Debug)]
+pub struct Scored {
+    pub pose: Pose,
+    pub votes: u32,
+    pub fit: Fit,
+    /// `fit.inliers / surface point count`.
+    pub score: f32,
+}
+
+/// Re-scores `poses` (with their votes) and sorts them by score, best first (ties: more
+/// votes first).
+pub fn rescore(
+    poses: &[(Pose, u32)],
+    surface: &OrientedPoints,
+    scene: &SceneImage,
+    diameter_mm: f32,
+    params: &RescoringParams,
+) -> Vec<Scored> {
+    let tolerance = params.tolerance_fraction * diameter_mm;
+    let total = surface.len().max(1) as f32;
+    let mut scored: Vec<Scored> = poses
+        .par_iter()
+        .map(|&(pose, votes)| {
+            let fit = fit(surface, &pose, scene, tolerance, params.max_normal_angle_deg);
+            Scored { pose, votes, fit, score: fit.inliers as f32 / total }
+        })
+        .collect();
+    scored.sort_by(|a, b| b.score.total_cmp(&a.score).then(b.votes.cmp(&a.votes)));
+    scored
+}

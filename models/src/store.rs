@@ -1,0 +1,290 @@
+//! The model store: one file per object model, written with rkyv and read back through a memory
+//! map without decoding. A mapped file *is* the lookup table.
+//!
+//! Layout: a 32-byte header (magic `PPFDMODL`, format version, payload length, CRC-32 of the
+//! payload), then the rkyv archive of [`ModelData`]. Loading checks all of it and validates the
+//! archive and the table's internal consistency before handing out an [`ObjectModel`]: a
+//! truncated, corrupted, wrong-version or wrong-parameter file is refused, never trusted.
+
+use std::fs::File;
+use std::io::Write;
+use std::path::Path;
+
+use memmap2::Mmap;
+
+use crate::feature::key_count;
+use crate::model::{ArchivedModelData, ModelParams, ObjectModel};
+use crate::{Error, Result};
+
+/// The file name extension of model files.
+pub const EXTENSION: &str = "ppfm";
+/// Bumped whenever [`crate::model::ModelData`] or the table encoding changes.
+pub const FORMAT_VERSION: u32 = 1;
+const MAGIC: &[u8; 8] = b"PPFDMODL";
+const HEADER_LEN: usize = 32;
+
+fn refuse(path: &Path, reason: impl Into<String>) -> Error {
+    Error::ModelStore {
+        path: path.to_path_buf(),
+        reason: reason.into(),
+    }
+}
+
+fn io(path: &Path, source: std::io::Error) -> Error {
+    Error::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Writes `model` to `path` (through a temporary file and a rename, so a reader never sees a
+/// half-written model).
+pub fn save(model: &ObjectModel, path: &Path) -> Result<()> {
+    let payload = model.archive_bytes();
+    let mut header = [0u8; HEADER_LEN];
+    header[..8].copy_from_slice(MAGIC);
+    header[8..12].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
+    header[16..24].copy_from_slice(&(payload.len() as u64).to_le_bytes());
+    header[24..28].copy_from_slice(&crc32fast::hash(payload).to_le_bytes());
+    let tmp = path.with_extension(format!("{EXTENSION}.tmp"));
+    let write = || -> std::io::Result<()> {
+        let mut f = File::create(&tmp)?;
+        f.write_all(&header)?;
+        f.write_all(payload)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    };
+    write().map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        io(path, e)
+    })
+}
+
+/// Maps and validates a model file.
+pub fn load(path: &Path) -> Result<ObjectModel> {
+    let file = File::open(path).map_err(|e| io(path, e))?;
+    // SAFETY: the map is read-only; the store writes files by rename, so a file is never
+    // modified in place while mapped. Everything read from it is validated below.
+    let map = unsafe { Mmap::map(&file) }.map_err(|e| io(path, e))?;
+    if map.len() < HEADER_LEN {
+        return Err(refuse(
+            path,
+            format!("{} bytes is shorter than the header", map.len()),
+        ));
+    }
+    if &map[..8] != MAGIC {
+        return Err(refuse(path, "not a ppfd model file (bad magic)"));
+    }
+    let version = u32::from_le_bytes(map[8..12].try_into().unwrap());
+    if version != FORMAT_VERSION {
+        return Err(refuse(
+            path,
+            format!("format version {version}, this build reads version {FORMAT_VERSION}: rebuild the model"),
+        ));
+    }
+    let payload_len = u64::from_le_bytes(map[16..24].try_into().unwrap()) as usize;
+    let actual = map.len() - HEADER_LEN;
+    if payload_len != actual {
+        return Err(refuse(
+            path,
+            format!(
+                "truncated or padded: header says {payload_len} payload bytes, file has {actual}"
+            ),
+        ));
+    }
+    let payload = &map[HEADER_LEN..];
+    let crc = u32::from_le_bytes(map[24..28].try_into().unwrap());
+    if crc32fast::hash(payload) != crc {
+        return Err(refuse(path, "checksum mismatch: the file is corrupted"));
+    }
+    let data = rkyv::access::<ArchivedModelData, rkyv::rancor::Error>(payload)
+        .map_err(|e| refuse(path, format!("invalid archive: {e}")))?;
+    check_consistency(data).map_err(|reason| refuse(path, reason))?;
+    Ok(ObjectModel::from_validated_map(map, HEADER_LEN))
+}
+
+/// Like [`load`], and refuses a model built with other parameters than `expected`.
+pub fn load_expecting(path: &Path, expected: &ModelParams) -> Result<ObjectModel> {
+    let model = load(path)?;
+    let params = model.params();
+    if params != *expected {
+        return Err(refuse(
+            path,
+            format!("built with {params:?}, expected {expected:?}: rebuild the model"),
+        ));
+    }
+    Ok(model)
+}
+
+/// What the matching code relies on without checking again: every index in range.
+fn check_consistency(d: &ArchivedModelData) -> std::result::Result<(), String> {
+    let params = rkyv::deserialize::<ModelParams, rkyv::rancor::Error>(&d.params)
+        .map_err(|e| format!("parameters: {e}"))?;
+    params.validate().map_err(|e| e.to_string())?;
+    let diameter = d.diameter_mm.to_native();
+    if !(diameter.is_finite() && diameter > 0.0) {
+        return Err(format!("diameter {diameter} mm"));
+    }
+    let n = d.points.len();
+    if d.normals.len() != n {
+        return Err(format!("{n} points but {} normals", d.normals.len()));
+    }
+    if d.surface_normals.len() != d.surface_points.len() {
+        return Err(format!(
+            "{} surface points but {} normals",
+            d.surface_points.len(),
+            d.surface_normals.len()
+        ));
+    }
+    if n > u16::MAX as usize {
+        return Err(format!("{n} model points, at most {}", u16::MAX));
+    }
+    let keys = key_count(params.distance_bins, params.angle_bins);
+    if d.table_offsets.len() != keys + 1 {
+        return Err(format!(
+            "{} table offsets, expected {}",
+            d.table_offsets.len(),
+            keys + 1
+        ));
+    }
+    let mut prev = 0u32;
+    for o in d.table_offsets.iter() {
+        let o = o.to_native();
+        if o < prev {
+            return Err("table offsets decrease".into());
+        }
+        prev = o;
+    }
+    if d.table_offsets[0].to_native() != 0 || prev as usize != d.table_entries.len() {
+        return Err(format!(
+            "table offsets span {}..{}, entries are {}",
+            d.table_offsets[0].to_native(),
+            prev,
+            d.table_entries.len()
+        ));
+    }
+    if let Some(e) = d
+        .table_entries
+        .iter()
+        .find(|e| (e.to_native() >> 16) as usize >= n)
+    {
+        return Err(format!(
+            "table entry names model point {}, there are {n}",
+            e.to_native() >> 16
+        ));
+    }
+    let vertices = d.mesh_positions.len();
+    if d.mesh_faces
+        .iter()
+        .flatten()
+        .any(|i| i.to_native() as usize >= vertices)
+    {
+        return Err(format!(
+            "a mesh face index is out of range ({vertices} vertices)"
+        ));
+    }
+    let finite = |v: &[rkyv::Archived<f32>; 3]| v.iter().all(|x| x.to_native().is_finite());
+    if !d.points.iter().all(finite)
+        || !d.normals.iter().all(finite)
+        || !d.mesh_positions.iter().all(finite)
+    {
+        return Err("non-finite coordinates".into());
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::tests::box_mesh;
+
+    fn temp_dir(name: &str) -> std::path::PathBuf {
+        let d = std::env::temp_dir().join(format!("ppfd-store-{name}-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    fn built() -> ObjectModel {
+        ObjectModel::build(
+            &box_mesh(50.0, 30.0, 20.0),
+            3,
+            "box",
+            &ModelParams::default(),
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn round_trip_gives_identical_model() {
+        let dir = temp_dir("rt");
+        let path = dir.join("box.ppfm");
+        let model = built();
+        save(&model, &path).unwrap();
+        let loaded = load(&path).unwrap();
+        assert!(loaded.is_mapped());
+        assert_eq!(loaded.table(), model.table());
+        assert_eq!(loaded.oriented_points(), model.oriented_points());
+        assert_eq!(loaded.object_id(), 3);
+        assert_eq!(loaded.name(), "box");
+        assert_eq!(loaded.diameter_mm(), model.diameter_mm());
+        assert_eq!(loaded.render_mesh().faces, model.render_mesh().faces);
+        assert!(load_expecting(&path, &ModelParams::default()).is_ok());
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    fn refused(bytes: &[u8], dir: &Path, name: &str) -> String {
+        let p = dir.join(name);
+        std::fs::write(&p, bytes).unwrap();
+        match load(&p) {
+            Err(Error::ModelStore { reason, .. }) => reason,
+            other => panic!("{name}: expected refusal, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn damaged_files_are_refused() {
+        let dir = temp_dir("bad");
+        let path = dir.join("good.ppfm");
+        save(&built(), &path).unwrap();
+        let good = std::fs::read(&path).unwrap();
+
+        let truncated = &good[..good.len() - 100];
+        assert!(refused(truncated, &dir, "trunc.ppfm").contains("truncated"));
+        assert!(refused(&good[..10], &dir, "tiny.ppfm").contains("shorter than the header"));
+
+        let mut corrupt = good.clone();
+        let mid = good.len() / 2;
+        corrupt[mid] ^= 0x5a;
+        assert!(refused(&corrupt, &dir, "corrupt.ppfm").contains("checksum"));
+
+        let mut version = good.clone();
+        version[8] = 99;
+        assert!(refused(&version, &dir, "version.ppfm").contains("format version 99"));
+
+        let mut magic = good.clone();
+        magic[0] = b'X';
+        assert!(refused(&magic, &dir, "magic.ppfm").contains("magic"));
+
+        // A payload that passes the checksum but is not a valid archive.
+        let mut garbage = good[..HEADER_LEN].to_vec();
+        let junk = vec![0xABu8; 4096];
+        garbage[16..24].copy_from_slice(&(junk.len() as u64).to_le_bytes());
+        garbage[24..28].copy_from_slice(&crc32fast::hash(&junk).to_le_bytes());
+        garbage.extend_from_slice(&junk);
+        assert!(refused(&garbage, &dir, "garbage.ppfm").contains("invalid archive"));
+
+        let other = ModelParams {
+            angle_bins: 12,
+            ..Default::default()
+        };
+        match load_expecting(&path, &other) {
+            Err(Error::ModelStore { reason, .. }) => assert!(reason.contains("expected")),
+            r => panic!("{r:?}"),
+        }
+        assert!(matches!(
+            load(&dir.join("missing.ppfm")),
+            Err(Error::Io { .. })
+        ));
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+}

@@ -1,0 +1,248 @@
+//! Local matching by voting (METHOD.md §2.3–2.5).
+//!
+//! For each reference point `s_r` of the scene, every scene point `s_i` within the model
+//! diameter forms a pair; its feature's key (and the neighbouring keys of the paper's
+//! quantisation-error rule) selects model pairs `(m_i, α_m)` in the lookup table, each voting for
+//! `(m_i, α = α_m − α_s)` in a flat accumulator. Vote-once flags (Hinterstoisser et al. 2016)
+//! keep a `(key, α_s bin)` from voting twice for one reference point. The accumulator's peaks
+//! become pose hypotheses `T_s⁻¹ R_x(α) T_m`.
+
+use rayon::prelude::*;
+
+use crate::feature::{
+    alpha_bin, alpha_of_bin, pose_from_alignment, wrap_angle, LocalFrame, PointPairFeature,
+    MAX_KEYS,
+};
+use crate::model::ObjectModel;
+use crate::scene::PreparedScene;
+use crate::table::{entry_alpha, entry_model_point};
+use crate::Pose;
+
+/// Parameters of voting.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VotingParams {
+    /// Every `reference_step`-th subsampled scene point is a reference point. Drost et al. use
+    /// every 5th.
+    pub reference_step: usize,
+    /// Use the paper's neighbouring keys (≤ 15 extra) against quantisation noise.
+    pub neighbour_keys: bool,
+    /// Hinterstoisser's vote-once flags.
+    pub vote_once: bool,
+    /// At most this many accumulator peaks per reference point become hypotheses.
+    pub peaks_per_reference: usize,
+    /// A secondary peak must have at least this fraction of the highest peak's votes.
+    pub peak_ratio: f32,
+    /// Pairs closer than this fraction of the diameter vote nothing: their features are
+    /// dominated by noise (and the model's own pairs start at about one leaf).
+    pub min_distance_fraction: f32,
+}
+
+impl Default for VotingParams {
+    fn default() -> Self {
+        Self {
+            reference_step: 5,
+            neighbour_keys: true,
+            vote_once: true,
+            peaks_per_reference: 3,
+            peak_ratio: 0.8,
+            min_distance_fraction: 0.0,
+        }
+    }
+}
+
+/// One pose proposed by one reference point's accumulator peak.
+#[derive(Clone, Copy, Debug)]
+pub struct Hypothesis {
+    pub pose: Pose,
+    pub votes: u32,
+    /// Index of the scene reference point (in the prepared scene's points).
+    pub scene_point: u32,
+    /// Index of the model point it matched.
+    pub model_point: u32,
+}
+
+/// What voting did, for the latency breakdown.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct VotingCounts {
+    pub reference_points: u32,
+    pub pairs: u64,
+}
+
+/// Per-thread scratch: the accumulator and vote-once flags, reused across reference points.
+struct Scratch {
+    accumulator: Vec<u32>,
+    flags: Vec<u32>,
+    touched_keys: Vec<u32>,
+    neighbours: Vec<usize>,
+}
+
+/// Votes with every reference point of `scene` against `model`; returns the hypotheses of all
+/// reference points.
+pub fn vote(
+    model: &ObjectModel,
+    scene: &PreparedScene,
+    params: &VotingParams,
+) -> (Vec<Hypothesis>, VotingCounts) {
+    let data = model.data();
+    let n_model = model.point_count();
+    let alpha_bins = data.params.alpha_bins.to_native();
+    let quantizer = model.quantizer();
+    let key_count = quantizer.key_count();
+    let diameter = model.diameter_mm();
+    let min_distance = params.min_distance_fraction * diameter;
+    let model_frames: Vec<LocalFrame> = (0..n_model)
+        .map(|i| LocalFrame::new(&model.point(i), &model.normal(i)))
+        .collect();
+    let step = params.reference_step.max(1);
+    let references: Vec<usize> = (0..scene.points.len()).step_by(step).collect();
+    let nb = alpha_bins as usize;
+
+    let results: Vec<(Vec<Hypothesis>, u64)> = references
+        .par_chunks(16)
+        .map_init(
+            || Scratch {
+                accumulator: vec![0; n_model * nb],
+                flags: vec![0; key_count],
+                touched_keys: Vec::new(),
+                neighbours: Vec::new(),
+            },
+            |s, chunk| {
+                let mut out = Vec::new();
+                let mut pairs = 0u64;
+                for &r in chunk {
+                    let (sr, nr) = (scene.points.positions[r], scene.points.normals[r]);
+                    let frame = LocalFrame::new(&sr, &nr);
+                    s.neighbours.clear();
+                    scene.within(&sr, diameter, |i| s.neighbours.push(i));
+                    s.accumulator.fill(0);
+                    let mut keys = [0u32; MAX_KEYS];
+                    for &i in &s.neighbours {
+                        if i == r {
+                            continue;
+                        }
+                        let (si, ni) = (scene.points.positions[i], scene.points.normals[i]);
+                        let Some(f) = PointPairFeature::compute(&sr, &nr, &si, &ni) else {
+                            continue;
+                        };
+                        if f.distance_mm < min_distance {
+                            continue;
+                        }
+                        pairs += 1;
+                        let n_keys = if params.neighbour_keys {
+                            quantizer.keys_with_neighbours(&f, &mut keys)
+                        } else {
+                            match quantizer.key(&f) {
+                                Some(k) => {
+                                    keys[0] = k;
+                                    1
+                                }
+                                None => 0,
+                            }
+                        };
+                        let alpha_s = frame.alpha(&si);
+                        let bit = 1u32 << alpha_bin(wrap_angle(alpha_s), alpha_bins);
+                        for &key in &keys[..n_keys] {
+                            if params.vote_once {
+                                let flag = &mut s.flags[key as usize];
+                                if *flag & bit != 0 {
+                                    continue;
+                                }
+                                if *flag == 0 {
+                                    s.touched_keys.push(key);
+                                }
+                                *flag |= bit;
+                            }
+                            for e in model.table_entries_of(key) {
+                                let e = e.to_native();
+                                let m = entry_model_point(e) as usize;
+                                let a = alpha_bin(wrap_angle(entry_alpha(e) - alpha_s), alpha_bins)
+                                    as usize;
+                                s.accumulator[m * nb + a] += 1;
+                            }
+                        }
+                    }
+                    for &k in &s.touched_keys {
+                        s.flags[k as usize] = 0;
+                    }
+                    s.touched_keys.clear();
+                    peaks(&s.accumulator, nb, params, |cell, votes| {
+                        let (m, a) = (cell / nb, (cell % nb) as u32);
+                        let alpha = alpha_of_bin(a, alpha_bins);
+                        out.push(Hypothesis {
+                            pose: pose_from_alignment(&frame, &model_frames[m], alpha),
+                            votes,
+                            scene_point: r as u32,
+                            model_point: m as u32,
+                        });
+                    });
+                }
+                (out, pairs)
+            },
+        )
+        .collect();
+    let mut hypotheses = Vec::new();
+    let mut pairs = 0;
+    for (h, p) in results {
+        hypotheses.extend(h);
+        pairs += p;
+    }
+    (
+        hypotheses,
+        VotingCounts {
+            reference_points: references.len() as u32,
+            pairs,
+        },
+    )
+}
+
+/// Calls `emit(cell, votes)` for up to `peaks_per_reference` highest cells with at least
+/// `peak_ratio` of the maximum (and at least one vote), highest first.
+fn peaks(acc: &[u32], _nb: usize, params: &VotingParams, mut emit: impl FnMut(usize, u32)) {
+    let k = params.peaks_per_reference.max(1);
+    let mut best: Vec<(u32, usize)> = Vec::with_capacity(k + 1);
+    for (cell, &v) in acc.iter().enumerate() {
+        if v == 0 || (best.len() == k && v <= best[k - 1].0) {
+            continue;
+        }
+        let pos = best.partition_point(|&(bv, _)| bv >= v);
+        best.insert(pos, (v, cell));
+        best.truncate(k);
+    }
+    let Some(&(max, _)) = best.first() else {
+        return;
+    };
+    for (v, cell) in best {
+        if v as f32 >= params.peak_ratio * max as f32 {
+            emit(cell, v);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn peaks_are_highest_first_and_above_ratio() {
+        let acc = vec![0, 5, 9, 1, 10, 8, 0, 7];
+        let params = VotingParams {
+            peaks_per_reference: 3,
+            peak_ratio: 0.8,
+            ..Default::default()
+        };
+        let mut got = Vec::new();
+        peaks(&acc, 4, &params, |c, v| got.push((c, v)));
+        assert_eq!(got, vec![(4, 10), (2, 9), (5, 8)]);
+        let params = VotingParams {
+            peaks_per_reference: 3,
+            peak_ratio: 0.95,
+            ..Default::default()
+        };
+        got.clear();
+        peaks(&acc, 4, &params, |c, v| got.push((c, v)));
+        assert_eq!(got, vec![(4, 10)]);
+        got.clear();
+        peaks(&[0, 0, 0], 3, &params, |c, v| got.push((c, v)));
+        assert!(got.is_empty());
+    }
+}
