@@ -24,7 +24,6 @@ use std::time::{Duration, Instant};
 
 use iceoryx2::active_request::ActiveRequest;
 use iceoryx2::node::Node;
-use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::{ListenerKey, Notifier};
 use iceoryx2::port::server::Server;
 use iceoryx2::port::subscriber::Subscriber;
@@ -99,6 +98,15 @@ struct SharedDepth {
 // SAFETY: the memory is shared memory that nobody writes while the sample/request is held
 // (a published sample and a sent request are immutable), and the holder outlives the job.
 unsafe impl Send for SharedDepth {}
+
+impl SharedDepth {
+    /// # Safety
+    /// The sample or request the values belong to must be alive and unchanged.
+    unsafe fn values(&self) -> &[u16] {
+        // SAFETY: by the caller's promise the pointer and length describe live memory.
+        unsafe { std::slice::from_raw_parts(self.ptr, self.len) }
+    }
+}
 
 /// A request waiting for a detection slot.
 struct Queued {
@@ -407,7 +415,8 @@ impl Daemon {
     fn discover_cameras(&mut self) {
         let mut found = Vec::new();
         let listed = Ipc::list(self.node.config(), |details| {
-            if matches!(details.static_details.messaging_pattern(), MessagingPattern::PublishSubscribe(_)) {
+            if matches!(details.static_details.messaging_pattern(), iceoryx2::service::static_config::messaging_pattern::MessagingPattern::PublishSubscribe(_)
+            ) {
                 if let Some(camera) = services::camera_of_service(details.static_details.name().as_str()) {
                     found.push(camera.to_owned());
                 }
@@ -588,7 +597,7 @@ impl Daemon {
             let _span = tracing::debug_span!("detect", request = request_id).entered();
             // SAFETY: see `SharedDepth`: the I/O thread keeps the memory alive and unchanged
             // until it has received this job's completion.
-            let depth = unsafe { std::slice::from_raw_parts(depth.ptr, depth.len) };
+            let depth = unsafe { depth.values() };
             let frame = FrameView {
                 width: frame_header.width,
                 height: frame_header.height,
