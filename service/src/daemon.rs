@@ -67,7 +67,7 @@ fn fail<E: std::fmt::Debug>(what: &str) -> impl FnOnce(E) -> DaemonError + '_ {
 /// The iceoryx2 configuration of a daemon (and of its clients): the default one, with the
 /// configured prefix.
 pub fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::Config, DaemonError> {
-    let mut config = iceoryx2::config::Config::global_config().clone();
+    let mut config = iceoryx2::config::Config::default();
     if let Some(prefix) = prefix {
         config.global.prefix = FileName::new(prefix.as_bytes())
             .map_err(|e| DaemonError(format!("iceoryx2 prefix {prefix:?}: {e:?}")))?;
