@@ -84,7 +84,9 @@ impl CameraPublisher {
             .map_err(transport("cannot create the camera publisher"))?;
         // Wake a running daemon so that it subscribes before the first frame.
         let wake_service = services::daemon_wake_builder(&node).open_or_create().ok();
-        let wake = wake_service.as_ref().and_then(|s| s.notifier_builder().create().ok());
+        let wake = wake_service
+            .as_ref()
+            .and_then(|s| s.notifier_builder().create().ok());
         if let Some(n) = &wake {
             let _ = n.notify_with_custom_event_id(wake::CAMERA_APPEARED);
         }
@@ -111,12 +113,17 @@ impl CameraPublisher {
             .loan_slice_uninit(self.template.pixel_count())
             .map_err(transport("cannot loan a frame"))?;
         *sample.user_header_mut() = self.template;
-        Ok(FrameLoan { sample, sequence: &mut self.sequence })
+        Ok(FrameLoan {
+            sample,
+            sequence: &mut self.sequence,
+        })
     }
 
     /// Copies `depth` into a loaned frame and publishes it, captured now.
     pub fn publish(&mut self, depth: &[u16]) -> Result<u64> {
-        self.loan()?.write_from_slice(depth)?.send(monotonic_now_ns())
+        self.loan()?
+            .write_from_slice(depth)?
+            .send(monotonic_now_ns())
     }
 }
 
@@ -133,12 +140,18 @@ impl<'a> FrameLoan<'a> {
     /// Every element of [`FrameLoan::depth_uninit`] must have been written.
     pub unsafe fn assume_init(self) -> ReadyFrame<'a> {
         // SAFETY: promised by the caller.
-        ReadyFrame { sample: unsafe { self.sample.assume_init() }, sequence: self.sequence }
+        ReadyFrame {
+            sample: unsafe { self.sample.assume_init() },
+            sequence: self.sequence,
+        }
     }
 
     /// Writes the depth values by index.
     pub fn write_from_fn(self, f: impl FnMut(usize) -> u16) -> ReadyFrame<'a> {
-        ReadyFrame { sample: self.sample.write_from_fn(f), sequence: self.sequence }
+        ReadyFrame {
+            sample: self.sample.write_from_fn(f),
+            sequence: self.sequence,
+        }
     }
 
     /// Copies the depth values (`width × height` of them).
@@ -146,9 +159,17 @@ impl<'a> FrameLoan<'a> {
         let expected = self.sample.payload().len();
         if depth.len() != expected {
             let h = self.sample.user_header();
-            return Err(ppfd_protocol::ProtocolError::FrameSize { width: h.width, height: h.height, values: depth.len() }.into());
+            return Err(ppfd_protocol::ProtocolError::FrameSize {
+                width: h.width,
+                height: h.height,
+                values: depth.len(),
+            }
+            .into());
         }
-        Ok(ReadyFrame { sample: self.sample.write_from_slice(depth), sequence: self.sequence })
+        Ok(ReadyFrame {
+            sample: self.sample.write_from_slice(depth),
+            sequence: self.sequence,
+        })
     }
 }
 
@@ -165,7 +186,9 @@ impl ReadyFrame<'_> {
         let header = self.sample.user_header_mut();
         header.sequence = *self.sequence;
         header.capture_time_ns = capture_time_ns;
-        self.sample.send().map_err(transport("cannot publish the frame"))?;
+        self.sample
+            .send()
+            .map_err(transport("cannot publish the frame"))?;
         Ok(*self.sequence)
     }
 }

@@ -10,9 +10,12 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
 
 use ppfd_protocol::clock::monotonic_now_ns;
-use ppfd_protocol::control::{ControlCommand, ControlRequest, ControlResponseHeader, DaemonStats, ModelInfo};
+use ppfd_protocol::control::{
+    ControlCommand, ControlRequest, ControlResponseHeader, DaemonStats, ModelInfo,
+};
 use ppfd_protocol::detect::{
-    flags, DetectCounts, DetectRequestHeader, DetectResponseHeader, LatencyBreakdown, PoseHypothesis, Status,
+    flags, DetectCounts, DetectRequestHeader, DetectResponseHeader, LatencyBreakdown,
+    PoseHypothesis, Status,
 };
 use ppfd_protocol::frame::FrameHeader;
 use ppfd_protocol::services::{self, wake, ControlService, DetectService, EventService};
@@ -21,9 +24,15 @@ use ppfd_protocol::text;
 use crate::{iceoryx_config, transport, Error, Result};
 
 type Ipc = ipc::Service;
-type DetectPort = IoxClient<Ipc, [u16], DetectRequestHeader, [PoseHypothesis], DetectResponseHeader>;
-type DetectRequest =
-    iceoryx2::request_mut::RequestMut<Ipc, [u16], DetectRequestHeader, [PoseHypothesis], DetectResponseHeader>;
+type DetectPort =
+    IoxClient<Ipc, [u16], DetectRequestHeader, [PoseHypothesis], DetectResponseHeader>;
+type DetectRequest = iceoryx2::request_mut::RequestMut<
+    Ipc,
+    [u16],
+    DetectRequestHeader,
+    [PoseHypothesis],
+    DetectResponseHeader,
+>;
 type ControlPort = IoxClient<Ipc, ControlRequest, (), [ModelInfo], ControlResponseHeader>;
 
 /// How a [`Client`] connects.
@@ -61,7 +70,11 @@ pub struct DetectOptions {
 
 impl Default for DetectOptions {
     fn default() -> Self {
-        DetectOptions { hypotheses_per_object: 1, timeout: Duration::from_secs(5), max_frame_age: None }
+        DetectOptions {
+            hypotheses_per_object: 1,
+            timeout: Duration::from_secs(5),
+            max_frame_age: None,
+        }
     }
 }
 
@@ -103,12 +116,15 @@ pub struct Detections {
 impl Detections {
     /// The hypotheses of one object, best first.
     pub fn of(&self, object_id: u32) -> impl Iterator<Item = &PoseHypothesis> {
-        self.hypotheses.iter().filter(move |h| h.object_id == object_id)
+        self.hypotheses
+            .iter()
+            .filter(move |h| h.object_id == object_id)
     }
 
     /// The best-scored hypothesis of one object.
     pub fn best(&self, object_id: u32) -> Option<&PoseHypothesis> {
-        self.of(object_id).max_by(|a, b| a.score.total_cmp(&b.score))
+        self.of(object_id)
+            .max_by(|a, b| a.score.total_cmp(&b.score))
     }
 }
 
@@ -116,7 +132,11 @@ impl Detections {
 pub fn isometry(h: &PoseHypothesis) -> nalgebra::Isometry3<f32> {
     let r = nalgebra::Matrix3::from_row_slice(&h.rotation);
     let rotation = nalgebra::UnitQuaternion::from_matrix(&r);
-    let t = nalgebra::Translation3::new(h.translation_mm[0], h.translation_mm[1], h.translation_mm[2]);
+    let t = nalgebra::Translation3::new(
+        h.translation_mm[0],
+        h.translation_mm[1],
+        h.translation_mm[2],
+    );
     nalgebra::Isometry3::from_parts(t, rotation)
 }
 
@@ -160,25 +180,32 @@ impl Client {
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<Ipc>()
             .map_err(transport("cannot create an iceoryx2 node"))?;
-        let detect_service =
-            services::detect_builder(&node).open_or_create().map_err(transport("cannot open ppfd/detect"))?;
+        let detect_service = services::detect_builder(&node)
+            .open_or_create()
+            .map_err(transport("cannot open ppfd/detect"))?;
         let detect = detect_service
             .client_builder()
             .initial_max_slice_len(options.inline_frame_capacity.max(1))
             .allocation_strategy(AllocationStrategy::PowerOfTwo)
             .create()
             .map_err(transport("cannot create a ppfd/detect client"))?;
-        let control_service =
-            services::control_builder(&node).open_or_create().map_err(transport("cannot open ppfd/control"))?;
+        let control_service = services::control_builder(&node)
+            .open_or_create()
+            .map_err(transport("cannot open ppfd/control"))?;
         let control = control_service
             .client_builder()
             .create()
             .map_err(transport("cannot create a ppfd/control client"))?;
-        let wake_service =
-            services::daemon_wake_builder(&node).open_or_create().map_err(transport("cannot open ppfd/daemon"))?;
-        let wake = wake_service.notifier_builder().create().map_err(transport("cannot notify ppfd/daemon"))?;
-        let replies_service =
-            services::responses_builder(&node).open_or_create().map_err(transport("cannot open ppfd/responses"))?;
+        let wake_service = services::daemon_wake_builder(&node)
+            .open_or_create()
+            .map_err(transport("cannot open ppfd/daemon"))?;
+        let wake = wake_service
+            .notifier_builder()
+            .create()
+            .map_err(transport("cannot notify ppfd/daemon"))?;
+        let replies_service = services::responses_builder(&node)
+            .open_or_create()
+            .map_err(transport("cannot open ppfd/responses"))?;
         let reply_token = new_token();
         let name = PortName::new(&services::reply_listener_name(reply_token))
             .map_err(transport("reply listener name"))?;
@@ -193,7 +220,8 @@ impl Client {
             wake,
             replies,
             reply_token,
-            next_request: Cell::new(1),
+            // Ids unique across clients: a response can never be taken for another client's.
+            next_request: Cell::new(reply_token.rotate_left(24) & !0xff_ffff),
             control_timeout: options.control_timeout,
             _detect_service: detect_service,
             _control_service: control_service,
@@ -210,12 +238,20 @@ impl Client {
     }
 
     /// Detects `objects` in the newest frame of `camera`.
-    pub fn detect(&self, camera: &str, objects: &[u32], options: &DetectOptions) -> Result<Detections> {
+    pub fn detect(
+        &self,
+        camera: &str,
+        objects: &[u32],
+        options: &DetectOptions,
+    ) -> Result<Detections> {
         services::check_camera_name(camera)?;
         let mut header = self.request_header(objects, options)?;
         header.camera_name = text::encode_name("camera", camera)?;
         header.validate(0)?;
-        let request = self.detect.loan_slice_uninit(0).map_err(transport("cannot loan a request"))?;
+        let request = self
+            .detect
+            .loan_slice_uninit(0)
+            .map_err(transport("cannot loan a request"))?;
         let mut request = request.write_from_fn(|_| 0);
         *request.user_header_mut() = header;
         self.send_detect(request, options.timeout)
@@ -234,7 +270,10 @@ impl Client {
         header.flags |= flags::INLINE_FRAME;
         header.inline_frame = *frame;
         header.validate(depth.len())?;
-        let request = self.detect.loan_slice_uninit(depth.len()).map_err(transport("cannot loan a request"))?;
+        let request = self
+            .detect
+            .loan_slice_uninit(depth.len())
+            .map_err(transport("cannot loan a request"))?;
         let mut request = request.write_from_slice(depth);
         *request.user_header_mut() = header;
         self.send_detect(request, options.timeout)
@@ -242,18 +281,35 @@ impl Client {
 
     /// Sends a request exactly as given, unchecked (to exercise the daemon's refusals); only
     /// its id, reply token, send time and deadline are set here.
-    pub fn send_raw(&self, header: &DetectRequestHeader, depth: &[u16], timeout: Duration) -> Result<Detections> {
-        let request = self.detect.loan_slice_uninit(depth.len()).map_err(transport("cannot loan a request"))?;
+    pub fn send_raw(
+        &self,
+        header: &DetectRequestHeader,
+        depth: &[u16],
+        timeout: Duration,
+    ) -> Result<Detections> {
+        let request = self
+            .detect
+            .loan_slice_uninit(depth.len())
+            .map_err(transport("cannot loan a request"))?;
         let mut request = request.write_from_slice(depth);
         *request.user_header_mut() = *header;
         self.send_detect(request, timeout)
     }
 
-    fn request_header(&self, objects: &[u32], options: &DetectOptions) -> Result<DetectRequestHeader> {
-        let mut header =
-            DetectRequestHeader { hypotheses_per_object: options.hypotheses_per_object, ..Default::default() };
+    fn request_header(
+        &self,
+        objects: &[u32],
+        options: &DetectOptions,
+    ) -> Result<DetectRequestHeader> {
+        let mut header = DetectRequestHeader {
+            hypotheses_per_object: options.hypotheses_per_object,
+            ..Default::default()
+        };
         header.set_objects(objects)?;
-        header.max_frame_age_ns = options.max_frame_age.map(|d| d.as_nanos() as u64).unwrap_or(0);
+        header.max_frame_age_ns = options
+            .max_frame_age
+            .map(|d| d.as_nanos() as u64)
+            .unwrap_or(0);
         Ok(header)
     }
 
@@ -265,14 +321,19 @@ impl Client {
         let send_ns = monotonic_now_ns();
         header.send_time_ns = send_ns;
         header.deadline_ns = send_ns + timeout.as_nanos() as u64;
-        let pending = request.send().map_err(transport("cannot send the request"))?;
+        let pending = request
+            .send()
+            .map_err(transport("cannot send the request"))?;
         if pending.number_of_server_connections() == 0 {
             return Err(Error::NoDaemon(services::DETECT));
         }
         let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
         let deadline = Instant::now() + timeout;
         loop {
-            if let Some(response) = pending.receive().map_err(transport("cannot receive the response"))? {
+            if let Some(response) = pending
+                .receive()
+                .map_err(transport("cannot receive the response"))?
+            {
                 let received_ns = monotonic_now_ns();
                 let h = *response.user_header();
                 if h.request_id != request_id {
@@ -289,11 +350,18 @@ impl Client {
     }
 
     fn wait_reply(&self, left: Duration) -> Result<()> {
-        self.replies.timed_wait(|_| {}, left).map_err(transport("waiting for the response failed"))?;
+        self.replies
+            .timed_wait(|_| {}, left)
+            .map_err(transport("waiting for the response failed"))?;
         Ok(())
     }
 
-    fn control(&self, command: ControlCommand, object_id: u32, path: &str) -> Result<(ControlResponseHeader, Vec<ModelInfo>)> {
+    fn control(
+        &self,
+        command: ControlCommand,
+        object_id: u32,
+        path: &str,
+    ) -> Result<(ControlResponseHeader, Vec<ModelInfo>)> {
         let request = ControlRequest {
             command: command as u32,
             request_id: self.request_id(),
@@ -302,18 +370,28 @@ impl Client {
             path: text::encode_name("path", path)?,
             ..Default::default()
         };
-        let pending = self.control.send_copy(request).map_err(transport("cannot send the control request"))?;
+        let pending = self
+            .control
+            .send_copy(request)
+            .map_err(transport("cannot send the control request"))?;
         if pending.number_of_server_connections() == 0 {
             return Err(Error::NoDaemon(services::CONTROL));
         }
         let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
         let deadline = Instant::now() + self.control_timeout;
         loop {
-            if let Some(response) = pending.receive().map_err(transport("cannot receive the response"))? {
+            if let Some(response) = pending
+                .receive()
+                .map_err(transport("cannot receive the response"))?
+            {
                 let h = *response.user_header();
                 let status = Status::from_code(h.status).unwrap_or(Status::Internal);
                 if status != Status::Ok {
-                    return Err(Error::Refused { status, message: h.message().into_owned(), value: 0 });
+                    return Err(Error::Refused {
+                        status,
+                        message: h.message().into_owned(),
+                        value: 0,
+                    });
                 }
                 return Ok((h, response.payload().to_vec()));
             }
@@ -334,12 +412,15 @@ impl Client {
     /// sees it; `object_id` 0 takes the id from the file.
     pub fn load_model(&self, path: &str, object_id: u32) -> Result<ModelInfo> {
         let (h, models) = self.control(ControlCommand::LoadModel, object_id, path)?;
-        models.first().copied().ok_or_else(|| Error::Transport(format!("load answered without a model: {}", h.message())))
+        models.first().copied().ok_or_else(|| {
+            Error::Transport(format!("load answered without a model: {}", h.message()))
+        })
     }
 
     /// Drops a model from the daemon.
     pub fn drop_model(&self, object_id: u32) -> Result<()> {
-        self.control(ControlCommand::DropModel, object_id, "").map(|_| ())
+        self.control(ControlCommand::DropModel, object_id, "")
+            .map(|_| ())
     }
 
     /// The daemon's statistics.
@@ -360,7 +441,11 @@ fn decode_detect(
         value: h.status as u64,
     })?;
     if status != Status::Ok {
-        return Err(Error::Refused { status, message: h.message().into_owned(), value: h.error_value });
+        return Err(Error::Refused {
+            status,
+            message: h.message().into_owned(),
+            value: h.error_value,
+        });
     }
     Ok(Detections {
         request_id: h.request_id,
@@ -389,7 +474,11 @@ mod tests {
             ..Default::default()
         };
         match decode_detect(&h, &[], 5, 10) {
-            Err(Error::Refused { status, value, message }) => {
+            Err(Error::Refused {
+                status,
+                value,
+                message,
+            }) => {
                 assert_eq!(status, Status::CameraStale);
                 assert_eq!(value, 1_500_000_000);
                 assert!(message.contains("stale"));
@@ -419,6 +508,9 @@ mod tests {
             ..Default::default()
         };
         let p = isometry(&h) * nalgebra::Point3::new(1.0, 0.0, 0.0);
-        assert!((p - nalgebra::Point3::new(1.0, 3.0, 3.0)).norm() < 1e-5, "{p}");
+        assert!(
+            (p - nalgebra::Point3::new(1.0, 3.0, 3.0)).norm() < 1e-5,
+            "{p}"
+        );
     }
 }

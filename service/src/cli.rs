@@ -74,7 +74,10 @@ impl Args {
 pub fn init_tracing() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    let _ = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).try_init();
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
 }
 
 /// Parses the command line and runs the daemon with `engine`. Prints one line,
@@ -114,7 +117,13 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let file = dir.join("ppfd.toml");
         std::fs::write(&file, "queue_capacity = 7\nmax_frame_age_ms = 50\n").unwrap();
-        let args = Args::parse_from(["ppfd", "--config", file.to_str().unwrap(), "--max-frame-age-ms", "80"]);
+        let args = Args::parse_from([
+            "ppfd",
+            "--config",
+            file.to_str().unwrap(),
+            "--max-frame-age-ms",
+            "80",
+        ]);
         let c = args.config().unwrap();
         assert_eq!(c.queue_capacity, 7);
         assert_eq!(c.max_frame_age_ms, 80);

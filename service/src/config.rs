@@ -82,8 +82,14 @@ impl DaemonConfig {
             return Err("housekeeping_ms must be at least 1".into());
         }
         if let Some(p) = &self.prefix {
-            if p.is_empty() || !p.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-') {
-                return Err(format!("prefix {p:?} may hold only ASCII letters, digits, '_' and '-'"));
+            if p.is_empty()
+                || !p
+                    .bytes()
+                    .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+            {
+                return Err(format!(
+                    "prefix {p:?} may hold only ASCII letters, digits, '_' and '-'"
+                ));
             }
         }
         Ok(())
@@ -94,7 +100,9 @@ impl DaemonConfig {
         if self.workers > 0 {
             self.workers
         } else {
-            std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
+            std::thread::available_parallelism()
+                .map(|n| n.get())
+                .unwrap_or(1)
         }
     }
 }
@@ -115,9 +123,15 @@ mod tests {
 
     #[test]
     fn unusable_settings_are_refused() {
-        let c = DaemonConfig { parallel_detections: 0, ..Default::default() };
+        let c = DaemonConfig {
+            parallel_detections: 0,
+            ..Default::default()
+        };
         assert!(c.validate().is_err());
-        let c = DaemonConfig { prefix: Some("a/b".into()), ..Default::default() };
+        let c = DaemonConfig {
+            prefix: Some("a/b".into()),
+            ..Default::default()
+        };
         assert!(c.validate().is_err());
         assert!(DaemonConfig::default().validate().is_ok());
     }

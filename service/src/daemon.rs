@@ -42,14 +42,17 @@ use ppfd_protocol::services::{self, limits, wake, CameraService, ControlService,
 use ppfd_protocol::text;
 
 use crate::config::DaemonConfig;
-use crate::engine::{DetectOptions, DetectionEngine, EngineError, EngineOutput, FrameView, LoadedModel};
+use crate::engine::{
+    DetectOptions, DetectionEngine, EngineError, EngineOutput, FrameView, LoadedModel,
+};
 use crate::registry::Registry;
 use crate::stats::Stats;
 use crate::wakeup::{Signaller, Wakeup};
 
 type Ipc = ipc::Service;
 type DetectServer = Server<Ipc, [u16], DetectRequestHeader, [PoseHypothesis], DetectResponseHeader>;
-type DetectActive = ActiveRequest<Ipc, [u16], DetectRequestHeader, [PoseHypothesis], DetectResponseHeader>;
+type DetectActive =
+    ActiveRequest<Ipc, [u16], DetectRequestHeader, [PoseHypothesis], DetectResponseHeader>;
 type ControlServer = Server<Ipc, ControlRequest, (), [ModelInfo], ControlResponseHeader>;
 type ControlActive = ActiveRequest<Ipc, ControlRequest, (), [ModelInfo], ControlResponseHeader>;
 type FrameSample = Sample<Ipc, [u16], FrameHeader>;
@@ -126,6 +129,14 @@ struct InFlight {
     frame_sequence: u64,
     frame_age_ns: u64,
     _frame: Option<Rc<FrameSample>>,
+}
+
+/// What `finish` needs of a finished job besides its request.
+struct Finished {
+    header: DetectRequestHeader,
+    received_ns: u64,
+    frame_sequence: u64,
+    frame_age_ns: u64,
 }
 
 struct Completion {
@@ -236,15 +247,26 @@ pub fn run(
         .signal_handling_mode(SignalHandlingMode::HandleTerminationRequests)
         .create::<Ipc>()
         .map_err(fail("cannot create the WaitSet"))?;
-    let _wake_guard = waitset.attach_notification(&wake_listener).map_err(fail("WaitSet"))?;
-    let _done_guard = waitset.attach_notification(&wakeup).map_err(fail("WaitSet"))?;
+    let _wake_guard = waitset
+        .attach_notification(&wake_listener)
+        .map_err(fail("WaitSet"))?;
+    let _done_guard = waitset
+        .attach_notification(&wakeup)
+        .map_err(fail("WaitSet"))?;
     let _tick_guard = waitset
         .attach_interval(Duration::from_millis(daemon.config.housekeeping_ms))
         .map_err(fail("WaitSet"))?;
 
     daemon.housekeeping();
-    on_ready(&ReadyInfo { models: daemon.registry.len(), pid: std::process::id() });
-    tracing::info!(models = daemon.registry.len(), engine = daemon.engine.name(), "serving");
+    on_ready(&ReadyInfo {
+        models: daemon.registry.len(),
+        pid: std::process::id(),
+    });
+    tracing::info!(
+        models = daemon.registry.len(),
+        engine = daemon.engine.name(),
+        "serving"
+    );
 
     loop {
         let outcome = waitset.wait_and_process_once(|_| CallbackProgression::Continue);
@@ -398,7 +420,10 @@ impl Daemon {
         self.last_housekeeping = Instant::now();
         let cleaned = self.node.try_cleanup_dead_nodes();
         if cleaned.cleanups > 0 {
-            tracing::info!(removed = cleaned.cleanups, "removed resources of dead processes");
+            tracing::info!(
+                removed = cleaned.cleanups,
+                "removed resources of dead processes"
+            );
         }
         self.discover_cameras();
         // Keep only the newest frame of each camera, releasing older ones to their drivers.
@@ -442,15 +467,33 @@ impl Daemon {
             let service = builder.open().map_err(|e| match e {
                 PublishSubscribeOpenError::DoesNotExist => EngineError::new(
                     Status::UnknownCamera,
-                    format!("no camera {name:?} (service {} does not exist)", services::camera_service_name(name).map(|s| s.as_str().to_owned()).unwrap_or_default()),
+                    format!(
+                        "no camera {name:?} (service {} does not exist)",
+                        services::camera_service_name(name)
+                            .map(|s| s.as_str().to_owned())
+                            .unwrap_or_default()
+                    ),
                 ),
-                e => EngineError::new(Status::Internal, format!("camera {name:?} cannot be opened: {e:?}")),
+                e => EngineError::new(
+                    Status::Internal,
+                    format!("camera {name:?} cannot be opened: {e:?}"),
+                ),
             })?;
             let subscriber = service.subscriber_builder().create().map_err(|e| {
-                EngineError::new(Status::Internal, format!("camera {name:?} cannot be subscribed to: {e:?}"))
+                EngineError::new(
+                    Status::Internal,
+                    format!("camera {name:?} cannot be subscribed to: {e:?}"),
+                )
             })?;
             tracing::info!(camera = name, "subscribed to camera");
-            self.cameras.insert(name.to_owned(), Camera { newest: None, subscriber, _service: service });
+            self.cameras.insert(
+                name.to_owned(),
+                Camera {
+                    newest: None,
+                    subscriber,
+                    _service: service,
+                },
+            );
         }
         Ok(self.cameras.get_mut(name).expect("camera inserted above"))
     }
@@ -483,30 +526,52 @@ impl Daemon {
                     ppfd_protocol::ProtocolError::Version { expected, .. } => expected as u64,
                     _ => 0,
                 };
-                let error = EngineError { status: e.status(), message: e.to_string(), value };
-                return self.refuse(&active, &header, received_ns, error);
+                let error = EngineError {
+                    status: e.status(),
+                    message: e.to_string(),
+                    value,
+                };
+                return self.refuse(active, &header, received_ns, error);
             }
         };
         let models = match self.registry.resolve(header.objects()) {
             Ok(models) => models,
-            Err(e) => return self.refuse(&active, &header, received_ns, e),
+            Err(e) => return self.refuse(active, &header, received_ns, e),
         };
         if self.queue.len() >= self.config.queue_capacity {
             let e = EngineError::new(
                 Status::Busy,
-                format!("{} requests are already waiting; retry later", self.queue.len()),
+                format!(
+                    "{} requests are already waiting; retry later",
+                    self.queue.len()
+                ),
             );
-            return self.refuse(&active, &header, received_ns, e);
+            return self.refuse(active, &header, received_ns, e);
         }
-        self.queue.push_back(Queued { active, header, source, models, received_ns });
+        self.queue.push_back(Queued {
+            active,
+            header,
+            source,
+            models,
+            received_ns,
+        });
     }
 
     fn dispatch(&mut self) {
         while self.in_flight.len() < self.config.parallel_detections {
-            let Some(q) = self.queue.pop_front() else { break };
+            let Some(q) = self.queue.pop_front() else {
+                break;
+            };
+            if !self.detect_client_alive(&q.active) {
+                self.abandon(q.active, q.header.request_id);
+                continue;
+            }
             if !q.active.is_connected() {
                 self.stats.requests_abandoned += 1;
-                tracing::debug!(request = q.header.request_id, "client gone before its detection started");
+                tracing::debug!(
+                    request = q.header.request_id,
+                    "client gone before its detection started"
+                );
                 continue;
             }
             let now = monotonic_now_ns();
@@ -515,14 +580,17 @@ impl Daemon {
                 let late = now - q.header.deadline_ns;
                 let e = EngineError::new(
                     Status::DeadlineExceeded,
-                    format!("deadline passed {:.3} ms before a worker was free", late as f64 / 1e6),
+                    format!(
+                        "deadline passed {:.3} ms before a worker was free",
+                        late as f64 / 1e6
+                    ),
                 );
-                self.refuse(&q.active, &q.header, q.received_ns, e);
+                self.refuse(q.active, &q.header, q.received_ns, e);
                 continue;
             }
             if let Err(e) = self.start(q) {
                 let (active, header, received_ns, error) = *e;
-                self.refuse(&active, &header, received_ns, error);
+                self.refuse(active, &header, received_ns, error);
             }
         }
     }
@@ -530,7 +598,10 @@ impl Daemon {
     /// Resolves the frame and starts the job; gives the request back with the reason it could
     /// not start.
     #[allow(clippy::type_complexity)]
-    fn start(&mut self, q: Queued) -> Result<(), Box<(DetectActive, DetectRequestHeader, u64, EngineError)>> {
+    fn start(
+        &mut self,
+        q: Queued,
+    ) -> Result<(), Box<(DetectActive, DetectRequestHeader, u64, EngineError)>> {
         let now = monotonic_now_ns();
         let max_age_ns = if q.header.max_frame_age_ns != 0 {
             q.header.max_frame_age_ns
@@ -540,7 +611,14 @@ impl Daemon {
         let (frame_header, depth, hold) = match &q.source {
             FrameSource::Inline => {
                 let payload = q.active.payload();
-                (q.header.inline_frame, SharedDepth { ptr: payload.as_ptr(), len: payload.len() }, None)
+                (
+                    q.header.inline_frame,
+                    SharedDepth {
+                        ptr: payload.as_ptr(),
+                        len: payload.len(),
+                    },
+                    None,
+                )
             }
             FrameSource::Camera(name) => {
                 let camera = match self.open_camera(name) {
@@ -551,12 +629,18 @@ impl Daemon {
                 let newest = camera.newest.clone();
                 self.stats.frames_received += arrived;
                 let Some(sample) = newest else {
-                    let e = EngineError::new(Status::NoFrame, format!("camera {name:?} has published no frame yet"));
+                    let e = EngineError::new(
+                        Status::NoFrame,
+                        format!("camera {name:?} has published no frame yet"),
+                    );
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 };
                 let fh = *sample.user_header();
                 if let Err(e) = fh.validate(sample.payload().len()) {
-                    let e = EngineError::new(e.status(), format!("camera {name:?} published a bad frame: {e}"));
+                    let e = EngineError::new(
+                        e.status(),
+                        format!("camera {name:?} published a bad frame: {e}"),
+                    );
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 }
                 let age = now.saturating_sub(fh.capture_time_ns);
@@ -574,12 +658,18 @@ impl Daemon {
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 }
                 let payload = sample.payload();
-                let depth = SharedDepth { ptr: payload.as_ptr(), len: payload.len() };
+                let depth = SharedDepth {
+                    ptr: payload.as_ptr(),
+                    len: payload.len(),
+                };
                 (fh, depth, Some(sample))
             }
         };
-        let frame_age_ns =
-            if frame_header.capture_time_ns != 0 { now.saturating_sub(frame_header.capture_time_ns) } else { 0 };
+        let frame_age_ns = if frame_header.capture_time_ns != 0 {
+            now.saturating_sub(frame_header.capture_time_ns)
+        } else {
+            0
+        };
 
         let job = self.next_job;
         self.next_job += 1;
@@ -608,10 +698,20 @@ impl Daemon {
             let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
                 engine.detect(&frame, &models, &options)
             }))
-            .unwrap_or_else(|_| Err(EngineError::new(Status::Internal, "the detection failed unexpectedly (panic)")));
+            .unwrap_or_else(|_| {
+                Err(EngineError::new(
+                    Status::Internal,
+                    "the detection failed unexpectedly (panic)",
+                ))
+            });
             let finished_ns = monotonic_now_ns();
             // The receiver lives as long as the daemon, which waits for every job.
-            let _ = done.send(Completion { job, result, started_ns, finished_ns });
+            let _ = done.send(Completion {
+                job,
+                result,
+                started_ns,
+                finished_ns,
+            });
             signaller.signal();
         });
         self.in_flight.insert(
@@ -629,15 +729,38 @@ impl Daemon {
     }
 
     fn finish(&mut self, c: Completion) {
-        let Some(job) = self.in_flight.remove(&c.job) else { return };
-        if !job.active.is_connected() {
+        let Some(job) = self.in_flight.remove(&c.job) else {
+            return;
+        };
+        let InFlight {
+            active,
+            header,
+            received_ns,
+            frame_sequence,
+            frame_age_ns,
+            _frame,
+        } = job;
+        drop(_frame);
+        let job = Finished {
+            header,
+            received_ns,
+            frame_sequence,
+            frame_age_ns,
+        };
+        if !self.detect_client_alive(&active) {
+            return self.abandon(active, job.header.request_id);
+        }
+        if !active.is_connected() {
             self.stats.requests_abandoned += 1;
-            tracing::debug!(request = job.header.request_id, "client gone before its answer");
+            tracing::debug!(
+                request = job.header.request_id,
+                "client gone before its answer"
+            );
             return;
         }
         let output = match c.result {
             Ok(output) => output,
-            Err(e) => return self.refuse(&job.active, &job.header, job.received_ns, e),
+            Err(e) => return self.refuse(active, &job.header, job.received_ns, e),
         };
         let mut response = DetectResponseHeader {
             request_id: job.header.request_id,
@@ -648,15 +771,23 @@ impl Daemon {
             ..Default::default()
         };
         let send_ns = job.header.send_time_ns;
-        response.latency.transport_ns = if send_ns != 0 { job.received_ns.saturating_sub(send_ns) } else { 0 };
+        response.latency.transport_ns = if send_ns != 0 {
+            job.received_ns.saturating_sub(send_ns)
+        } else {
+            0
+        };
         response.latency.queue_wait_ns = c.started_ns.saturating_sub(job.received_ns);
         response.latency.detection_ns = c.finished_ns.saturating_sub(c.started_ns);
-        let hypotheses = &output.hypotheses[..output.hypotheses.len().min(limits::MAX_RESPONSE_HYPOTHESES)];
+        let hypotheses =
+            &output.hypotheses[..output.hypotheses.len().min(limits::MAX_RESPONSE_HYPOTHESES)];
         response.counts.returned = hypotheses.len() as u32;
         response.hypothesis_count = hypotheses.len() as u32;
-        if let Some(total_ns) = self.send_detect(&job.active, job.header.reply_token, response, hypotheses) {
+        if let Some(total_ns) =
+            self.send_detect(&active, job.header.reply_token, response, hypotheses)
+        {
             let overhead = response.latency.transport_ns + response.latency.queue_wait_ns;
-            self.stats.record_served(total_ns, overhead, response.latency.detection_ns);
+            self.stats
+                .record_served(total_ns, overhead, response.latency.detection_ns);
             tracing::debug!(
                 request = job.header.request_id,
                 hypotheses = hypotheses.len(),
@@ -667,7 +798,16 @@ impl Daemon {
         }
     }
 
-    fn refuse(&mut self, active: &DetectActive, request: &DetectRequestHeader, received_ns: u64, e: EngineError) {
+    fn refuse(
+        &mut self,
+        active: DetectActive,
+        request: &DetectRequestHeader,
+        received_ns: u64,
+        e: EngineError,
+    ) {
+        if !self.detect_client_alive(&active) {
+            return self.abandon(active, request.request_id);
+        }
         self.stats.requests_refused += 1;
         tracing::debug!(request = request.request_id, status = %e.status, reason = %e.message, "request refused");
         let mut response = DetectResponseHeader {
@@ -680,7 +820,34 @@ impl Daemon {
         if request.send_time_ns != 0 {
             response.latency.transport_ns = received_ns.saturating_sub(request.send_time_ns);
         }
-        self.send_detect(active, request.reply_token, response, &[]);
+        self.send_detect(&active, request.reply_token, response, &[]);
+    }
+
+    /// Whether the client that sent `active` still exists. A dead client's connection slot may
+    /// already serve a new client (iceoryx2 reuses it once the dead node is cleaned up, which any
+    /// process may do): answering or even dropping the old request would then touch the new
+    /// client's channel.
+    fn detect_client_alive(&self, active: &DetectActive) -> bool {
+        let origin = active.origin();
+        let mut alive = false;
+        self._detect_service.dynamic_config().list_clients(|c| {
+            alive = c.client_id == origin;
+            if alive {
+                CallbackProgression::Stop
+            } else {
+                CallbackProgression::Continue
+            }
+        });
+        alive
+    }
+
+    /// Lets go of a dead client's request without touching its (possibly reused) channel: the
+    /// request's chunk in the dead client's memory is not returned (a few bytes per client that
+    /// died mid-request).
+    fn abandon(&mut self, active: DetectActive, request_id: u64) {
+        self.stats.requests_abandoned += 1;
+        tracing::debug!(request = request_id, "client died before its answer");
+        std::mem::forget(active);
     }
 
     /// Sends a response and wakes its client. Returns the total latency (client send → now).
@@ -702,7 +869,11 @@ impl Daemon {
         let now = monotonic_now_ns();
         let send_time_ns = active.user_header().send_time_ns;
         header.response_send_ns = now;
-        header.latency.total_ns = if send_time_ns != 0 { now.saturating_sub(send_time_ns) } else { 0 };
+        header.latency.total_ns = if send_time_ns != 0 {
+            now.saturating_sub(send_time_ns)
+        } else {
+            0
+        };
         *response.user_header_mut() = header;
         if let Err(e) = response.send() {
             tracing::debug!(request = header.request_id, error = ?e, "response not delivered");
@@ -722,7 +893,9 @@ impl Daemon {
             }
             self.reply_keys.remove(&token);
         }
-        let Ok(name) = PortName::new(&services::reply_listener_name(token)) else { return };
+        let Ok(name) = PortName::new(&services::reply_listener_name(token)) else {
+            return;
+        };
         let mut found = None;
         self.responses.for_each_listener(|monofier, details| {
             if details.listener_name == name {
@@ -759,34 +932,43 @@ impl Daemon {
     fn control(&mut self, active: ControlActive) {
         let request = *active.payload();
         if let Err(e) = ppfd_protocol::check_version(request.protocol_version) {
-            return self.control_answer(&active, Status::ProtocolVersion, &e.to_string(), &[]);
+            return self.control_answer(active, Status::ProtocolVersion, &e.to_string(), &[]);
         }
         let Some(command) = ControlCommand::from_code(request.command) else {
             let m = format!("unknown control command {}", request.command);
-            return self.control_answer(&active, Status::InvalidRequest, &m, &[]);
+            return self.control_answer(active, Status::InvalidRequest, &m, &[]);
         };
         tracing::info!(?command, object_id = request.object_id, path = %request.path(), "control request");
         match command {
             ControlCommand::ListModels => {
                 let infos = self.registry.infos();
                 let shown = &infos[..infos.len().min(limits::MAX_LISTED_MODELS)];
-                self.control_answer(&active, Status::Ok, "", shown);
+                self.control_answer(active, Status::Ok, "", shown);
             }
-            ControlCommand::Statistics => self.control_answer(&active, Status::Ok, "", &[]),
+            ControlCommand::Statistics => self.control_answer(active, Status::Ok, "", &[]),
             ControlCommand::DropModel => match self.registry.remove(request.object_id) {
                 Some(model) => {
-                    let m = format!("dropped object {} ({})", request.object_id, model.info.name());
-                    self.control_answer(&active, Status::Ok, &m, &[model.info]);
+                    let m = format!(
+                        "dropped object {} ({})",
+                        request.object_id,
+                        model.info.name()
+                    );
+                    self.control_answer(active, Status::Ok, &m, &[model.info]);
                 }
                 None => {
                     let m = format!("no model with object id {} is loaded", request.object_id);
-                    self.control_answer(&active, Status::UnknownObject, &m, &[]);
+                    self.control_answer(active, Status::UnknownObject, &m, &[]);
                 }
             },
             ControlCommand::LoadModel => {
                 let path = PathBuf::from(request.path().into_owned());
                 if request.path().is_empty() {
-                    return self.control_answer(&active, Status::InvalidRequest, "LoadModel needs a path", &[]);
+                    return self.control_answer(
+                        active,
+                        Status::InvalidRequest,
+                        "LoadModel needs a path",
+                        &[],
+                    );
                 }
                 let object_id = (request.object_id != 0).then_some(request.object_id);
                 let job = self.next_job;
@@ -798,18 +980,32 @@ impl Daemon {
                 let signaller = self.signaller;
                 // Building a model from a mesh may take seconds: off the I/O thread and off the
                 // detection workers.
-                let spawned = std::thread::Builder::new().name("ppfd-load".into()).spawn(move || {
-                    block_termination_signals();
-                    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                        engine.load(&path, object_id, cache.as_deref())
-                    }))
-                    .unwrap_or_else(|_| Err(EngineError::new(Status::Internal, "loading failed unexpectedly (panic)")));
-                    let _ = tx.send(ModelLoaded { job, result });
-                    signaller.signal();
-                });
+                let spawned =
+                    std::thread::Builder::new()
+                        .name("ppfd-load".into())
+                        .spawn(move || {
+                            block_termination_signals();
+                            let result =
+                                std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                                    engine.load(&path, object_id, cache.as_deref())
+                                }))
+                                .unwrap_or_else(|_| {
+                                    Err(EngineError::new(
+                                        Status::Internal,
+                                        "loading failed unexpectedly (panic)",
+                                    ))
+                                });
+                            let _ = tx.send(ModelLoaded { job, result });
+                            signaller.signal();
+                        });
                 if let Err(e) = spawned {
                     if let Some(active) = self.control_pending.remove(&job) {
-                        self.control_answer(&active, Status::Internal, &format!("cannot start loading: {e}"), &[]);
+                        self.control_answer(
+                            active,
+                            Status::Internal,
+                            &format!("cannot start loading: {e}"),
+                            &[],
+                        );
                     }
                 }
             }
@@ -817,7 +1013,9 @@ impl Daemon {
     }
 
     fn finish_load(&mut self, m: ModelLoaded) {
-        let Some(active) = self.control_pending.remove(&m.job) else { return };
+        let Some(active) = self.control_pending.remove(&m.job) else {
+            return;
+        };
         match m.result {
             Ok(model) => {
                 let info = model.info;
@@ -830,16 +1028,41 @@ impl Daemon {
                     info.byte_size
                 );
                 tracing::info!("{msg}");
-                self.control_answer(&active, Status::Ok, &msg, &[info]);
+                self.control_answer(active, Status::Ok, &msg, &[info]);
             }
             Err(e) => {
-                let status = if e.status == Status::Internal { Status::Internal } else { Status::ModelError };
-                self.control_answer(&active, status, &e.message, &[]);
+                let status = if e.status == Status::Internal {
+                    Status::Internal
+                } else {
+                    Status::ModelError
+                };
+                self.control_answer(active, status, &e.message, &[]);
             }
         }
     }
 
-    fn control_answer(&mut self, active: &ControlActive, status: Status, message: &str, models: &[ModelInfo]) {
+    fn control_answer(
+        &mut self,
+        active: ControlActive,
+        status: Status,
+        message: &str,
+        models: &[ModelInfo],
+    ) {
+        let origin = active.origin();
+        let mut alive = false;
+        self._control_service.dynamic_config().list_clients(|c| {
+            alive = c.client_id == origin;
+            if alive {
+                CallbackProgression::Stop
+            } else {
+                CallbackProgression::Continue
+            }
+        });
+        if !alive {
+            // As for detect requests: never touch a dead client's possibly reused channel.
+            std::mem::forget(active);
+            return;
+        }
         let mut stats = self.stats.snapshot();
         stats.cameras = self.cameras.len() as u64;
         stats.models_loaded = self.registry.len() as u64;
@@ -873,12 +1096,17 @@ impl Daemon {
     fn shutdown(&mut self) {
         while let Some(q) = self.queue.pop_front() {
             let e = EngineError::new(Status::ShuttingDown, "the daemon is shutting down");
-            self.refuse(&q.active, &q.header, q.received_ns, e);
+            self.refuse(q.active, &q.header, q.received_ns, e);
         }
         self.join_in_flight(true);
         let pending: Vec<ControlActive> = self.control_pending.drain().map(|(_, a)| a).collect();
         for active in pending {
-            self.control_answer(&active, Status::ShuttingDown, "the daemon is shutting down", &[]);
+            self.control_answer(
+                active,
+                Status::ShuttingDown,
+                "the daemon is shutting down",
+                &[],
+            );
         }
     }
 
@@ -891,7 +1119,10 @@ impl Daemon {
                     self.in_flight.remove(&c.job);
                 }
                 Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
-                    tracing::warn!(running = self.in_flight.len(), "waiting for running detections");
+                    tracing::warn!(
+                        running = self.in_flight.len(),
+                        "waiting for running detections"
+                    );
                 }
                 Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => break,
             }

@@ -81,7 +81,11 @@ pub struct EngineError {
 impl EngineError {
     /// An error with a status and a message.
     pub fn new(status: Status, message: impl Into<String>) -> Self {
-        EngineError { status, message: message.into(), value: 0 }
+        EngineError {
+            status,
+            message: message.into(),
+            value: 0,
+        }
     }
 }
 
@@ -95,7 +99,12 @@ pub trait DetectionEngine: Send + Sync + 'static {
 
     /// Loads a model file, or builds a model from a mesh file; `object_id` overrides the id the
     /// file implies. `cache_dir` is where a built model may be saved for the next start.
-    fn load(&self, path: &Path, object_id: Option<u32>, cache_dir: Option<&Path>) -> Result<LoadedModel, EngineError>;
+    fn load(
+        &self,
+        path: &Path,
+        object_id: Option<u32>,
+        cache_dir: Option<&Path>,
+    ) -> Result<LoadedModel, EngineError>;
 
     /// Files of a model directory to load, in order: by default every accepted file.
     fn select(&self, files: Vec<PathBuf>) -> Vec<PathBuf> {

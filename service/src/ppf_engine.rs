@@ -12,7 +12,9 @@ use ppfd_protocol::control::ModelInfo;
 use ppfd_protocol::detect::{DetectCounts, LatencyBreakdown, PoseHypothesis, Status};
 use ppfd_protocol::text;
 
-use crate::engine::{DetectOptions, DetectionEngine, EngineError, EngineOutput, FrameView, LoadedModel};
+use crate::engine::{
+    DetectOptions, DetectionEngine, EngineError, EngineOutput, FrameView, LoadedModel,
+};
 
 /// Extension of model files.
 pub const MODEL_EXTENSION: &str = "ppfm";
@@ -28,18 +30,27 @@ pub struct PpfEngine {
 impl PpfEngine {
     /// An engine with the given parameters.
     pub fn new(detector: Detector, model_params: ModelParams) -> Self {
-        PpfEngine { detector, model_params }
+        PpfEngine {
+            detector,
+            model_params,
+        }
     }
 }
 
 fn ext_is(path: &Path, ext: &str) -> bool {
-    path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case(ext))
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case(ext))
 }
 
 /// The object id a file name implies: the digits of its stem (`obj_000005.ply` → 5).
 pub fn object_id_of_file(path: &Path) -> Option<u32> {
     let stem = path.file_stem()?.to_str()?;
-    let digits: String = stem.chars().rev().take_while(|c| c.is_ascii_digit()).collect();
+    let digits: String = stem
+        .chars()
+        .rev()
+        .take_while(|c| c.is_ascii_digit())
+        .collect();
     digits.chars().rev().collect::<String>().parse().ok()
 }
 
@@ -50,11 +61,21 @@ fn model_error(e: ppfd_models::Error) -> EngineError {
         Error::UnknownObject(_) => Status::UnknownObject,
         Error::DeadlineExceeded { .. } => Status::DeadlineExceeded,
         Error::InvalidParameter(_) => Status::InvalidRequest,
-        Error::Io { .. } | Error::Ply { .. } | Error::InvalidMesh(_) | Error::ModelStore { .. } => Status::ModelError,
+        Error::Io { .. } | Error::Ply { .. } | Error::InvalidMesh(_) | Error::ModelStore { .. } => {
+            Status::ModelError
+        }
         _ => Status::Internal,
     };
-    let value = if let Error::UnknownObject(id) = e { id as u64 } else { 0 };
-    EngineError { status, message: e.to_string(), value }
+    let value = if let Error::UnknownObject(id) = e {
+        id as u64
+    } else {
+        0
+    };
+    EngineError {
+        status,
+        message: e.to_string(),
+        value,
+    }
 }
 
 fn info_of(model: &ObjectModel) -> ModelInfo {
@@ -70,7 +91,11 @@ fn info_of(model: &ObjectModel) -> ModelInfo {
 }
 
 fn loaded(model: ObjectModel, source: &Path) -> LoadedModel {
-    LoadedModel { info: info_of(&model), source: source.to_path_buf(), data: Box::new(model) }
+    LoadedModel {
+        info: info_of(&model),
+        source: source.to_path_buf(),
+        data: Box::new(model),
+    }
 }
 
 impl PpfEngine {
@@ -82,13 +107,23 @@ impl PpfEngine {
         }
     }
 
-    fn load_ply(&self, path: &Path, object_id: Option<u32>, cache_dir: Option<&Path>) -> Result<LoadedModel, EngineError> {
-        let id = object_id.or_else(|| object_id_of_file(path)).ok_or_else(|| {
-            EngineError::new(
-                Status::ModelError,
-                format!("{}: no object id: name the file obj_<id>.ply or give an id", path.display()),
-            )
-        })?;
+    fn load_ply(
+        &self,
+        path: &Path,
+        object_id: Option<u32>,
+        cache_dir: Option<&Path>,
+    ) -> Result<LoadedModel, EngineError> {
+        let id = object_id
+            .or_else(|| object_id_of_file(path))
+            .ok_or_else(|| {
+                EngineError::new(
+                    Status::ModelError,
+                    format!(
+                        "{}: no object id: name the file obj_<id>.ply or give an id",
+                        path.display()
+                    ),
+                )
+            })?;
         let cache = Self::cache_path(path, cache_dir);
         if cache.is_file() {
             match store::load_expecting(&cache, &self.model_params) {
@@ -102,12 +137,17 @@ impl PpfEngine {
                     wanted = id,
                     "cached model has another object id; rebuilding"
                 ),
-                Err(e) => tracing::info!(path = %cache.display(), reason = %e, "cached model refused; rebuilding"),
+                Err(e) => {
+                    tracing::info!(path = %cache.display(), reason = %e, "cached model refused; rebuilding")
+                }
             }
         }
         let started = std::time::Instant::now();
         let mesh = Mesh::from_ply_file(path).map_err(model_error)?;
-        let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or("object");
+        let name = path
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .unwrap_or("object");
         let model = ObjectModel::build(&mesh, id, name, &self.model_params).map_err(model_error)?;
         tracing::info!(
             path = %path.display(),
@@ -144,7 +184,10 @@ impl DetectionEngine for PpfEngine {
 
     fn select(&self, files: Vec<PathBuf>) -> Vec<PathBuf> {
         // A PLY mesh with a model file beside it is served from the model file.
-        let models: Vec<&PathBuf> = files.iter().filter(|p| ext_is(p, MODEL_EXTENSION)).collect();
+        let models: Vec<&PathBuf> = files
+            .iter()
+            .filter(|p| ext_is(p, MODEL_EXTENSION))
+            .collect();
         let mut out: Vec<PathBuf> = models.iter().map(|p| (*p).clone()).collect();
         for p in &files {
             if ext_is(p, "ply") && !models.iter().any(|m| m.file_stem() == p.file_stem()) {
@@ -154,7 +197,12 @@ impl DetectionEngine for PpfEngine {
         out
     }
 
-    fn load(&self, path: &Path, object_id: Option<u32>, cache_dir: Option<&Path>) -> Result<LoadedModel, EngineError> {
+    fn load(
+        &self,
+        path: &Path,
+        object_id: Option<u32>,
+        cache_dir: Option<&Path>,
+    ) -> Result<LoadedModel, EngineError> {
         if ext_is(path, "ply") {
             return self.load_ply(path, object_id, cache_dir);
         }
@@ -163,7 +211,11 @@ impl DetectionEngine for PpfEngine {
             if id != model.object_id() {
                 return Err(EngineError::new(
                     Status::ModelError,
-                    format!("{} holds object {}, not {id}", path.display(), model.object_id()),
+                    format!(
+                        "{} holds object {}, not {id}",
+                        path.display(),
+                        model.object_id()
+                    ),
                 ));
             }
         }
@@ -180,7 +232,12 @@ impl DetectionEngine for PpfEngine {
         let depth_frame = DepthFrame {
             width: frame.width,
             height: frame.height,
-            intrinsics: Intrinsics { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy },
+            intrinsics: Intrinsics {
+                fx: k.fx,
+                fy: k.fy,
+                cx: k.cx,
+                cy: k.cy,
+            },
             depth_scale_mm: frame.depth_scale_mm,
             depth: frame.depth,
         };
@@ -188,16 +245,30 @@ impl DetectionEngine for PpfEngine {
             .iter()
             .map(|m| {
                 m.data.downcast_ref::<ObjectModel>().ok_or_else(|| {
-                    EngineError::new(Status::Internal, format!("model {} was not loaded by this engine", m.info.object_id))
+                    EngineError::new(
+                        Status::Internal,
+                        format!("model {} was not loaded by this engine", m.info.object_id),
+                    )
                 })
             })
             .collect::<Result<_, _>>()?;
-        let opts = ModelOptions { hypotheses_per_object: options.hypotheses_per_object, deadline: options.deadline };
-        let found = self.detector.detect(&depth_frame, &object_models, &opts).map_err(model_error)?;
+        let opts = ModelOptions {
+            hypotheses_per_object: options.hypotheses_per_object,
+            deadline: options.deadline,
+        };
+        let found = self
+            .detector
+            .detect(&depth_frame, &object_models, &opts)
+            .map_err(model_error)?;
 
         let mut hypotheses = Vec::new();
         for object in &found.objects {
-            for (rank, h) in object.hypotheses.iter().take(options.hypotheses_per_object).enumerate() {
+            for (rank, h) in object
+                .hypotheses
+                .iter()
+                .take(options.hypotheses_per_object)
+                .enumerate()
+            {
                 let r = h.pose.rotation.to_rotation_matrix();
                 let m = r.matrix();
                 let t = h.pose.translation.vector;
@@ -205,9 +276,15 @@ impl DetectionEngine for PpfEngine {
                     object_id: object.object_id,
                     instance_rank: rank as u32,
                     rotation: [
-                        m[(0, 0)], m[(0, 1)], m[(0, 2)],
-                        m[(1, 0)], m[(1, 1)], m[(1, 2)],
-                        m[(2, 0)], m[(2, 1)], m[(2, 2)],
+                        m[(0, 0)],
+                        m[(0, 1)],
+                        m[(0, 2)],
+                        m[(1, 0)],
+                        m[(1, 1)],
+                        m[(1, 2)],
+                        m[(2, 0)],
+                        m[(2, 1)],
+                        m[(2, 2)],
                     ],
                     translation_mm: [t.x, t.y, t.z],
                     score: h.score,
@@ -262,6 +339,12 @@ mod tests {
             PathBuf::from("d/readme.txt"),
         ];
         let chosen = e.select(files);
-        assert_eq!(chosen, vec![PathBuf::from("d/obj_000001.ppfm"), PathBuf::from("d/obj_000002.ply")]);
+        assert_eq!(
+            chosen,
+            vec![
+                PathBuf::from("d/obj_000001.ppfm"),
+                PathBuf::from("d/obj_000002.ply")
+            ]
+        );
     }
 }

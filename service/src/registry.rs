@@ -25,7 +25,8 @@ impl Registry {
         dir: &Path,
         cache_dir: Option<&Path>,
     ) -> Result<Vec<(PathBuf, EngineError)>, String> {
-        let entries = std::fs::read_dir(dir).map_err(|e| format!("model directory {}: {e}", dir.display()))?;
+        let entries = std::fs::read_dir(dir)
+            .map_err(|e| format!("model directory {}: {e}", dir.display()))?;
         let mut files: Vec<PathBuf> = entries
             .filter_map(|e| e.ok().map(|e| e.path()))
             .filter(|p| p.is_file())

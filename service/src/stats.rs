@@ -86,8 +86,14 @@ impl Stats {
 
 /// Resident set size of this process, bytes (0 where `/proc` is not available).
 pub fn resident_bytes() -> u64 {
-    let Ok(statm) = std::fs::read_to_string("/proc/self/statm") else { return 0 };
-    let pages: u64 = statm.split_whitespace().nth(1).and_then(|v| v.parse().ok()).unwrap_or(0);
+    let Ok(statm) = std::fs::read_to_string("/proc/self/statm") else {
+        return 0;
+    };
+    let pages: u64 = statm
+        .split_whitespace()
+        .nth(1)
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
     // SAFETY: sysconf has no preconditions.
     let page = unsafe { libc::sysconf(libc::_SC_PAGESIZE) };
     pages * page.max(0) as u64
@@ -106,8 +112,16 @@ mod tests {
         let snap = s.snapshot();
         assert_eq!(snap.requests_served, 100);
         assert_eq!(snap.total.count, 100);
-        assert!((49_000..=51_000).contains(&snap.total.p50_ns), "{:?}", snap.total);
-        assert!((98_000..=100_100).contains(&snap.total.p99_ns), "{:?}", snap.total);
+        assert!(
+            (49_000..=51_000).contains(&snap.total.p50_ns),
+            "{:?}",
+            snap.total
+        );
+        assert!(
+            (98_000..=100_100).contains(&snap.total.p99_ns),
+            "{:?}",
+            snap.total
+        );
         assert!(snap.total.max_ns >= 100_000);
         assert!(snap.resident_bytes > 0);
     }

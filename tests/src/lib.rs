@@ -7,7 +7,9 @@ use std::process::{Child, ChildStdout, Command, Stdio};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use ppfd::engine::{DetectOptions, DetectionEngine, EngineError, EngineOutput, FrameView, LoadedModel};
+use ppfd::engine::{
+    DetectOptions, DetectionEngine, EngineError, EngineOutput, FrameView, LoadedModel,
+};
 use ppfd_protocol::control::ModelInfo;
 use ppfd_protocol::detect::{checks, DetectCounts, LatencyBreakdown, PoseHypothesis, Status};
 use ppfd_protocol::text;
@@ -24,8 +26,13 @@ pub struct FakeEngine {
 impl FakeEngine {
     /// The delay from `PPFD_FAKE_DELAY_MS` (default 0).
     pub fn from_env() -> FakeEngine {
-        let ms = std::env::var("PPFD_FAKE_DELAY_MS").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
-        FakeEngine { delay: Duration::from_millis(ms) }
+        let ms = std::env::var("PPFD_FAKE_DELAY_MS")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0);
+        FakeEngine {
+            delay: Duration::from_millis(ms),
+        }
     }
 }
 
@@ -38,12 +45,21 @@ impl DetectionEngine for FakeEngine {
         path.extension().is_some_and(|e| e == "fake")
     }
 
-    fn load(&self, path: &Path, object_id: Option<u32>, _cache: Option<&Path>) -> Result<LoadedModel, EngineError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| EngineError::new(Status::ModelError, format!("{}: {e}", path.display())))?;
+    fn load(
+        &self,
+        path: &Path,
+        object_id: Option<u32>,
+        _cache: Option<&Path>,
+    ) -> Result<LoadedModel, EngineError> {
+        let text = std::fs::read_to_string(path).map_err(|e| {
+            EngineError::new(Status::ModelError, format!("{}: {e}", path.display()))
+        })?;
         let mut words = text.split_whitespace();
         let id: u32 = words.next().and_then(|w| w.parse().ok()).ok_or_else(|| {
-            EngineError::new(Status::ModelError, format!("{}: expected '<object id> <name>'", path.display()))
+            EngineError::new(
+                Status::ModelError,
+                format!("{}: expected '<object id> <name>'", path.display()),
+            )
         })?;
         let name = words.next().unwrap_or("fake");
         Ok(LoadedModel {
@@ -68,7 +84,13 @@ impl DetectionEngine for FakeEngine {
         options: &DetectOptions,
     ) -> Result<EngineOutput, EngineError> {
         let started = Instant::now();
-        let mut valid: Vec<u16> = frame.depth.iter().copied().filter(|&d| d != 0).step_by(64).collect();
+        let mut valid: Vec<u16> = frame
+            .depth
+            .iter()
+            .copied()
+            .filter(|&d| d != 0)
+            .step_by(64)
+            .collect();
         let z = if valid.is_empty() {
             0.0
         } else {
@@ -94,8 +116,14 @@ impl DetectionEngine for FakeEngine {
         }
         Ok(EngineOutput {
             hypotheses,
-            stages: LatencyBreakdown { voting_ns: started.elapsed().as_nanos() as u64, ..Default::default() },
-            counts: DetectCounts { scene_points: valid.len() as u32, ..Default::default() },
+            stages: LatencyBreakdown {
+                voting_ns: started.elapsed().as_nanos() as u64,
+                ..Default::default()
+            },
+            counts: DetectCounts {
+                scene_points: valid.len() as u32,
+                ..Default::default()
+            },
         })
     }
 }
@@ -113,12 +141,21 @@ impl Prefix {
 
 impl Drop for Prefix {
     fn drop(&mut self) {
-        for dir in ["/dev/shm", "/tmp/iceoryx2/services", "/tmp/iceoryx2/nodes", "/tmp/iceoryx2"] {
+        for dir in [
+            "/dev/shm",
+            "/tmp/iceoryx2/services",
+            "/tmp/iceoryx2/nodes",
+            "/tmp/iceoryx2",
+        ] {
             if let Ok(entries) = std::fs::read_dir(dir) {
                 for e in entries.flatten() {
                     if e.file_name().to_string_lossy().starts_with(&self.0) {
                         let p = e.path();
-                        let _ = if p.is_dir() { std::fs::remove_dir_all(&p) } else { std::fs::remove_file(&p) };
+                        let _ = if p.is_dir() {
+                            std::fs::remove_dir_all(&p)
+                        } else {
+                            std::fs::remove_file(&p)
+                        };
                     }
                 }
             }
@@ -138,11 +175,15 @@ impl Proc {
     /// Starts `program` with `args`, stdout piped, stderr inherited.
     pub fn spawn(program: &Path, args: &[&str], envs: &[(&str, &str)]) -> Proc {
         let mut cmd = Command::new(program);
-        cmd.args(args).stdout(Stdio::piped()).stderr(Stdio::inherit());
+        cmd.args(args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit());
         for (k, v) in envs {
             cmd.env(k, v);
         }
-        let mut child = cmd.spawn().unwrap_or_else(|e| panic!("cannot start {}: {e}", program.display()));
+        let mut child = cmd
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {}: {e}", program.display()));
         let stdout = child.stdout.take().map(BufReader::new);
         Proc { child, stdout }
     }
@@ -174,7 +215,10 @@ impl Proc {
                 self.stdout = Some(handle.join().expect("reader thread"));
                 line
             }
-            Ok(None) => panic!("process ended before printing {prefix:?}: {:?}", self.child.try_wait()),
+            Ok(None) => panic!(
+                "process ended before printing {prefix:?}: {:?}",
+                self.child.try_wait()
+            ),
             Err(_) => panic!("no {prefix:?} line within {timeout:?}"),
         }
     }
@@ -213,7 +257,11 @@ pub fn fake_model_dir(test: &str, ids: &[u32]) -> PathBuf {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     for id in ids {
-        std::fs::write(dir.join(format!("obj_{id:06}.fake")), format!("{id} part{id}\n")).unwrap();
+        std::fs::write(
+            dir.join(format!("obj_{id:06}.fake")),
+            format!("{id} part{id}\n"),
+        )
+        .unwrap();
     }
     dir
 }

@@ -8,19 +8,34 @@ use std::time::{Duration, Instant};
 use ppfd_client::{CameraPublisher, Intrinsics};
 
 fn arg(args: &[String], name: &str) -> Option<String> {
-    args.iter().position(|a| a == name).and_then(|i| args.get(i + 1)).cloned()
+    args.iter()
+        .position(|a| a == name)
+        .and_then(|i| args.get(i + 1))
+        .cloned()
 }
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let prefix = arg(&args, "--prefix");
     let camera = arg(&args, "--camera").unwrap_or_else(|| "cam0".into());
-    let fps: f64 = arg(&args, "--fps").and_then(|v| v.parse().ok()).unwrap_or(30.0);
-    let frames: u64 = arg(&args, "--frames").and_then(|v| v.parse().ok()).unwrap_or(0);
+    let fps: f64 = arg(&args, "--fps")
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(30.0);
+    let frames: u64 = arg(&args, "--frames")
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
     let (width, height, intrinsics, scale) = (640u32, 480u32, Intrinsics::LMO, 1.0f32);
     let depth = vec![800u16; 640 * 480];
-    let mut publisher =
-        CameraPublisher::new(prefix.as_deref(), &camera, 7, width, height, intrinsics, scale).expect("camera publisher");
+    let mut publisher = CameraPublisher::new(
+        prefix.as_deref(),
+        &camera,
+        7,
+        width,
+        height,
+        intrinsics,
+        scale,
+    )
+    .expect("camera publisher");
     let mut out = std::io::stdout().lock();
     writeln!(out, "camera ready").unwrap();
     out.flush().unwrap();

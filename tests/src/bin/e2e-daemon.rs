@@ -5,7 +5,8 @@ use std::process::ExitCode;
 use std::sync::Arc;
 
 fn main() -> ExitCode {
-    let engine: Arc<dyn ppfd::DetectionEngine> = match std::env::var("PPFD_TEST_ENGINE").as_deref() {
+    let engine: Arc<dyn ppfd::DetectionEngine> = match std::env::var("PPFD_TEST_ENGINE").as_deref()
+    {
         Ok("fake") => Arc::new(ppfd_tests::FakeEngine::from_env()),
         _ => Arc::new(ppfd::ppf_engine::PpfEngine::default()),
     };
