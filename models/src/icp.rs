@@ -55,11 +55,20 @@ pub struct IcpResult {
 }
 
 /// Refines `pose` of the model `surface` against `scene`.
-pub fn refine(surface: &OrientedPoints, pose: &Pose, scene: &SceneImage, diameter_mm: f32, params: &IcpParams) -> IcpResult {
+pub fn refine(
+    surface: &OrientedPoints,
+    pose: &Pose,
+    scene: &SceneImage,
+    diameter_mm: f32,
+    params: &IcpParams,
+) -> IcpResult {
     let k = &scene.intrinsics;
     let cos_max = params.max_normal_angle_deg.to_radians().cos();
     let mut pose = *pose;
-    let mut result = IcpResult { pose, ..Default::default() };
+    let mut result = IcpResult {
+        pose,
+        ..Default::default()
+    };
     let mut max_d = params.initial_distance_fraction * diameter_mm;
     let min_d = params.final_distance_fraction * diameter_mm;
     for it in 0..params.iterations {
@@ -74,14 +83,23 @@ pub fn refine(surface: &OrientedPoints, pose: &Pose, scene: &SceneImage, diamete
                 continue;
             }
             let uv = k.project(&pc);
-            let Some((q, qn)) = scene.at(uv.x.round() as i64, uv.y.round() as i64) else { continue };
+            let Some((q, qn)) = scene.at(uv.x.round() as i64, uv.y.round() as i64) else {
+                continue;
+            };
             let d = pc - q;
             if d.norm_squared() > max_d * max_d || qn.dot(&nc) < cos_max {
                 continue;
             }
             // r = (p × n)·ω + n·δt + (p − q)·n, linear in the small motion (ω, δt).
             let c = pc.coords.cross(&qn);
-            let row = Vector6::new(c.x as f64, c.y as f64, c.z as f64, qn.x as f64, qn.y as f64, qn.z as f64);
+            let row = Vector6::new(
+                c.x as f64,
+                c.y as f64,
+                c.z as f64,
+                qn.x as f64,
+                qn.y as f64,
+                qn.z as f64,
+            );
             let r = d.dot(&qn) as f64;
             ata += row * row.transpose();
             atb -= row * r;
@@ -94,14 +112,21 @@ pub fn refine(surface: &OrientedPoints, pose: &Pose, scene: &SceneImage, diamete
             break;
         }
         result.rms_mm = (sq / count as f64).sqrt() as f32;
-        let Some(x) = ata.cholesky().map(|c| c.solve(&atb)) else { break };
+        let Some(x) = ata.cholesky().map(|c| c.solve(&atb)) else {
+            break;
+        };
         let omega = Vector3::new(x[0] as f32, x[1] as f32, x[2] as f32);
         let dt = Vector3::new(x[3] as f32, x[4] as f32, x[5] as f32);
-        let update = Pose::from_parts(Translation3::from(dt), UnitQuaternion::from_scaled_axis(omega));
+        let update = Pose::from_parts(
+            Translation3::from(dt),
+            UnitQuaternion::from_scaled_axis(omega),
+        );
         pose = update * pose;
         result.pose = pose;
         max_d = (max_d * 0.5).max(min_d);
-        if dt.norm() < params.convergence_translation_mm && omega.norm() < params.convergence_rotation {
+        if dt.norm() < params.convergence_translation_mm
+            && omega.norm() < params.convergence_rotation
+        {
             break;
         }
     }

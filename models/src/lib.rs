@@ -16,13 +16,16 @@
 //! Units: millimetres for lengths, radians for angles; a pose maps model coordinates into camera
 //! coordinates, `p_cam = R p_model + t`, OpenCV camera convention.
 
+pub mod bop;
 pub mod camera;
 pub mod clustering;
 pub mod detector;
 pub mod error;
 pub mod feature;
+pub mod icp;
 pub mod mesh;
 pub mod model;
+pub mod rescoring;
 pub mod sampling;
 pub mod scene;
 pub mod store;

@@ -37,7 +37,11 @@ pub struct RescoringParams {
 
 impl Default for RescoringParams {
     fn default() -> Self {
-        Self { top_clusters: 500, tolerance_fraction: 0.05, max_normal_angle_deg: 45.0 }
+        Self {
+            top_clusters: 500,
+            tolerance_fraction: 0.05,
+            max_normal_angle_deg: 45.0,
+        }
     }
 }
 
@@ -64,7 +68,13 @@ impl Fit {
 }
 
 /// Measures the fit of `surface` (model coordinates) at `pose` against `scene`.
-pub fn fit(surface: &OrientedPoints, pose: &Pose, scene: &SceneImage, tolerance_mm: f32, max_normal_angle_deg: f32) -> Fit {
+pub fn fit(
+    surface: &OrientedPoints,
+    pose: &Pose,
+    scene: &SceneImage,
+    tolerance_mm: f32,
+    max_normal_angle_deg: f32,
+) -> Fit {
     let k = &scene.intrinsics;
     let cos_max = max_normal_angle_deg.to_radians().cos();
     let mut f = Fit::default();
@@ -120,8 +130,19 @@ pub fn rescore(
     let mut scored: Vec<Scored> = poses
         .par_iter()
         .map(|&(pose, votes)| {
-            let fit = fit(surface, &pose, scene, tolerance, params.max_normal_angle_deg);
-            Scored { pose, votes, fit, score: fit.inliers as f32 / total }
+            let fit = fit(
+                surface,
+                &pose,
+                scene,
+                tolerance,
+                params.max_normal_angle_deg,
+            );
+            Scored {
+                pose,
+                votes,
+                fit,
+                score: fit.inliers as f32 / total,
+            }
         })
         .collect();
     scored.sort_by(|a, b| b.score.total_cmp(&a.score).then(b.votes.cmp(&a.votes)));

@@ -1,1 +1,34 @@
-fn main() {}
+//! `ppf`: the ppfd command line.
+
+mod model;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser, Debug)]
+#[command(
+    name = "ppf",
+    version,
+    about = "ppfd command line: models, detection, evaluation"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Build and inspect object model files.
+    #[command(subcommand)]
+    Model(model::ModelCommand),
+}
+
+fn main() {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Model(cmd) => model::run(cmd),
+    };
+    if let Err(e) = result {
+        eprintln!("error: {e}");
+        std::process::exit(1);
+    }
+}
