@@ -174,6 +174,12 @@ impl<'a> FrameLoan<'a> {
 }
 
 impl ReadyFrame<'_> {
+    /// The frame's header (starts as the publisher's template), e.g. to set per-frame
+    /// intrinsics.
+    pub fn header_mut(&mut self) -> &mut FrameHeader {
+        self.sample.user_header_mut()
+    }
+
     /// The depth values, to adjust after writing.
     pub fn depth_mut(&mut self) -> &mut [u16] {
         self.sample.payload_mut()

@@ -1,6 +1,12 @@
 //! `ppf`: the ppfd command line.
 
+mod bench;
+mod common;
+mod daemon;
+mod demo;
+mod detect;
 mod model;
+mod replay;
 
 use clap::{Parser, Subcommand};
 
@@ -20,12 +26,30 @@ enum Command {
     /// Build and inspect object model files.
     #[command(subcommand)]
     Model(model::ModelCommand),
+    /// Publish the depth frames of a BOP dataset as a camera.
+    Replay(replay::ReplayArgs),
+    /// Ask the daemon to detect objects in a camera's newest frame.
+    Detect(detect::DetectArgs),
+    /// Profile the daemon's latency with many requests from several clients.
+    Bench(bench::BenchArgs),
+    /// List, load or drop the daemon's models.
+    Models(daemon::ModelsArgs),
+    /// Print the daemon's statistics.
+    Stats(daemon::StatsArgs),
+    /// Start a daemon, publish a generated scene, detect, compare with the truth, stop.
+    Demo(demo::DemoArgs),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Model(cmd) => model::run(cmd),
+        Command::Replay(args) => replay::run(args).map_err(Into::into),
+        Command::Detect(args) => detect::run(args).map_err(Into::into),
+        Command::Bench(args) => bench::run(args).map_err(Into::into),
+        Command::Models(args) => daemon::models(args).map_err(Into::into),
+        Command::Stats(args) => daemon::stats(args).map_err(Into::into),
+        Command::Demo(args) => demo::run(args).map_err(Into::into),
     };
     if let Err(e) = result {
         eprintln!("error: {e}");
