@@ -1,4 +1,5 @@
-//! A camera driver for the end-to-end tests: publishes VGA frames of a flat wall at `--fps`, `--frames` times (0: until killed), then
+//! A camera driver for the end-to-end tests: publishes VGA frames of a flat wall, or one frame of
+//! a BOP dataset (`--bop <root> --scene <id> --image <id>`), at `--fps`, `--frames` times (0: until killed), then
 //! stays alive without publishing (a camera that stopped). Prints `camera ready` when its service
 //! exists and `frame <seq>` per frame.
 
@@ -24,8 +25,18 @@ fn main() {
     let frames: u64 = arg(&args, "--frames")
         .and_then(|v| v.parse().ok())
         .unwrap_or(0);
-    let (width, height, intrinsics, scale) = (640u32, 480u32, Intrinsics::LMO, 1.0f32);
-    let depth = vec![800u16; 640 * 480];
+    let (width, height, intrinsics, scale, depth) = match arg(&args, "--bop") {
+        Some(root) => {
+            let scene: u32 = arg(&args, "--scene").and_then(|v| v.parse().ok()).unwrap_or(0);
+            let image: u32 = arg(&args, "--image").and_then(|v| v.parse().ok()).unwrap_or(0);
+            let dataset = ppfd_models::bop::BopDataset::open(&root).expect("BOP dataset");
+            let f = dataset.depth_frame(scene, image).expect("depth frame");
+            let k = f.intrinsics;
+            let k = Intrinsics { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy };
+            (f.width, f.height, k, f.depth_scale_mm, f.depth)
+        }
+        None => (640u32, 480u32, Intrinsics::LMO, 1.0f32, vec![800u16; 640 * 480]),
+    };
     let mut publisher = CameraPublisher::new(
         prefix.as_deref(),
         &camera,

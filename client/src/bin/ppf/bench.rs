@@ -8,7 +8,7 @@ use clap::Args;
 use hdrhistogram::Histogram;
 use ppfd_client::{DetectOptions, Latency};
 
-use crate::common::{millis, ms, parse_objects, stages, Connect};
+use crate::common::{millis, ms, stages, Connect};
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
@@ -16,7 +16,7 @@ pub struct BenchArgs {
     #[arg(long)]
     pub camera: String,
     /// Object ids, comma-separated.
-    #[arg(long, value_parser = parse_objects)]
+    #[arg(long, value_delimiter = ',', required = true)]
     pub objects: Vec<u32>,
     /// Requests in all (after warm-up).
     #[arg(long, default_value_t = 200)]

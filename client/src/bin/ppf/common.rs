@@ -23,18 +23,6 @@ impl Connect {
     }
 }
 
-/// Parses `1,5,6` into object ids.
-pub fn parse_objects(s: &str) -> Result<Vec<u32>, String> {
-    s.split(',')
-        .filter(|p| !p.trim().is_empty())
-        .map(|p| {
-            p.trim()
-                .parse::<u32>()
-                .map_err(|_| format!("{p:?} is not an object id"))
-        })
-        .collect()
-}
-
 /// The stages of a breakdown, named, in pipeline order (ns).
 pub fn stages(l: &LatencyBreakdown) -> [(&'static str, u64); 9] {
     [

@@ -4,7 +4,7 @@
 use clap::Args;
 use ppfd_client::DetectOptions;
 
-use crate::common::{millis, parse_objects, print_hypotheses, print_latency, Connect};
+use crate::common::{millis, print_hypotheses, print_latency, Connect};
 
 #[derive(Args, Debug)]
 pub struct DetectArgs {
@@ -12,7 +12,7 @@ pub struct DetectArgs {
     #[arg(long)]
     pub camera: String,
     /// Object ids, comma-separated.
-    #[arg(long, value_parser = parse_objects)]
+    #[arg(long, value_delimiter = ',', required = true)]
     pub objects: Vec<u32>,
     /// Hypotheses per object.
     #[arg(long, default_value_t = 1)]
