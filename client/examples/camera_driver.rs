@@ -17,7 +17,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let fps: f64 = args.next().and_then(|v| v.parse().ok()).unwrap_or(30.0);
     let (width, height) = (640u32, 480u32);
     let prefix = ppfd_client::prefix_from_env();
-    let mut publisher = CameraPublisher::new(prefix.as_deref(), &camera, 0, width, height, Intrinsics::LMO, 1.0)?;
+    let mut publisher = CameraPublisher::new(
+        prefix.as_deref(),
+        &camera,
+        0,
+        width,
+        height,
+        Intrinsics::LMO,
+        1.0,
+    )?;
     println!("publishing {width}x{height} depth as camera {camera:?} at {fps} fps (Ctrl-C stops)");
 
     let period = Duration::from_secs_f64(1.0 / fps);
@@ -28,7 +36,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let frame = publisher.loan()?.write_from_fn(|i| {
             let (u, v) = ((i as u32 % width) as f32, (i as u32 / width) as f32);
             let wall = 900.0 + 0.2 * u + 0.1 * v;
-            let in_box = (250.0..390.0).contains(&(u - 40.0 * t.sin())) && (180.0..300.0).contains(&v);
+            let in_box =
+                (250.0..390.0).contains(&(u - 40.0 * t.sin())) && (180.0..300.0).contains(&v);
             (if in_box { wall - 80.0 } else { wall }) as u16
         });
         let seq = frame.send(capture)?;

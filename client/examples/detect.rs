@@ -14,7 +14,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let objects = if objects.is_empty() { vec![1] } else { objects };
 
     let client = Client::connect()?;
-    let found = client.detect(&camera, &objects, &DetectOptions { hypotheses_per_object: 3, ..Default::default() })?;
+    let found = client.detect(
+        &camera,
+        &objects,
+        &DetectOptions {
+            hypotheses_per_object: 3,
+            ..Default::default()
+        },
+    )?;
     for h in &found.hypotheses {
         let pose = isometry(h);
         let t = pose.translation.vector;

@@ -15,9 +15,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
     let camera = args.next().unwrap_or_else(|| "kinect".into());
     let cycles: usize = args.next().and_then(|v| v.parse().ok()).unwrap_or(10);
-    let orders: Vec<Vec<u32>> =
-        args.map(|o| o.split(',').filter_map(|s| s.parse().ok()).collect()).filter(|o: &Vec<u32>| !o.is_empty()).collect();
-    let orders = if orders.is_empty() { vec![vec![1, 5, 6], vec![8, 9]] } else { orders };
+    let orders: Vec<Vec<u32>> = args
+        .map(|o| o.split(',').filter_map(|s| s.parse().ok()).collect())
+        .filter(|o: &Vec<u32>| !o.is_empty())
+        .collect();
+    let orders = if orders.is_empty() {
+        vec![vec![1, 5, 6], vec![8, 9]]
+    } else {
+        orders
+    };
 
     let client = Client::connect()?;
     let options = DetectOptions {
@@ -31,8 +37,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let start = Instant::now();
         let found = match client.detect(&camera, order, &options) {
             Ok(found) => found,
-            Err(Error::Refused { status: Status::CameraStale, value, .. }) => {
-                println!("cycle {cycle}: camera stale ({:.0} ms), waiting for the driver", value as f64 / 1e6);
+            Err(Error::Refused {
+                status: Status::CameraStale,
+                value,
+                ..
+            }) => {
+                println!(
+                    "cycle {cycle}: camera stale ({:.0} ms), waiting for the driver",
+                    value as f64 / 1e6
+                );
                 std::thread::sleep(Duration::from_millis(200));
                 continue;
             }
@@ -42,7 +55,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
         };
         // The best-scored instance of any object of the order is the next pick.
-        let Some(best) = found.hypotheses.iter().max_by(|a, b| a.score.total_cmp(&b.score)) else {
+        let Some(best) = found
+            .hypotheses
+            .iter()
+            .max_by(|a, b| a.score.total_cmp(&b.score))
+        else {
             println!("cycle {cycle}: nothing of {order:?} in view");
             continue;
         };

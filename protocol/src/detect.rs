@@ -488,9 +488,7 @@ mod tests {
         let mut r = DetectRequestHeader::default();
         assert!(r.set_objects(&[]).is_err());
         assert!(r.set_objects(&[1, 1]).is_err());
-        assert!(r
-            .set_objects(&vec![1; MAX_OBJECTS_PER_REQUEST + 1])
-            .is_err());
+        assert!(r.set_objects(&[1; MAX_OBJECTS_PER_REQUEST + 1]).is_err());
         r.set_objects(&[7, 8, 9]).unwrap();
         assert_eq!(r.objects(), &[7, 8, 9]);
     }

@@ -21,7 +21,8 @@ pub struct Intrinsics {
 }
 
 impl Intrinsics {
-    /// The LM-O (Kinect v1) camera, 640×480.
+    /// The LM-O (Kinect v1) camera, 640×480 (digits as the dataset gives them).
+    #[allow(clippy::excessive_precision)]
     pub const LMO: Intrinsics = Intrinsics {
         fx: 572.4114,
         fy: 573.57043,

@@ -16,7 +16,10 @@ fn dataset_root() -> Option<PathBuf> {
         return Some(root);
     }
     if std::env::var("CI").as_deref() == Ok("true") {
-        panic!("{} is missing and CI=true: the test data must be there", root.display());
+        panic!(
+            "{} is missing and CI=true: the test data must be there",
+            root.display()
+        );
     }
     eprintln!("skipping: {} not found", root.display());
     None
@@ -27,7 +30,12 @@ fn poses_through_the_whole_path_match_the_ground_truth() {
     let Some(root) = dataset_root() else { return };
     let dataset = BopDataset::open(&root).unwrap();
     let (scene, image) = (dataset.scene_ids()[0], 0);
-    let image = dataset.image_ids(scene).unwrap().first().copied().unwrap_or(image);
+    let image = dataset
+        .image_ids(scene)
+        .unwrap()
+        .first()
+        .copied()
+        .unwrap_or(image);
     let truth = dataset.ground_truth(scene, image).unwrap().to_vec();
     let info = dataset.ground_truth_info(scene, image).unwrap().to_vec();
     // The well visible objects: a depth-only method cannot be asked to find a sliver.
@@ -35,10 +43,19 @@ fn poses_through_the_whole_path_match_the_ground_truth() {
         .iter()
         .zip(&info)
         .filter(|(_, i)| i.visib_fract >= 0.6)
-        .map(|(g, _)| (g.obj_id, g.pose, dataset.model_info(g.obj_id).unwrap().diameter_mm))
+        .map(|(g, _)| {
+            (
+                g.obj_id,
+                g.pose,
+                dataset.model_info(g.obj_id).unwrap().diameter_mm,
+            )
+        })
         .take(1)
         .collect();
-    assert!(!wanted.is_empty(), "scene {scene} image {image} has no well visible object");
+    assert!(
+        !wanted.is_empty(),
+        "scene {scene} image {image} has no well visible object"
+    );
 
     let prefix = Prefix::new("poses");
     let work = std::env::temp_dir().join(format!("ppfd-e2e-poses-{}", std::process::id()));
@@ -52,11 +69,16 @@ fn poses_through_the_whole_path_match_the_ground_truth() {
     let mut d = Proc::spawn(
         Path::new(DAEMON),
         &[
-            "--prefix", &prefix.0,
-            "--models", models.to_str().unwrap(),
-            "--model-cache", cache.to_str().unwrap(),
-            "--housekeeping-ms", "100",
-            "--max-frame-age-ms", "5000",
+            "--prefix",
+            &prefix.0,
+            "--models",
+            models.to_str().unwrap(),
+            "--model-cache",
+            cache.to_str().unwrap(),
+            "--housekeeping-ms",
+            "100",
+            "--max-frame-age-ms",
+            "5000",
         ],
         &[],
     );
@@ -64,7 +86,20 @@ fn poses_through_the_whole_path_match_the_ground_truth() {
     let (scene_s, image_s) = (scene.to_string(), image.to_string());
     let mut cam = Proc::spawn(
         Path::new(CAMERA),
-        &["--prefix", &prefix.0, "--camera", "synth", "--fps", "5", "--bop", root.to_str().unwrap(), "--scene", &scene_s, "--image", &image_s],
+        &[
+            "--prefix",
+            &prefix.0,
+            "--camera",
+            "synth",
+            "--fps",
+            "5",
+            "--bop",
+            root.to_str().unwrap(),
+            "--scene",
+            &scene_s,
+            "--image",
+            &image_s,
+        ],
         &[],
     );
     cam.wait_line("camera ready", Duration::from_secs(20));
@@ -76,20 +111,39 @@ fn poses_through_the_whole_path_match_the_ground_truth() {
         ..Default::default()
     })
     .unwrap();
-    let options = ppfd_client::DetectOptions { hypotheses_per_object: 3, timeout: Duration::from_secs(600), ..Default::default() };
+    let options = ppfd_client::DetectOptions {
+        hypotheses_per_object: 3,
+        timeout: Duration::from_secs(600),
+        ..Default::default()
+    };
     let found = client.detect("synth", &ids, &options).expect("detections");
     eprintln!("latency: {:?}", found.latency);
     for (id, truth, diameter) in &wanted {
-        let best = found.best(*id).unwrap_or_else(|| panic!("no hypothesis for object {id}"));
+        let best = found
+            .best(*id)
+            .unwrap_or_else(|| panic!("no hypothesis for object {id}"));
         let pose = ppfd_client::isometry(best);
         let dt = (pose.translation.vector - truth.translation.vector).norm();
         let dr = pose.rotation.angle_to(&truth.rotation).to_degrees();
-        eprintln!("object {id}: dt {dt:.1} mm, dR {dr:.1} deg, score {:.3}", best.score);
+        eprintln!(
+            "object {id}: dt {dt:.1} mm, dR {dr:.1} deg, score {:.3}",
+            best.score
+        );
         // Translation within a tenth of the diameter; rotation loosely (symmetric objects).
-        assert!(dt < 0.1 * diameter, "object {id}: translation off by {dt:.1} mm (diameter {diameter:.0})");
+        assert!(
+            dt < 0.1 * diameter,
+            "object {id}: translation off by {dt:.1} mm (diameter {diameter:.0})"
+        );
     }
-    assert!(found.latency.daemon.detection_ns > 0 && found.latency.end_to_end_ns >= found.latency.daemon.detection_ns);
-    assert!(found.counts.scene_points > 0 && found.counts.pairs > 0, "{:?}", found.counts);
+    assert!(
+        found.latency.daemon.detection_ns > 0
+            && found.latency.end_to_end_ns >= found.latency.daemon.detection_ns
+    );
+    assert!(
+        found.counts.scene_points > 0 && found.counts.pairs > 0,
+        "{:?}",
+        found.counts
+    );
 
     let _ = std::fs::remove_dir_all(&work);
 }

@@ -27,15 +27,30 @@ fn main() {
         .unwrap_or(0);
     let (width, height, intrinsics, scale, depth) = match arg(&args, "--bop") {
         Some(root) => {
-            let scene: u32 = arg(&args, "--scene").and_then(|v| v.parse().ok()).unwrap_or(0);
-            let image: u32 = arg(&args, "--image").and_then(|v| v.parse().ok()).unwrap_or(0);
+            let scene: u32 = arg(&args, "--scene")
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(0);
+            let image: u32 = arg(&args, "--image")
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(0);
             let dataset = ppfd_models::bop::BopDataset::open(&root).expect("BOP dataset");
             let f = dataset.depth_frame(scene, image).expect("depth frame");
             let k = f.intrinsics;
-            let k = Intrinsics { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy };
+            let k = Intrinsics {
+                fx: k.fx,
+                fy: k.fy,
+                cx: k.cx,
+                cy: k.cy,
+            };
             (f.width, f.height, k, f.depth_scale_mm, f.depth)
         }
-        None => (640u32, 480u32, Intrinsics::LMO, 1.0f32, vec![800u16; 640 * 480]),
+        None => (
+            640u32,
+            480u32,
+            Intrinsics::LMO,
+            1.0f32,
+            vec![800u16; 640 * 480],
+        ),
     };
     let mut publisher = CameraPublisher::new(
         prefix.as_deref(),

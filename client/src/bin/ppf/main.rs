@@ -63,13 +63,26 @@ mod tests {
 
     #[test]
     fn daemon_subcommands_parse() {
-        let cli = Cli::try_parse_from(["ppf", "detect", "--camera", "k", "--objects", "1,5,6"]).unwrap();
+        let cli =
+            Cli::try_parse_from(["ppf", "detect", "--camera", "k", "--objects", "1,5,6"]).unwrap();
         match cli.command {
             Command::Detect(a) => assert_eq!(a.objects, vec![1, 5, 6]),
             other => panic!("{other:?}"),
         }
-        let cli = Cli::try_parse_from(["ppf", "bench", "--camera", "k", "--objects", "2", "--clients", "3"]).unwrap();
-        assert!(matches!(cli.command, Command::Bench(ref a) if a.clients == 3 && a.objects == vec![2]));
+        let cli = Cli::try_parse_from([
+            "ppf",
+            "bench",
+            "--camera",
+            "k",
+            "--objects",
+            "2",
+            "--clients",
+            "3",
+        ])
+        .unwrap();
+        assert!(
+            matches!(cli.command, Command::Bench(ref a) if a.clients == 3 && a.objects == vec![2])
+        );
         for args in [
             vec!["ppf", "replay", "/d", "--camera", "k", "--loop"],
             vec!["ppf", "models", "--drop", "3"],
