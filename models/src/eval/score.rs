@@ -213,7 +213,6 @@ pub struct ScoreReport {
 /// The targets of one image, keyed by (scene, image).
 type ImageTargets = BTreeMap<(u32, u32), Vec<(u32, u32)>>;
 
-#[cfg(any())]
 /// Scores `rows` against `dataset` (see the [module documentation](super)), rendering with
 /// [`crate::render::Renderer`].
 pub fn score_results(
