@@ -8,6 +8,7 @@ mod detect;
 mod detect_offline;
 mod model;
 mod offline;
+mod profile;
 mod replay;
 
 use clap::{Parser, Subcommand};
@@ -28,6 +29,8 @@ enum Command {
     /// Build and inspect object model files.
     #[command(subcommand)]
     Model(model::ModelCommand),
+    /// Time the detector's stages on a dataset frame, per object (medians of repeated runs).
+    Profile(profile::ProfileArgs),
     /// Publish the depth frames of a BOP dataset as a camera.
     Replay(replay::ReplayArgs),
     /// Detect objects: in a camera's newest frame through the daemon (`--camera`), or in a
@@ -47,6 +50,7 @@ fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Model(cmd) => model::run(cmd),
+        Command::Profile(args) => profile::run(args),
         Command::Replay(args) => replay::run(args).map_err(Into::into),
         Command::Detect(args) => match args.into_target() {
             Ok(detect_offline::DetectTarget::Camera(a)) => detect::run(a).map_err(Into::into),
