@@ -221,7 +221,7 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
     };
     let options = DetectOptions {
         hypotheses_per_object: args.hypotheses,
-        timeout: Duration::from_secs(60),
+        timeout: Duration::from_secs(900),
         ..Default::default()
     };
     // Publish until the daemon has subscribed and answers from this camera.
