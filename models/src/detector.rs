@@ -5,12 +5,19 @@
 //!        ─► per object: voting ─► pose clustering ─► re-scoring ─► ICP ─► filters ─► hypotheses
 //! ```
 
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use crate::camera::DepthFrame;
+use rayon::prelude::*;
+
 use crate::clustering::{cluster_poses, ClusteringParams};
+use crate::filters::{is_consistent, silhouette_fraction, EdgeMap, FilterParams};
+use crate::icp::{refine, IcpParams};
 use crate::model::ObjectModel;
-use crate::scene::{prepare_points, PreparedScene, SceneParams};
+use crate::render::{bounding_sphere, Renderer};
+use crate::rescoring::{rescore, RescoringParams};
+use crate::scene::{prepare, PreparedScene, SceneImage, SceneParams};
 use crate::subsample::SubsampleParams;
 use crate::voting::{vote, VotingParams};
 use crate::{Error, Pose, Result};
@@ -21,6 +28,12 @@ pub struct DetectParams {
     pub scene: SceneParams,
     pub voting: VotingParams,
     pub clustering: ClusteringParams,
+    pub rescoring: RescoringParams,
+    pub icp: IcpParams,
+    pub filters: FilterParams,
+    /// Multi-instance output: a hypothesis whose translation lies within this fraction of the
+    /// diameter of a better one is the same instance and suppressed.
+    pub nms_distance_fraction: f32,
     /// Objects whose diameters differ by at most this ratio share one subsampled scene cloud
     /// (with the leaf of the smallest). 1.0 gives every object its own.
     pub shared_cloud_diameter_ratio: f32,
@@ -135,6 +148,8 @@ pub struct Counts {
     pub reference_points: u32,
     /// Point pairs that voted, summed over objects.
     pub pairs: u64,
+    /// Votes cast (table entries visited), summed over objects.
+    pub votes: u64,
     /// Hypotheses (accumulator peaks) before clustering, summed over objects.
     pub hypotheses: u32,
 }
@@ -149,6 +164,10 @@ pub struct Detections {
     /// Per requested object, its own stage timings (scene preparation is shared and counted once
     /// in `timings`).
     pub per_object_timings: Vec<StageTimings>,
+}
+
+fn clusters_as_poses(clusters: &[crate::clustering::PoseCluster]) -> Vec<(Pose, u32)> {
+    clusters.iter().map(|c| (c.pose, c.votes)).collect()
 }
 
 /// Runs detections; holds only parameters, so one detector serves any set of models.
@@ -196,7 +215,8 @@ impl Detector {
         let start = Instant::now();
         let mut out = Detections::default();
         let t = Instant::now();
-        let points = prepare_points(frame, &self.params.scene)?;
+        let scene_image = prepare(frame, &self.params.scene)?;
+        let points = scene_image.oriented_points();
         out.timings.scene_preparation = t.elapsed();
         out.counts.scene_points = points.len() as u32;
 
@@ -226,6 +246,7 @@ impl Detector {
             cloud_of[i] = clouds.len() - 1;
         }
 
+        let edges = OnceLock::new();
         for (i, model) in models.iter().enumerate() {
             check_deadline(start)?;
             let scene = &clouds[cloud_of[i]];
@@ -238,17 +259,16 @@ impl Detector {
             timings.clustering = t.elapsed();
             out.counts.reference_points += counts.reference_points;
             out.counts.pairs += counts.pairs;
+            out.counts.votes += counts.votes;
             out.counts.hypotheses += raw.len() as u32;
-            let hypotheses = clusters
-                .iter()
-                .take(opts.hypotheses_per_object)
-                .map(|c| Hypothesis {
-                    pose: c.pose,
-                    score: c.votes as f32,
-                    votes: c.votes,
-                    checks: Checks::default(),
-                })
-                .collect();
+            let hypotheses = self.after_voting(
+                model,
+                &clusters_as_poses(&clusters),
+                &scene_image,
+                &edges,
+                opts,
+                &mut timings,
+            );
             out.objects.push(ObjectDetections {
                 object_id: model.object_id(),
                 hypotheses,
@@ -257,5 +277,112 @@ impl Detector {
             out.per_object_timings.push(timings);
         }
         Ok(out)
+    }
+
+    /// Re-scoring of the best clusters, ICP on the best of those, scoring again, the filters,
+    /// and non-maximum suppression (METHOD.md §3.2–3.5).
+    fn after_voting(
+        &self,
+        model: &ObjectModel,
+        clusters: &[(Pose, u32)],
+        scene: &SceneImage,
+        edges: &OnceLock<EdgeMap>,
+        opts: &DetectOptions,
+        timings: &mut StageTimings,
+    ) -> Vec<Hypothesis> {
+        let p = &self.params;
+        let d = model.diameter_mm();
+        let surface = model.surface_points();
+        let t = Instant::now();
+        let top = &clusters[..clusters.len().min(p.rescoring.top_clusters)];
+        let scored = rescore(
+            top,
+            &surface,
+            scene,
+            p.rescoring.tolerance_mm(d),
+            p.rescoring.conflict_mm(d),
+            &p.rescoring,
+        );
+        timings.rescoring += t.elapsed();
+
+        let t = Instant::now();
+        let refined: Vec<(Pose, u32)> = scored[..scored.len().min(p.icp.top_poses)]
+            .par_iter()
+            .map(|s| (refine(&surface, &s.pose, scene, d, &p.icp).pose, s.votes))
+            .collect();
+        timings.icp += t.elapsed();
+
+        let t = Instant::now();
+        let rescored = rescore(
+            &refined,
+            &surface,
+            scene,
+            p.rescoring.refined_tolerance_mm(d),
+            p.rescoring.conflict_mm(d),
+            &p.rescoring,
+        );
+        timings.rescoring += t.elapsed();
+
+        let t = Instant::now();
+        let mesh = model.render_mesh();
+        let sphere = bounding_sphere(&mesh);
+        let edges = edges.get_or_init(|| EdgeMap::new(scene, &p.filters));
+        let mut renderer = Renderer::new();
+        let nms = p.nms_distance_fraction * d;
+        let overlaps = |list: &[Hypothesis], pose: &Pose| {
+            list.iter()
+                .any(|h| (h.pose.translation.vector - pose.translation.vector).norm() < nms)
+        };
+        let mut passed: Vec<Hypothesis> = Vec::new();
+        let mut failed: Vec<Hypothesis> = Vec::new();
+        let all = Checks::CONSISTENT | Checks::SILHOUETTE;
+        for s in rescored.iter().take(p.filters.max_candidates) {
+            if passed.len() == opts.hypotheses_per_object {
+                break;
+            }
+            if overlaps(&passed, &s.pose) {
+                continue;
+            }
+            let mut checks = Checks(Checks::RESCORED | Checks::REFINED);
+            if is_consistent(&s.fit, &p.filters) {
+                checks.0 |= Checks::CONSISTENT;
+            }
+            let silhouette = silhouette_fraction(
+                &mut renderer,
+                &mesh,
+                &sphere,
+                &s.pose,
+                scene,
+                edges,
+                p.rescoring.conflict_mm(d),
+            );
+            if silhouette.is_some_and(|f| f >= p.filters.min_silhouette_fraction) {
+                checks.0 |= Checks::SILHOUETTE;
+            }
+            let h = Hypothesis {
+                pose: s.pose,
+                score: s.score,
+                votes: s.votes,
+                checks,
+            };
+            if checks.0 & all == all {
+                passed.push(h);
+            } else if !overlaps(&failed, &s.pose) {
+                failed.push(h);
+            }
+        }
+        // Poses that failed a filter still fill the list, after those that passed, with their
+        // checks saying so.
+        let mut out = passed;
+        for h in failed {
+            if out.len() == opts.hypotheses_per_object {
+                break;
+            }
+            if !overlaps(&out, &h.pose) {
+                out.push(h);
+            }
+        }
+        timings.filters += t.elapsed();
+        out
     }
 }

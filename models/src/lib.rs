@@ -22,14 +22,18 @@ pub mod clustering;
 pub mod detector;
 pub mod error;
 pub mod feature;
+pub mod filters;
 pub mod icp;
 pub mod mesh;
 pub mod model;
+pub mod parts;
+pub mod render;
 pub mod rescoring;
 pub mod sampling;
 pub mod scene;
 pub mod store;
 pub mod subsample;
+pub mod synthetic;
 pub mod table;
 pub mod voting;
 

@@ -31,8 +31,35 @@ pub struct RescoringParams {
     /// diameter. Before ICP, poses are off by up to half an α bin (6°) over a lever of D/2,
     /// about 0.05 D.
     pub tolerance_fraction: f32,
+    /// After ICP, poses are scored again with this tighter tolerance (fraction of the
+    /// diameter)...
+    pub refined_tolerance_fraction: f32,
+    /// ...but never tighter than this, mm: sensor noise at 1–1.5 m is a few millimetres.
+    pub min_tolerance_mm: f32,
     /// ...and with normals within this angle, degrees.
     pub max_normal_angle_deg: f32,
+    /// The scene counts as in front of (occluding) or behind (seen through) a model point only
+    /// beyond this depth difference, as a fraction of the diameter, and at least
+    /// `min_conflict_mm`: small misalignments at the outline must not read as contradictions.
+    pub conflict_fraction: f32,
+    pub min_conflict_mm: f32,
+}
+
+impl RescoringParams {
+    /// The inlier tolerance before ICP for an object of diameter `diameter_mm`, mm.
+    pub fn tolerance_mm(&self, diameter_mm: f32) -> f32 {
+        (self.tolerance_fraction * diameter_mm).max(self.min_tolerance_mm)
+    }
+
+    /// The depth difference beyond which the scene occludes or is seen through, mm.
+    pub fn conflict_mm(&self, diameter_mm: f32) -> f32 {
+        (self.conflict_fraction * diameter_mm).max(self.min_conflict_mm)
+    }
+
+    /// The inlier tolerance after ICP, mm.
+    pub fn refined_tolerance_mm(&self, diameter_mm: f32) -> f32 {
+        (self.refined_tolerance_fraction * diameter_mm).max(self.min_tolerance_mm)
+    }
 }
 
 impl Default for RescoringParams {
@@ -40,7 +67,11 @@ impl Default for RescoringParams {
         Self {
             top_clusters: 500,
             tolerance_fraction: 0.05,
+            refined_tolerance_fraction: 0.03,
+            min_tolerance_mm: 4.0,
             max_normal_angle_deg: 45.0,
+            conflict_fraction: 0.1,
+            min_conflict_mm: 15.0,
         }
     }
 }
@@ -54,9 +85,9 @@ pub struct Fit {
     pub measured: u32,
     /// Facing points within tolerance of the scene (and with agreeing normals).
     pub inliers: u32,
-    /// Facing points with the scene well in front of them.
+    /// Facing points with the scene well in front of them (beyond the conflict distance).
     pub occluded: u32,
-    /// Facing points with the scene well behind them.
+    /// Facing points with the scene well behind them (beyond the conflict distance).
     pub see_through: u32,
 }
 
@@ -73,6 +104,7 @@ pub fn fit(
     pose: &Pose,
     scene: &SceneImage,
     tolerance_mm: f32,
+    conflict_mm: f32,
     max_normal_angle_deg: f32,
 ) -> Fit {
     let k = &scene.intrinsics;
@@ -93,10 +125,12 @@ pub fn fit(
         let Some(z) = scene.depth(u, v) else { continue };
         f.measured += 1;
         let dz = z - pc.z;
-        if dz < -tolerance_mm {
+        if dz < -conflict_mm {
             f.occluded += 1;
-        } else if dz > tolerance_mm {
+        } else if dz > conflict_mm {
             f.see_through += 1;
+        } else if dz.abs() > tolerance_mm {
+            continue;
         } else if let Some((_, sn)) = scene.at(u, v) {
             if sn.dot(&nc) >= cos_max {
                 f.inliers += 1;
@@ -116,16 +150,16 @@ pub struct Scored {
     pub score: f32,
 }
 
-/// Re-scores `poses` (with their votes) and sorts them by score, best first (ties: more
+/// Re-scores `poses` (with their votes) with inlier tolerance `tolerance` (mm) and sorts them by score, best first (ties: more
 /// votes first).
 pub fn rescore(
     poses: &[(Pose, u32)],
     surface: &OrientedPoints,
     scene: &SceneImage,
-    diameter_mm: f32,
+    tolerance: f32,
+    conflict_mm: f32,
     params: &RescoringParams,
 ) -> Vec<Scored> {
-    let tolerance = params.tolerance_fraction * diameter_mm;
     let total = surface.len().max(1) as f32;
     let mut scored: Vec<Scored> = poses
         .par_iter()
@@ -135,6 +169,7 @@ pub fn rescore(
                 &pose,
                 scene,
                 tolerance,
+                conflict_mm,
                 params.max_normal_angle_deg,
             );
             Scored {

@@ -16,9 +16,16 @@ pub struct SceneParams {
     /// point from its depth (clamped to 1..=8 px). Wider is smoother against axial noise (about
     /// 1.5 mm at 1 m for a Kinect) but rounds edges; 5 mm is about 3 px at 1 m on VGA.
     pub normal_radius_mm: f32,
-    /// Neighbours whose depth differs from the centre by more than this are across a depth edge
-    /// and not used for the normal, mm.
+    /// Neighbours whose depth differs from the centre by more than `max_depth_jump_mm` or
+    /// `max_depth_jump_fraction` of the depth, whichever is larger, are taken to be on another
+    /// surface and not used for smoothing or normals. Measured on generated views: 15 mm mixes
+    /// surfaces of small parts (median normal error 27°), 3–6 mm keeps it near 5°.
     pub max_depth_jump_mm: f32,
+    pub max_depth_jump_fraction: f32,
+    /// Before normals are estimated, depth is averaged over a square of this radius (pixels),
+    /// using only neighbours on the same surface (within `max_depth_jump_mm`): structured-light
+    /// depth is quantised in steps of 2–3 mm at 1 m, too coarse for normals from differences.
+    pub smoothing_radius_px: u32,
     /// Depths outside this range are ignored, mm.
     pub min_depth_mm: f32,
     pub max_depth_mm: f32,
@@ -28,10 +35,21 @@ impl Default for SceneParams {
     fn default() -> Self {
         Self {
             normal_radius_mm: 5.0,
-            max_depth_jump_mm: 15.0,
+            max_depth_jump_mm: 6.0,
+            max_depth_jump_fraction: 0.01,
+            smoothing_radius_px: 2,
             min_depth_mm: 100.0,
             max_depth_mm: 5000.0,
         }
+    }
+}
+
+impl SceneParams {
+    /// The largest depth difference between neighbours on one surface at depth `z_mm`.
+    #[inline]
+    pub fn jump_mm(&self, z_mm: f32) -> f32 {
+        self.max_depth_jump_mm
+            .max(self.max_depth_jump_fraction * z_mm)
     }
 }
 
@@ -43,28 +61,41 @@ pub struct PointImage {
 }
 
 impl PointImage {
-    /// Back-projects `frame` (which must be valid).
+    /// Back-projects `frame` (which must be valid), after edge-aware smoothing of its depth.
     pub fn from_frame(frame: &DepthFrame, params: &SceneParams) -> Self {
-        let (w, h) = (frame.width, frame.height);
+        let (w, h) = (frame.width as i64, frame.height as i64);
         let k = frame.intrinsics;
+        let z_of = |u: i64, v: i64| -> Option<f32> {
+            let raw = frame.depth[(v * w + u) as usize];
+            let z = raw as f32 * frame.depth_scale_mm;
+            (raw != 0 && z >= params.min_depth_mm && z <= params.max_depth_mm).then_some(z)
+        };
+        let r = params.smoothing_radius_px as i64;
         let nan = Point3::new(f32::NAN, f32::NAN, f32::NAN);
         let points = (0..h)
             .into_par_iter()
             .flat_map_iter(|v| {
                 (0..w).map(move |u| {
-                    let raw = frame.depth[(v * w + u) as usize];
-                    let z = raw as f32 * frame.depth_scale_mm;
-                    if raw == 0 || z < params.min_depth_mm || z > params.max_depth_mm {
-                        nan
-                    } else {
-                        k.backproject(u as f32, v as f32, z)
+                    let Some(z) = z_of(u, v) else { return nan };
+                    let jump = params.jump_mm(z);
+                    let (mut sum, mut n) = (0.0f32, 0u32);
+                    for y in (v - r).max(0)..=(v + r).min(h - 1) {
+                        for x in (u - r).max(0)..=(u + r).min(w - 1) {
+                            if let Some(zn) = z_of(x, y) {
+                                if (zn - z).abs() <= jump {
+                                    sum += zn;
+                                    n += 1;
+                                }
+                            }
+                        }
                     }
+                    k.backproject(u as f32, v as f32, sum / n as f32)
                 })
             })
             .collect();
         Self {
-            width: w,
-            height: h,
+            width: frame.width,
+            height: frame.height,
             points,
         }
     }
@@ -139,9 +170,8 @@ pub fn estimate_normals(
                 let Some(p) = image.at(u, v) else { return none };
                 let k =
                     ((params.normal_radius_mm * intrinsics.fx / p.z).round() as i64).clamp(1, 8);
-                let near = |q: Option<Point3<f32>>| {
-                    q.filter(|q| (q.z - p.z).abs() <= params.max_depth_jump_mm)
-                };
+                let jump = params.jump_mm(p.z);
+                let near = |q: Option<Point3<f32>>| q.filter(|q| (q.z - p.z).abs() <= jump);
                 let diff = |a: Option<Point3<f32>>, b: Option<Point3<f32>>| match (near(a), near(b))
                 {
                     (Some(a), Some(b)) => Some(a - b),

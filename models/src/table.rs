@@ -9,11 +9,25 @@
 
 use std::f32::consts::PI;
 
+/// An angle in 16-bit fixed point: `[−π, π)` ↦ `0..65536`, so that differences wrap for free.
+#[inline]
+pub fn alpha_to_fixed(alpha: f32) -> u16 {
+    (((alpha + PI) * (65536.0 / (2.0 * PI))).round() as i64).rem_euclid(65536) as u16
+}
+
+/// The α bin of `α_m − α_s` given both in fixed point: integer arithmetic only, as the voting
+/// loop needs. Equal to `feature::alpha_bin(wrap_angle(α_m − α_s), bins)` up to rounding.
+#[inline]
+pub fn fixed_difference_bin(alpha_m: u16, alpha_s: u16, bins: u32) -> u32 {
+    // (a_m − a_s) is α in [0, 2π); adding half a turn maps it to [−π, π) like the bins.
+    let d = alpha_m.wrapping_sub(alpha_s).wrapping_add(32768);
+    (d as u32 * bins) >> 16
+}
+
 /// Packs a model point index and its `α_m` into one table entry.
 #[inline]
 pub fn pack_entry(model_point: u16, alpha_m: f32) -> u32 {
-    let a = ((alpha_m + PI) * (65536.0 / (2.0 * PI))) as i64;
-    ((model_point as u32) << 16) | (a.rem_euclid(65536) as u32)
+    ((model_point as u32) << 16) | alpha_to_fixed(alpha_m) as u32
 }
 
 /// The model point index of a table entry.
@@ -85,6 +99,30 @@ mod tests {
                 "{a}"
             );
         }
+    }
+
+    #[test]
+    fn fixed_point_bins_match_float_bins() {
+        use crate::feature::{alpha_bin, wrap_angle};
+        let mut mismatches = 0;
+        let n = 200;
+        for i in 0..n {
+            for j in 0..n {
+                let am = -PI + 2.0 * PI * (i as f32 + 0.37) / n as f32;
+                let as_ = -PI + 2.0 * PI * (j as f32 + 0.71) / n as f32;
+                let fixed = fixed_difference_bin(alpha_to_fixed(am), alpha_to_fixed(as_), 30);
+                let float = alpha_bin(wrap_angle(am - as_), 30);
+                if fixed != float {
+                    mismatches += 1;
+                    // Only right at a bin border may rounding differ, and by one bin.
+                    assert!(
+                        (fixed as i32 - float as i32).rem_euclid(30) == 1
+                            || (float as i32 - fixed as i32).rem_euclid(30) == 1
+                    );
+                }
+            }
+        }
+        assert!(mismatches < n * n / 500, "{mismatches}");
     }
 
     #[test]

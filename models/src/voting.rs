@@ -15,7 +15,7 @@ use crate::feature::{
 };
 use crate::model::ObjectModel;
 use crate::scene::PreparedScene;
-use crate::table::{entry_alpha, entry_model_point};
+use crate::table::{alpha_to_fixed, entry_model_point, fixed_difference_bin};
 use crate::Pose;
 
 /// Parameters of voting.
@@ -66,6 +66,8 @@ pub struct Hypothesis {
 pub struct VotingCounts {
     pub reference_points: u32,
     pub pairs: u64,
+    /// Votes cast into the accumulator (table entries visited).
+    pub votes: u64,
 }
 
 /// Per-thread scratch: the accumulator and vote-once flags, reused across reference points.
@@ -97,7 +99,7 @@ pub fn vote(
     let references: Vec<usize> = (0..scene.points.len()).step_by(step).collect();
     let nb = alpha_bins as usize;
 
-    let results: Vec<(Vec<Hypothesis>, u64)> = references
+    let results: Vec<(Vec<Hypothesis>, u64, u64)> = references
         .par_chunks(16)
         .map_init(
             || Scratch {
@@ -109,6 +111,7 @@ pub fn vote(
             |s, chunk| {
                 let mut out = Vec::new();
                 let mut pairs = 0u64;
+                let mut votes = 0u64;
                 for &r in chunk {
                     let (sr, nr) = (scene.points.positions[r], scene.points.normals[r]);
                     let frame = LocalFrame::new(&sr, &nr);
@@ -140,6 +143,7 @@ pub fn vote(
                             }
                         };
                         let alpha_s = frame.alpha(&si);
+                        let alpha_s_fixed = alpha_to_fixed(alpha_s);
                         let bit = 1u32 << alpha_bin(wrap_angle(alpha_s), alpha_bins);
                         for &key in &keys[..n_keys] {
                             if params.vote_once {
@@ -152,10 +156,12 @@ pub fn vote(
                                 }
                                 *flag |= bit;
                             }
-                            for e in model.table_entries_of(key) {
+                            let entries = model.table_entries_of(key);
+                            votes += entries.len() as u64;
+                            for e in entries {
                                 let e = e.to_native();
                                 let m = entry_model_point(e) as usize;
-                                let a = alpha_bin(wrap_angle(entry_alpha(e) - alpha_s), alpha_bins)
+                                let a = fixed_difference_bin(e as u16, alpha_s_fixed, alpha_bins)
                                     as usize;
                                 s.accumulator[m * nb + a] += 1;
                             }
@@ -176,23 +182,21 @@ pub fn vote(
                         });
                     });
                 }
-                (out, pairs)
+                (out, pairs, votes)
             },
         )
         .collect();
+    let mut counts = VotingCounts {
+        reference_points: references.len() as u32,
+        ..Default::default()
+    };
     let mut hypotheses = Vec::new();
-    let mut pairs = 0;
-    for (h, p) in results {
+    for (h, p, v) in results {
         hypotheses.extend(h);
-        pairs += p;
+        counts.pairs += p;
+        counts.votes += v;
     }
-    (
-        hypotheses,
-        VotingCounts {
-            reference_points: references.len() as u32,
-            pairs,
-        },
-    )
+    (hypotheses, counts)
 }
 
 /// Calls `emit(cell, votes)` for up to `peaks_per_reference` highest cells with at least

@@ -5,7 +5,9 @@ mod common;
 mod daemon;
 mod demo;
 mod detect;
+mod detect_offline;
 mod model;
+mod offline;
 mod replay;
 
 use clap::{Parser, Subcommand};
@@ -28,8 +30,9 @@ enum Command {
     Model(model::ModelCommand),
     /// Publish the depth frames of a BOP dataset as a camera.
     Replay(replay::ReplayArgs),
-    /// Ask the daemon to detect objects in a camera's newest frame.
-    Detect(detect::DetectArgs),
+    /// Detect objects: in a camera's newest frame through the daemon (`--camera`), or in a
+    /// frame of a BOP dataset in this process (`--dataset --scene --image`).
+    Detect(detect_offline::DetectCommand),
     /// Profile the daemon's latency with many requests from several clients.
     Bench(bench::BenchArgs),
     /// List, load or drop the daemon's models.
@@ -45,7 +48,11 @@ fn main() {
     let result = match cli.command {
         Command::Model(cmd) => model::run(cmd),
         Command::Replay(args) => replay::run(args).map_err(Into::into),
-        Command::Detect(args) => detect::run(args).map_err(Into::into),
+        Command::Detect(args) => match args.into_target() {
+            Ok(detect_offline::DetectTarget::Camera(a)) => detect::run(a).map_err(Into::into),
+            Ok(detect_offline::DetectTarget::Dataset(a)) => detect_offline::run(a),
+            Err(e) => Err(e.into()),
+        },
         Command::Bench(args) => bench::run(args).map_err(Into::into),
         Command::Models(args) => daemon::models(args).map_err(Into::into),
         Command::Stats(args) => daemon::stats(args).map_err(Into::into),

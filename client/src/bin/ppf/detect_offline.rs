@@ -1,0 +1,341 @@
+//! `ppf detect --dataset`: run the detector on one frame of a BOP dataset, in this process.
+
+use std::path::PathBuf;
+
+use clap::Args;
+use ppfd_models::bop::BopDataset;
+use ppfd_models::detector::{DetectOptions, Detector};
+
+use crate::offline::{dataset_models, symmetric_pose_errors};
+
+/// `ppf detect`: through the daemon on a camera's newest frame, or offline on a dataset frame.
+#[derive(Args, Debug)]
+pub struct DetectCommand {
+    /// Camera whose newest frame the daemon should use.
+    #[arg(long, conflicts_with = "dataset", required_unless_present = "dataset")]
+    pub camera: Option<String>,
+    /// A BOP dataset directory: detect in one of its frames in this process, no daemon.
+    #[arg(long, requires_all = ["scene", "image"])]
+    pub dataset: Option<PathBuf>,
+    /// Scene id (with --dataset).
+    #[arg(long)]
+    pub scene: Option<u32>,
+    /// Image id (with --dataset).
+    #[arg(long)]
+    pub image: Option<u32>,
+    /// Object ids, comma separated (with --dataset: default those in the image's ground truth).
+    #[arg(long, value_delimiter = ',')]
+    pub objects: Vec<u32>,
+    /// Hypotheses per object.
+    #[arg(long, default_value_t = 1)]
+    pub hypotheses: u32,
+    /// Give up after this long, milliseconds (with --camera).
+    #[arg(long, default_value_t = 5000)]
+    pub timeout_ms: u64,
+    /// Print the answer as JSON (with --camera).
+    #[arg(long)]
+    pub json: bool,
+    /// With --dataset: instead of detecting, print the rank of the first correct pose after
+    /// each stage.
+    #[arg(long)]
+    pub diagnose: bool,
+    /// With --dataset, override: every n-th subsampled scene point is a reference point.
+    #[arg(long)]
+    pub reference_step: Option<usize>,
+    /// With --dataset, override: accumulator peaks per reference point.
+    #[arg(long)]
+    pub peaks: Option<usize>,
+    #[command(flatten)]
+    pub connect: crate::common::Connect,
+}
+
+pub enum DetectTarget {
+    Camera(crate::detect::DetectArgs),
+    Dataset(DatasetDetectArgs),
+}
+
+impl DetectCommand {
+    pub fn into_target(self) -> Result<DetectTarget, String> {
+        if let Some(dataset) = self.dataset {
+            return Ok(DetectTarget::Dataset(DatasetDetectArgs {
+                dataset,
+                scene: self.scene.ok_or("--dataset needs --scene")?,
+                image: self.image.ok_or("--dataset needs --image")?,
+                objects: self.objects,
+                diagnose: self.diagnose,
+                reference_step: self.reference_step,
+                peaks: self.peaks,
+                top: self.hypotheses.max(1) as usize,
+            }));
+        }
+        if self.objects.is_empty() {
+            return Err("--camera needs --objects".into());
+        }
+        Ok(DetectTarget::Camera(crate::detect::DetectArgs {
+            camera: self.camera.ok_or("give --camera or --dataset")?,
+            objects: self.objects,
+            hypotheses: self.hypotheses,
+            timeout_ms: self.timeout_ms,
+            json: self.json,
+            connect: self.connect,
+        }))
+    }
+}
+
+/// Offline detection on one frame of a BOP dataset.
+#[derive(Debug)]
+pub struct DatasetDetectArgs {
+    pub dataset: PathBuf,
+    pub scene: u32,
+    pub image: u32,
+    pub objects: Vec<u32>,
+    pub diagnose: bool,
+    pub reference_step: Option<usize>,
+    pub peaks: Option<usize>,
+    pub top: usize,
+}
+
+impl DatasetDetectArgs {
+    /// The detector's parameters with this command's overrides.
+    pub fn params(&self) -> ppfd_models::detector::DetectParams {
+        let mut p = ppfd_models::detector::DetectParams::new();
+        if let Some(s) = self.reference_step {
+            p.voting.reference_step = s;
+        }
+        if let Some(k) = self.peaks {
+            p.voting.peaks_per_reference = k;
+        }
+        p
+    }
+}
+
+pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
+    if args.diagnose {
+        return diagnose(&args);
+    }
+    let dataset = BopDataset::open(&args.dataset)?;
+    let gt = dataset
+        .ground_truth(args.scene, args.image)
+        .map(|g| g.to_vec())
+        .unwrap_or_default();
+    let ids = match &args.objects {
+        ids if !ids.is_empty() => ids.clone(),
+        _ if !gt.is_empty() => {
+            let mut ids: Vec<u32> = gt.iter().map(|g| g.obj_id).collect();
+            ids.dedup();
+            ids
+        }
+        _ => dataset.object_ids().to_vec(),
+    };
+    let models = dataset_models(&dataset, &ids)?;
+    let frame = dataset.depth_frame(args.scene, args.image)?;
+    let detector = Detector::new(args.params());
+    let refs: Vec<_> = models.iter().collect();
+    let opts = DetectOptions {
+        hypotheses_per_object: args.top.max(10),
+        deadline: None,
+    };
+    let det = detector.detect(&frame.view(), &refs, &opts)?;
+    println!("| object | D (mm) | rank | score | votes | t err (mm) | R err (°) | checks | correct (0.1 D, 15°) within top 10 |");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---|---|");
+    let mut found = 0;
+    for (o, model) in det.objects.iter().zip(&models) {
+        let d = model.diameter_mm();
+        let syms = dataset
+            .model_info(o.object_id)
+            .map(|i| i.symmetries_discrete.clone())
+            .unwrap_or_default();
+        let pose_errors =
+            |a: &ppfd_models::Pose, b: &ppfd_models::Pose| symmetric_pose_errors(a, b, &syms);
+        let truth = gt.iter().find(|g| g.obj_id == o.object_id).map(|g| g.pose);
+        let correct_rank = truth.and_then(|t| {
+            o.hypotheses.iter().take(10).position(|h| {
+                let (dt, dr) = pose_errors(&h.pose, &t);
+                dt < 0.1 * d && dr < 15.0
+            })
+        });
+        if correct_rank.is_some() {
+            found += 1;
+        }
+        for (rank, h) in o.hypotheses.iter().take(args.top).enumerate() {
+            let (dt, dr) = truth
+                .map(|t| pose_errors(&h.pose, &t))
+                .map_or(("-".into(), "-".into()), |(a, b)| {
+                    (format!("{a:.1}"), format!("{b:.1}"))
+                });
+            let flag = if rank == 0 {
+                correct_rank.map_or("no".to_string(), |r| format!("yes (rank {})", r + 1))
+            } else {
+                String::new()
+            };
+            println!(
+                "| {} | {d:.0} | {} | {:.3} | {} | {dt} | {dr} | {} | {flag} |",
+                o.object_id,
+                rank + 1,
+                h.score,
+                h.votes,
+                checks_text(h.checks)
+            );
+        }
+    }
+    if !gt.is_empty() {
+        println!(
+            "\n{found} of {} objects have a correct pose among their 10 best",
+            det.objects.len()
+        );
+    }
+    let t = &det.timings;
+    println!(
+        "\ntimes (ms): scene {:.1}, kd-tree {:.1}, voting {:.1}, clustering {:.1}, re-scoring {:.1}, ICP {:.1}, filters {:.1}, total {:.1}",
+        ms(t.scene_preparation), ms(t.kd_tree), ms(t.voting), ms(t.clustering), ms(t.rescoring), ms(t.icp), ms(t.filters), ms(t.total())
+    );
+    println!(
+        "counts: {} scene points, {} reference points, {} pairs, {} votes, {} hypotheses",
+        det.counts.scene_points,
+        det.counts.reference_points,
+        det.counts.pairs,
+        det.counts.votes,
+        det.counts.hypotheses
+    );
+    Ok(())
+}
+
+fn ms(d: std::time::Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+/// `rescored,refined,consistent,silhouette` for the bits set.
+pub fn checks_text(c: ppfd_models::detector::Checks) -> String {
+    use ppfd_models::detector::Checks;
+    let names = [
+        (Checks::RESCORED, "R"),
+        (Checks::REFINED, "I"),
+        (Checks::CONSISTENT, "C"),
+        (Checks::SILHOUETTE, "S"),
+    ];
+    names
+        .iter()
+        .filter(|(b, _)| c.has(*b))
+        .map(|(_, n)| *n)
+        .collect::<Vec<_>>()
+        .join("")
+}
+
+/// Runs the stages one by one for each object and prints where the first correct pose (within
+/// 0.1 D and 15° of the ground truth) ranks after each.
+pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
+    use ppfd_models::clustering::cluster_poses;
+    use ppfd_models::icp::refine;
+    use ppfd_models::rescoring::rescore;
+    use ppfd_models::scene::{prepare, PreparedScene};
+    use ppfd_models::voting::vote;
+    let dataset = BopDataset::open(&args.dataset)?;
+    let gt = dataset.ground_truth(args.scene, args.image)?.to_vec();
+    let ids = if args.objects.is_empty() {
+        gt.iter().map(|g| g.obj_id).collect()
+    } else {
+        args.objects.clone()
+    };
+    let models = dataset_models(&dataset, &ids)?;
+    let frame = dataset.depth_frame(args.scene, args.image)?;
+    let p = args.params();
+    let scene = prepare(&frame.view(), &p.scene)?;
+    let points = scene.oriented_points();
+    println!("| object | cloud points | on object | normal error (median °) | clusters | rank by votes | after re-scoring | after ICP + re-scoring |");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for model in &models {
+        let d = model.diameter_mm();
+        let truth = gt
+            .iter()
+            .find(|g| g.obj_id == model.object_id())
+            .map(|g| g.pose)
+            .ok_or("no ground truth")?;
+        let syms = dataset
+            .model_info(model.object_id())
+            .map(|i| i.symmetries_discrete.clone())
+            .unwrap_or_default();
+        let ok = |pose: &ppfd_models::Pose| {
+            let (dt, dr) = symmetric_pose_errors(pose, &truth, &syms);
+            dt < 0.1 * d && dr < 15.0
+        };
+        let rank = |poses: Vec<ppfd_models::Pose>| {
+            poses
+                .iter()
+                .position(|q| ok(q))
+                .map_or("-".to_string(), |r| (r + 1).to_string())
+        };
+        let mp = model.params();
+        let cloud = PreparedScene::new(&points, &mp.subsample_params(d))?;
+        // Scene normals against the ground truth: cloud points within 3 mm of the model surface
+        // placed at the true pose.
+        let on_object = {
+            let posed: Vec<_> = surface_of(model)
+                .into_iter()
+                .map(|(q, n)| (truth * q, truth * n))
+                .collect();
+            let mut errs = Vec::new();
+            for (q, n) in cloud.points.positions.iter().zip(&cloud.points.normals) {
+                if let Some((_, mn)) = posed
+                    .iter()
+                    .filter(|(m, _)| (m - q).norm() < 3.0)
+                    .min_by(|a, b| (a.0 - q).norm().total_cmp(&(b.0 - q).norm()))
+                {
+                    errs.push(n.dot(mn).clamp(-1.0, 1.0).acos().to_degrees());
+                }
+            }
+            errs.sort_by(f32::total_cmp);
+            (
+                errs.len(),
+                errs.get(errs.len() / 2).copied().unwrap_or(f32::NAN),
+            )
+        };
+        let (raw, _) = vote(model, &cloud, &p.voting);
+        let clusters = cluster_poses(&raw, d, &p.clustering);
+        let surface = model.surface_points();
+        let top: Vec<_> = clusters
+            .iter()
+            .take(p.rescoring.top_clusters)
+            .map(|c| (c.pose, c.votes))
+            .collect();
+        let scored = rescore(
+            &top,
+            &surface,
+            &scene,
+            p.rescoring.tolerance_mm(d),
+            p.rescoring.conflict_mm(d),
+            &p.rescoring,
+        );
+        let refined: Vec<_> = scored
+            .iter()
+            .take(p.icp.top_poses)
+            .map(|s| (refine(&surface, &s.pose, &scene, d, &p.icp).pose, s.votes))
+            .collect();
+        let rescored = rescore(
+            &refined,
+            &surface,
+            &scene,
+            p.rescoring.refined_tolerance_mm(d),
+            p.rescoring.conflict_mm(d),
+            &p.rescoring,
+        );
+        println!(
+            "| {} | {} | {} | {:.1} | {} | {} | {} | {} |",
+            model.object_id(),
+            cloud.points.len(),
+            on_object.0,
+            on_object.1,
+            clusters.len(),
+            rank(clusters.iter().map(|c| c.pose).collect()),
+            rank(scored.iter().map(|s| s.pose).collect()),
+            rank(rescored.iter().map(|s| s.pose).collect()),
+        );
+    }
+    Ok(())
+}
+
+fn surface_of(
+    model: &ppfd_models::model::ObjectModel,
+) -> Vec<(nalgebra::Point3<f32>, nalgebra::Vector3<f32>)> {
+    let s = model.surface_points();
+    s.positions.into_iter().zip(s.normals).collect()
+}

@@ -1,0 +1,161 @@
+//! Detection on generated scenes: generated parts at random poses, with and without sensor
+//! noise and occluders. Runs anywhere (no data files).
+
+use ppfd_models::clustering::cluster_poses;
+use ppfd_models::detector::{DetectOptions, DetectParams, Detector};
+use ppfd_models::model::{ModelParams, ObjectModel};
+use ppfd_models::parts::Part;
+use ppfd_models::scene::{prepare, PreparedScene};
+use ppfd_models::synthetic::{random_pose_in_view, NoiseModel, Rng, SyntheticScene};
+use ppfd_models::voting::vote;
+use ppfd_models::Pose;
+
+fn errors(est: &Pose, gt: &Pose) -> (f32, f32) {
+    (
+        (est.translation.vector - gt.translation.vector).norm(),
+        est.rotation.angle_to(&gt.rotation).to_degrees(),
+    )
+}
+
+/// Best cluster after voting and clustering alone, for one object in one scene.
+fn best_cluster(model: &ObjectModel, scene: &SyntheticScene, params: &DetectParams) -> Pose {
+    let image = prepare(&scene.frame.view(), &params.scene).unwrap();
+    let cloud = PreparedScene::new(
+        &image.oriented_points(),
+        &model.params().subsample_params(model.diameter_mm()),
+    )
+    .unwrap();
+    let (raw, _) = vote(model, &cloud, &params.voting);
+    cluster_poses(&raw, model.diameter_mm(), &params.clustering)[0].pose
+}
+
+#[test]
+#[ignore = "target of the detection issue not reached yet: about 13-19 of 50 best clusters within 0.05 D and 5 deg"]
+fn noise_free_single_object_at_random_poses() {
+    let params = DetectParams::new();
+    let mut rng = Rng::new(11);
+    let mut hits = 0;
+    let runs = 50;
+    let models: Vec<ObjectModel> = Part::ALL
+        .iter()
+        .map(|p| {
+            ObjectModel::build(&p.mesh(), p.object_id(), p.name(), &ModelParams::default()).unwrap()
+        })
+        .collect();
+    for i in 0..runs {
+        let part = Part::ALL[i % Part::ALL.len()];
+        let model = &models[i % Part::ALL.len()];
+        let d = model.diameter_mm();
+        let pose = random_pose_in_view(&mut rng, d, (600.0, 1000.0));
+        let scene =
+            SyntheticScene::single(&part.mesh(), part.object_id(), pose, None, i as u64).unwrap();
+        let best = best_cluster(model, &scene, &params);
+        let (dt, dr) = errors(&best, &pose);
+        if dt < 0.05 * d && dr < 5.0 {
+            hits += 1;
+        } else {
+            eprintln!(
+                "run {i} ({}): best cluster off by {dt:.1} mm, {dr:.1} deg",
+                part.name()
+            );
+        }
+    }
+    eprintln!("noise-free: {hits}/{runs} best clusters within 0.05 D and 5 deg");
+    assert!(hits as f32 >= 0.95 * runs as f32, "{hits}/{runs}");
+}
+
+#[test]
+fn model_points_moved_by_a_pose_vote_for_that_pose() {
+    let params = DetectParams::new();
+    let mut rng = Rng::new(5);
+    let mut hits = 0;
+    for i in 0..20 {
+        let part = [Part::LBracket, Part::TPipe][i % 2];
+        let model =
+            ObjectModel::build(&part.mesh(), 1, part.name(), &ModelParams::default()).unwrap();
+        let d = model.diameter_mm();
+        let pose = random_pose_in_view(&mut rng, d, (600.0, 1000.0));
+        let pts = model.surface_points();
+        let mut moved = ppfd_models::subsample::OrientedPoints::default();
+        for (p, n) in pts.positions.iter().zip(&pts.normals) {
+            moved.push(pose * p, pose * n);
+        }
+        let cloud = PreparedScene::new(&moved, &model.params().subsample_params(d)).unwrap();
+        let (raw, _) = vote(&model, &cloud, &params.voting);
+        let best = cluster_poses(&raw, d, &params.clustering)[0].pose;
+        let (dt, dr) = errors(&best, &pose);
+        eprintln!("{}: {dt:.1} mm {dr:.1} deg", part.name());
+        if dt < 0.05 * d && dr < 5.0 {
+            hits += 1;
+        }
+    }
+    assert!(hits >= 19, "{hits}/20");
+}
+
+#[test]
+#[ignore = "diagnostic: prints the normal error of a generated view; the nearest-point matching it relies on is unreliable at edges"]
+fn scene_normals_on_a_noise_free_view() {
+    let mut params = DetectParams::new();
+    if let Ok(v) = std::env::var("NR") {
+        params.scene.normal_radius_mm = v.parse().unwrap();
+    }
+    if let Ok(v) = std::env::var("SR") {
+        params.scene.smoothing_radius_px = v.parse().unwrap();
+    }
+    if let Ok(v) = std::env::var("JUMP") {
+        params.scene.max_depth_jump_mm = v.parse().unwrap();
+    }
+    let mut rng = Rng::new(3);
+    let part = Part::LBracket;
+    let model = ObjectModel::build(&part.mesh(), 1, part.name(), &ModelParams::default()).unwrap();
+    let d = model.diameter_mm();
+    let pose = random_pose_in_view(&mut rng, d, (600.0, 1000.0));
+    let scene = SyntheticScene::single(&part.mesh(), 1, pose, None, 1).unwrap();
+    let image = prepare(&scene.frame.view(), &params.scene).unwrap();
+    let pts = model.surface_points();
+    let posed: Vec<_> = pts
+        .positions
+        .iter()
+        .zip(&pts.normals)
+        .map(|(p, n)| (pose * p, pose * n))
+        .filter(|(p, n)| n.dot(&p.coords) < 0.0)
+        .collect();
+    let all = image.oriented_points();
+    let mut errs = Vec::new();
+    for (q, n) in all.positions.iter().zip(&all.normals) {
+        if let Some((_, mn)) = posed
+            .iter()
+            .filter(|(m, _)| (m - q).norm() < 2.0)
+            .min_by(|a, b| (a.0 - q).norm().total_cmp(&(b.0 - q).norm()))
+        {
+            let e = n.dot(mn).clamp(-1.0, 1.0).acos().to_degrees();
+            errs.push(e);
+        }
+    }
+    errs.sort_by(f32::total_cmp);
+    eprintln!(
+        "{} pixels on object, normal error median {:.1} deg, 90th pct {:.1}",
+        errs.len(),
+        errs[errs.len() / 2],
+        errs[errs.len() * 9 / 10]
+    );
+    let cloud = PreparedScene::new(&all, &model.params().subsample_params(d)).unwrap();
+    let mut errs = Vec::new();
+    for (q, n) in cloud.points.positions.iter().zip(&cloud.points.normals) {
+        if let Some((_, mn)) = posed
+            .iter()
+            .filter(|(m, _)| (m - q).norm() < 3.0)
+            .min_by(|a, b| (a.0 - q).norm().total_cmp(&(b.0 - q).norm()))
+        {
+            errs.push(n.dot(mn).clamp(-1.0, 1.0).acos().to_degrees());
+        }
+    }
+    errs.sort_by(f32::total_cmp);
+    eprintln!(
+        "{} cloud points on object, normal error median {:.1} deg, 90th pct {:.1}",
+        errs.len(),
+        errs[errs.len() / 2],
+        errs[errs.len() * 9 / 10]
+    );
+    assert!(errs[errs.len() / 2] < 5.0);
+}
