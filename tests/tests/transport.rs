@@ -12,6 +12,10 @@ const CLIENT: &str = env!("CARGO_BIN_EXE_e2e-client");
 const STARTUP: Duration = Duration::from_secs(20);
 
 fn daemon(prefix: &Prefix, models: &Path, extra: &[&str], delay_ms: &str) -> Proc {
+    daemon_with(prefix, models, extra, &[("PPFD_FAKE_DELAY_MS", delay_ms)])
+}
+
+fn daemon_with(prefix: &Prefix, models: &Path, extra: &[&str], env: &[(&str, &str)]) -> Proc {
     let mut args = vec![
         "--prefix",
         &prefix.0,
@@ -21,14 +25,9 @@ fn daemon(prefix: &Prefix, models: &Path, extra: &[&str], delay_ms: &str) -> Pro
         "100",
     ];
     args.extend_from_slice(extra);
-    let mut d = Proc::spawn(
-        Path::new(DAEMON),
-        &args,
-        &[
-            ("PPFD_TEST_ENGINE", "fake"),
-            ("PPFD_FAKE_DELAY_MS", delay_ms),
-        ],
-    );
+    let mut envs = vec![("PPFD_TEST_ENGINE", "fake")];
+    envs.extend_from_slice(env);
+    let mut d = Proc::spawn(Path::new(DAEMON), &args, &envs);
     d.wait_line("ppfd ready", STARTUP);
     d
 }
@@ -316,4 +315,33 @@ fn clients_reconnect_to_a_restarted_daemon() {
             Err(e) => panic!("the client never got through to the restarted daemon: {e}"),
         }
     }
+}
+
+#[test]
+fn the_engine_reads_depth_in_place_in_shared_memory() {
+    // The engine refuses any frame whose values do not lie in one /dev/shm mapping of the
+    // daemon: a copy anywhere between the camera's (or client's) write and the engine's read
+    // would put them on the heap.
+    let prefix = Prefix::new("inplace");
+    let models = fake_model_dir("inplace", &[1]);
+    let _d = daemon_with(&prefix, &models, &[], &[("PPFD_FAKE_CHECK_SHM", "1")]);
+    let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let client = connect(&prefix);
+    let opts = ppfd_client::DetectOptions::default();
+    let found = client
+        .detect("cam0", &[1], &opts)
+        .expect("camera frame read in place");
+    assert!((found.hypotheses[0].translation_mm[2] - 800.0).abs() < 1e-3);
+    let frame = ppfd_client::FrameHeader {
+        width: 640,
+        height: 480,
+        intrinsics: ppfd_client::Intrinsics::LMO,
+        ..Default::default()
+    };
+    let depth = vec![650u16; 640 * 480];
+    let found = client
+        .detect_inline(&frame, &depth, &[1], &opts)
+        .expect("inline frame read in place");
+    assert!((found.hypotheses[0].translation_mm[2] - 650.0).abs() < 1e-3);
 }
