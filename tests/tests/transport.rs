@@ -345,3 +345,59 @@ fn the_engine_reads_depth_in_place_in_shared_memory() {
         .expect("inline frame read in place");
     assert!((found.hypotheses[0].translation_mm[2] - 650.0).abs() < 1e-3);
 }
+
+#[test]
+fn models_are_listed_loaded_and_dropped_at_run_time() {
+    use ppfd_client::Status;
+    let prefix = Prefix::new("control");
+    let models = fake_model_dir("control", &[1, 2]);
+    let _d = daemon(&prefix, &models, &[], "0");
+    let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let client = connect(&prefix);
+    let ids = |c: &ppfd_client::Client| {
+        c.models()
+            .unwrap()
+            .iter()
+            .map(|m| m.object_id)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(ids(&client), vec![1, 2]);
+
+    let extra = models.join("extra.fake");
+    std::fs::write(&extra, "7 bolt\n").unwrap();
+    let loaded = client
+        .load_model(extra.to_str().unwrap(), 0)
+        .expect("model loaded");
+    assert_eq!((loaded.object_id, loaded.name().as_ref()), (7, "bolt"));
+    assert_eq!(ids(&client), vec![1, 2, 7]);
+    let opts = ppfd_client::DetectOptions::default();
+    client
+        .detect("cam0", &[7], &opts)
+        .expect("the new model is served");
+
+    client.drop_model(2).expect("model dropped");
+    assert_eq!(ids(&client), vec![1, 7]);
+    let (status, value, _) = refusal(client.detect("cam0", &[2], &opts));
+    assert_eq!((status, value), (Status::UnknownObject, 2));
+
+    match client.load_model("/nonexistent/x.fake", 0) {
+        Err(ppfd_client::Error::Refused {
+            status, message, ..
+        }) => {
+            assert_eq!(status, Status::ModelError);
+            assert!(message.contains("/nonexistent/x.fake"), "{message}");
+        }
+        other => panic!("{other:?}"),
+    }
+    assert!(matches!(
+        client.drop_model(99),
+        Err(ppfd_client::Error::Refused {
+            status: Status::UnknownObject,
+            ..
+        })
+    ));
+    let stats = client.stats().unwrap();
+    assert_eq!(stats.models_loaded, 2);
+    assert!(stats.cameras >= 1 && stats.frames_received > 0, "{stats:?}");
+}
