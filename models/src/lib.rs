@@ -21,6 +21,7 @@ pub mod camera;
 pub mod clustering;
 pub mod detector;
 pub mod error;
+pub mod eval;
 pub mod feature;
 pub mod filters;
 pub mod icp;
