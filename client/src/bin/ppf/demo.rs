@@ -39,7 +39,7 @@ pub struct DemoArgs {
     /// Where models built from the meshes are kept between runs.
     #[arg(long)]
     pub model_cache: Option<PathBuf>,
-    /// The `ppfd` executable (default: beside this one, else on PATH).
+    /// A `ppfd` executable to start (default: this executable's built-in daemon, `ppf serve`).
     #[arg(long)]
     pub ppfd: Option<PathBuf>,
     /// Hypotheses per object.
@@ -140,16 +140,16 @@ fn bop_scene(args: &DemoArgs, root: &Path) -> Result<DemoScene, String> {
     })
 }
 
-fn ppfd_executable(given: &Option<PathBuf>) -> PathBuf {
-    if let Some(p) = given {
-        return p.clone();
-    }
-    let beside = std::env::current_exe()
-        .ok()
-        .and_then(|e| e.parent().map(|d| d.join("ppfd")));
-    match beside {
-        Some(p) if p.is_file() => p,
-        _ => PathBuf::from("ppfd"),
+/// The daemon command: the given `ppfd` executable, else this executable's `serve` (the same
+/// daemon code, so `cargo run -p ppfd-client --bin ppf -- demo` needs nothing else built).
+fn daemon_command(given: &Option<PathBuf>) -> Result<(PathBuf, Vec<&'static str>), String> {
+    match given {
+        Some(p) => Ok((p.clone(), vec![])),
+        None => {
+            let me =
+                std::env::current_exe().map_err(|e| format!("cannot find this executable: {e}"))?;
+            Ok((me, vec!["serve"]))
+        }
     }
 }
 
@@ -177,20 +177,21 @@ extern "C" {
     fn libc_kill(pid: i32, sig: i32) -> i32;
 }
 
-fn start_daemon(exe: &Path, models: &Path, cache: &Path, prefix: &str) -> Result<Daemon, String> {
+fn start_daemon(
+    (exe, first): &(PathBuf, Vec<&'static str>),
+    models: &Path,
+    cache: &Path,
+    prefix: &str,
+) -> Result<Daemon, String> {
     let mut child = Command::new(exe)
+        .args(first)
         .args(["--models", models.to_str().unwrap_or("."), "--model-cache"])
         .arg(cache)
         .args(["--prefix", prefix])
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())
         .spawn()
-        .map_err(|e| {
-            format!(
-                "cannot start {}: {e} (build it: cargo build --release -p ppfd)",
-                exe.display()
-            )
-        })?;
+        .map_err(|e| format!("cannot start {} {}: {e}", exe.display(), first.join(" ")))?;
     let stdout = child.stdout.take().expect("piped stdout");
     let daemon = Daemon(child);
     let mut line = String::new();
@@ -241,10 +242,11 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
         std::os::unix::fs::symlink(&abs, &link).map_err(|e| e.to_string())?;
     }
     let prefix = format!("ppfd_demo_{}_", std::process::id());
-    let exe = ppfd_executable(&args.ppfd);
+    let exe = daemon_command(&args.ppfd)?;
     println!(
-        "starting {} (models are built on first use and cached in {})",
-        exe.display(),
+        "starting the daemon: {} {} (models cached in {})",
+        exe.0.display(),
+        exe.1.join(" "),
         cache.display()
     );
     let started = Instant::now();
