@@ -119,20 +119,20 @@ fn a_camera_that_stops_is_reported_stale_with_the_age_of_its_last_frame() {
     use ppfd_client::{DetectOptions, Status};
     let prefix = Prefix::new("stale");
     let models = fake_model_dir("stale", &[1]);
-    let _d = daemon(&prefix, &models, &["--max-frame-age-ms", "300"], "0");
+    let _d = daemon(&prefix, &models, &["--max-frame-age-ms", "1000"], "0");
     let mut cam = camera(&prefix, "cam0", &["--fps", "50", "--frames", "5"]);
     cam.wait_line("camera stopped", STARTUP);
     let client = connect(&prefix);
     let opts = DetectOptions::default();
-    // Fresh enough right after the last frame (the limit is 300 ms).
+    // Fresh enough right after the last frame (the limit is 1 s; generous for a loaded machine).
     client
         .detect("cam0", &[1], &opts)
         .expect("fresh frame served");
-    std::thread::sleep(Duration::from_millis(500));
+    std::thread::sleep(Duration::from_millis(1500));
     let (status, age_ns, message) = refusal(client.detect("cam0", &[1], &opts));
     assert_eq!(status, Status::CameraStale, "{message}");
     assert!(
-        (500_000_000..5_000_000_000).contains(&age_ns),
+        (1_500_000_000..10_000_000_000).contains(&age_ns),
         "age {age_ns} ns: {message}"
     );
     assert!(message.contains("ms old"), "{message}");
@@ -260,7 +260,7 @@ fn a_client_killed_mid_request_does_not_stall_the_next_one() {
     assert_eq!(found.hypotheses.len(), 1);
     // At most the victim's running detection (300 ms) stands before ours.
     assert!(
-        started.elapsed() < Duration::from_millis(1500),
+        started.elapsed() < Duration::from_millis(3000),
         "{:?}",
         started.elapsed()
     );
@@ -285,7 +285,7 @@ fn clients_reconnect_to_a_restarted_daemon() {
     std::thread::sleep(Duration::from_millis(300));
     let client = connect(&prefix);
     let opts = ppfd_client::DetectOptions {
-        timeout: Duration::from_millis(500),
+        timeout: Duration::from_millis(2000),
         ..Default::default()
     };
     client
@@ -301,7 +301,7 @@ fn clients_reconnect_to_a_restarted_daemon() {
 
     // The new daemon removes what the dead one left and serves the same client again.
     let _d2 = daemon(&prefix, &models, &[], "0");
-    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
     loop {
         match client.detect("cam0", &[1], &opts) {
             Ok(found) => {
