@@ -83,7 +83,19 @@ pub fn init_tracing() {
 /// Parses the command line and runs the daemon with `engine`. Prints one line,
 /// `ppfd ready pid=<pid> models=<n>`, on stdout once it serves (scripts wait for it).
 pub fn main(engine: Arc<dyn DetectionEngine>) -> ExitCode {
-    let args = Args::parse();
+    main_with_args(std::env::args_os(), engine)
+}
+
+/// As [`main`], with the command line given (the first item is the program name).
+pub fn main_with_args<I, T>(args: I, engine: Arc<dyn DetectionEngine>) -> ExitCode
+where
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
+    let args = match Args::try_parse_from(args) {
+        Ok(a) => a,
+        Err(e) => e.exit(),
+    };
     init_tracing();
     let config = match args.config() {
         Ok(c) => c,

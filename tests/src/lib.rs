@@ -21,19 +21,41 @@ use ppfd_protocol::text;
 pub struct FakeEngine {
     /// Time one detection takes.
     pub delay: Duration,
+    /// Refuse a frame whose depth values are not in a shared-memory mapping, i.e. that was
+    /// copied on its way to the engine.
+    pub require_shared_memory: bool,
 }
 
 impl FakeEngine {
-    /// The delay from `PPFD_FAKE_DELAY_MS` (default 0).
+    /// The delay from `PPFD_FAKE_DELAY_MS` (default 0); the shared-memory check when
+    /// `PPFD_FAKE_CHECK_SHM=1`.
     pub fn from_env() -> FakeEngine {
         let ms = std::env::var("PPFD_FAKE_DELAY_MS")
             .ok()
             .and_then(|v| v.parse().ok())
             .unwrap_or(0);
+        let require_shared_memory = std::env::var("PPFD_FAKE_CHECK_SHM").as_deref() == Ok("1");
         FakeEngine {
             delay: Duration::from_millis(ms),
+            require_shared_memory,
         }
     }
+}
+
+/// The file mapped at `addr` in this process (from `/proc/self/maps`); empty for anonymous
+/// memory (heap, stack), `None` if nothing is mapped there.
+pub fn mapping_of(addr: usize) -> Option<String> {
+    let maps = std::fs::read_to_string("/proc/self/maps").ok()?;
+    for line in maps.lines() {
+        let mut fields = line.split_whitespace();
+        let (start, end) = fields.next()?.split_once('-')?;
+        let start = usize::from_str_radix(start, 16).ok()?;
+        let end = usize::from_str_radix(end, 16).ok()?;
+        if (start..end).contains(&addr) {
+            return Some(fields.nth(4).unwrap_or("").to_owned());
+        }
+    }
+    None
 }
 
 impl DetectionEngine for FakeEngine {
@@ -84,6 +106,19 @@ impl DetectionEngine for FakeEngine {
         options: &DetectOptions,
     ) -> Result<EngineOutput, EngineError> {
         let started = Instant::now();
+        if self.require_shared_memory {
+            let first = frame.depth.as_ptr() as usize;
+            let last = first + std::mem::size_of_val(frame.depth).saturating_sub(1);
+            let (a, b) = (mapping_of(first), mapping_of(last));
+            let in_shm =
+                |m: &Option<String>| m.as_deref().is_some_and(|m| m.starts_with("/dev/shm/"));
+            if !in_shm(&a) || a != b {
+                return Err(EngineError::new(
+                    Status::Internal,
+                    format!("depth at {first:#x} is not one shared-memory mapping: {a:?} .. {b:?}"),
+                ));
+            }
+        }
         let mut valid: Vec<u16> = frame
             .depth
             .iter()

@@ -12,6 +12,10 @@ const CLIENT: &str = env!("CARGO_BIN_EXE_e2e-client");
 const STARTUP: Duration = Duration::from_secs(20);
 
 fn daemon(prefix: &Prefix, models: &Path, extra: &[&str], delay_ms: &str) -> Proc {
+    daemon_with(prefix, models, extra, &[("PPFD_FAKE_DELAY_MS", delay_ms)])
+}
+
+fn daemon_with(prefix: &Prefix, models: &Path, extra: &[&str], env: &[(&str, &str)]) -> Proc {
     let mut args = vec![
         "--prefix",
         &prefix.0,
@@ -21,14 +25,9 @@ fn daemon(prefix: &Prefix, models: &Path, extra: &[&str], delay_ms: &str) -> Pro
         "100",
     ];
     args.extend_from_slice(extra);
-    let mut d = Proc::spawn(
-        Path::new(DAEMON),
-        &args,
-        &[
-            ("PPFD_TEST_ENGINE", "fake"),
-            ("PPFD_FAKE_DELAY_MS", delay_ms),
-        ],
-    );
+    let mut envs = vec![("PPFD_TEST_ENGINE", "fake")];
+    envs.extend_from_slice(env);
+    let mut d = Proc::spawn(Path::new(DAEMON), &args, &envs);
     d.wait_line("ppfd ready", STARTUP);
     d
 }
@@ -120,20 +119,20 @@ fn a_camera_that_stops_is_reported_stale_with_the_age_of_its_last_frame() {
     use ppfd_client::{DetectOptions, Status};
     let prefix = Prefix::new("stale");
     let models = fake_model_dir("stale", &[1]);
-    let _d = daemon(&prefix, &models, &["--max-frame-age-ms", "300"], "0");
+    let _d = daemon(&prefix, &models, &["--max-frame-age-ms", "1000"], "0");
     let mut cam = camera(&prefix, "cam0", &["--fps", "50", "--frames", "5"]);
     cam.wait_line("camera stopped", STARTUP);
     let client = connect(&prefix);
     let opts = DetectOptions::default();
-    // Fresh enough right after the last frame (the limit is 300 ms).
+    // Fresh enough right after the last frame (the limit is 1 s; generous for a loaded machine).
     client
         .detect("cam0", &[1], &opts)
         .expect("fresh frame served");
-    std::thread::sleep(Duration::from_millis(500));
+    std::thread::sleep(Duration::from_millis(1500));
     let (status, age_ns, message) = refusal(client.detect("cam0", &[1], &opts));
     assert_eq!(status, Status::CameraStale, "{message}");
     assert!(
-        (500_000_000..5_000_000_000).contains(&age_ns),
+        (1_500_000_000..10_000_000_000).contains(&age_ns),
         "age {age_ns} ns: {message}"
     );
     assert!(message.contains("ms old"), "{message}");
@@ -261,7 +260,7 @@ fn a_client_killed_mid_request_does_not_stall_the_next_one() {
     assert_eq!(found.hypotheses.len(), 1);
     // At most the victim's running detection (300 ms) stands before ours.
     assert!(
-        started.elapsed() < Duration::from_millis(1500),
+        started.elapsed() < Duration::from_millis(3000),
         "{:?}",
         started.elapsed()
     );
@@ -286,7 +285,7 @@ fn clients_reconnect_to_a_restarted_daemon() {
     std::thread::sleep(Duration::from_millis(300));
     let client = connect(&prefix);
     let opts = ppfd_client::DetectOptions {
-        timeout: Duration::from_millis(500),
+        timeout: Duration::from_millis(2000),
         ..Default::default()
     };
     client
@@ -302,7 +301,7 @@ fn clients_reconnect_to_a_restarted_daemon() {
 
     // The new daemon removes what the dead one left and serves the same client again.
     let _d2 = daemon(&prefix, &models, &[], "0");
-    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
     loop {
         match client.detect("cam0", &[1], &opts) {
             Ok(found) => {
@@ -316,4 +315,89 @@ fn clients_reconnect_to_a_restarted_daemon() {
             Err(e) => panic!("the client never got through to the restarted daemon: {e}"),
         }
     }
+}
+
+#[test]
+fn the_engine_reads_depth_in_place_in_shared_memory() {
+    // The engine refuses any frame whose values do not lie in one /dev/shm mapping of the
+    // daemon: a copy anywhere between the camera's (or client's) write and the engine's read
+    // would put them on the heap.
+    let prefix = Prefix::new("inplace");
+    let models = fake_model_dir("inplace", &[1]);
+    let _d = daemon_with(&prefix, &models, &[], &[("PPFD_FAKE_CHECK_SHM", "1")]);
+    let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let client = connect(&prefix);
+    let opts = ppfd_client::DetectOptions::default();
+    let found = client
+        .detect("cam0", &[1], &opts)
+        .expect("camera frame read in place");
+    assert!((found.hypotheses[0].translation_mm[2] - 800.0).abs() < 1e-3);
+    let frame = ppfd_client::FrameHeader {
+        width: 640,
+        height: 480,
+        intrinsics: ppfd_client::Intrinsics::LMO,
+        ..Default::default()
+    };
+    let depth = vec![650u16; 640 * 480];
+    let found = client
+        .detect_inline(&frame, &depth, &[1], &opts)
+        .expect("inline frame read in place");
+    assert!((found.hypotheses[0].translation_mm[2] - 650.0).abs() < 1e-3);
+}
+
+#[test]
+fn models_are_listed_loaded_and_dropped_at_run_time() {
+    use ppfd_client::Status;
+    let prefix = Prefix::new("control");
+    let models = fake_model_dir("control", &[1, 2]);
+    let _d = daemon(&prefix, &models, &[], "0");
+    let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let client = connect(&prefix);
+    let ids = |c: &ppfd_client::Client| {
+        c.models()
+            .unwrap()
+            .iter()
+            .map(|m| m.object_id)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(ids(&client), vec![1, 2]);
+
+    let extra = models.join("extra.fake");
+    std::fs::write(&extra, "7 bolt\n").unwrap();
+    let loaded = client
+        .load_model(extra.to_str().unwrap(), 0)
+        .expect("model loaded");
+    assert_eq!((loaded.object_id, loaded.name().as_ref()), (7, "bolt"));
+    assert_eq!(ids(&client), vec![1, 2, 7]);
+    let opts = ppfd_client::DetectOptions::default();
+    client
+        .detect("cam0", &[7], &opts)
+        .expect("the new model is served");
+
+    client.drop_model(2).expect("model dropped");
+    assert_eq!(ids(&client), vec![1, 7]);
+    let (status, value, _) = refusal(client.detect("cam0", &[2], &opts));
+    assert_eq!((status, value), (Status::UnknownObject, 2));
+
+    match client.load_model("/nonexistent/x.fake", 0) {
+        Err(ppfd_client::Error::Refused {
+            status, message, ..
+        }) => {
+            assert_eq!(status, Status::ModelError);
+            assert!(message.contains("/nonexistent/x.fake"), "{message}");
+        }
+        other => panic!("{other:?}"),
+    }
+    assert!(matches!(
+        client.drop_model(99),
+        Err(ppfd_client::Error::Refused {
+            status: Status::UnknownObject,
+            ..
+        })
+    ));
+    let stats = client.stats().unwrap();
+    assert_eq!(stats.models_loaded, 2);
+    assert!(stats.cameras >= 1 && stats.frames_received > 0, "{stats:?}");
 }

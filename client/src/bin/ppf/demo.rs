@@ -1,5 +1,6 @@
 //! `ppf demo`: the whole path on one machine — starts a `ppfd` daemon as a child process (under
-//! a private iceoryx2 prefix), publishes a depth frame as a camera, asks for the objects in it,
+//! a private iceoryx2 prefix), publishes a depth frame as a camera (by default a generated scene
+//! of the generated parts; no data files needed), asks for the objects in it,
 //! prints each pose against the truth and the latency breakdown, and stops everything.
 
 use std::io::{BufRead, BufReader};
@@ -13,22 +14,32 @@ use ppfd_client::{
 };
 use ppfd_models::bop::BopDataset;
 use ppfd_models::camera::OwnedDepthFrame;
+use ppfd_models::model::{ModelParams, ObjectModel};
+use ppfd_models::parts::Part;
+use ppfd_models::store;
+use ppfd_models::synthetic::{NoiseModel, SceneSpec};
 use ppfd_models::Pose;
 
 use crate::common::print_latency;
 
 #[derive(Args, Debug)]
 pub struct DemoArgs {
-    /// BOP dataset to take the scene and the object meshes from.
-    #[arg(long, default_value = "../shared/data/lmo")]
-    pub dataset: PathBuf,
+    /// Take the scene and the object meshes from a BOP dataset instead of generating them.
+    #[arg(long)]
+    pub dataset: Option<PathBuf>,
+    /// Seed of the generated scene.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Render the generated scene without sensor noise.
+    #[arg(long)]
+    pub no_noise: bool,
     /// Scene and image of the dataset (default: the first with depth).
     #[arg(long, num_args = 2, value_names = ["SCENE", "IMAGE"])]
     pub image: Option<Vec<u32>>,
     /// Where models built from the meshes are kept between runs.
     #[arg(long)]
     pub model_cache: Option<PathBuf>,
-    /// The `ppfd` executable (default: beside this one, else on PATH).
+    /// A `ppfd` executable to start (default: this executable's built-in daemon, `ppf serve`).
     #[arg(long)]
     pub ppfd: Option<PathBuf>,
     /// Hypotheses per object.
@@ -40,13 +51,58 @@ pub struct DemoArgs {
 struct DemoScene {
     frame: OwnedDepthFrame,
     truth: Vec<(u32, Pose)>,
-    meshes: Vec<PathBuf>,
+    /// Files for the daemon's model directory: meshes (built by the daemon) or model files.
+    model_files: Vec<PathBuf>,
     label: String,
 }
 
-fn bop_scene(args: &DemoArgs) -> Result<DemoScene, String> {
-    let dataset = BopDataset::open(&args.dataset)
-        .map_err(|e| format!("{e}\n(ppf demo reads a BOP dataset; give one with --dataset)"))?;
+/// The embedded default: the generated parts resting on a table, seen by a Kinect-like camera.
+fn generated_scene(args: &DemoArgs, cache: &Path) -> Result<DemoScene, String> {
+    let meshes: Vec<(Part, ppfd_models::mesh::Mesh)> =
+        Part::ALL.iter().map(|p| (*p, p.mesh())).collect();
+    let noise = if args.no_noise {
+        None
+    } else {
+        Some(NoiseModel::kinect())
+    };
+    let mut spec = SceneSpec::new(args.seed).noise(noise);
+    for (part, mesh) in &meshes {
+        spec = spec.object(part.object_id(), mesh);
+    }
+    let scene = spec.build().map_err(|e| e.to_string())?;
+    // Models are built here once and kept in the cache; the daemon maps the files.
+    let params = ModelParams::default();
+    let mut model_files = Vec::new();
+    for (part, mesh) in &meshes {
+        let path = cache.join(format!("{}_{:06}.ppfm", part.name(), part.object_id()));
+        if store::load_expecting(&path, &params).is_err() {
+            let started = Instant::now();
+            let model = ObjectModel::build(mesh, part.object_id(), part.name(), &params)
+                .map_err(|e| e.to_string())?;
+            store::save(&model, &path).map_err(|e| e.to_string())?;
+            println!(
+                "built the model of {} in {:.1} s",
+                part.name(),
+                started.elapsed().as_secs_f64()
+            );
+        }
+        model_files.push(path);
+    }
+    let noise = if args.no_noise {
+        ""
+    } else {
+        ", Kinect-like noise"
+    };
+    Ok(DemoScene {
+        frame: scene.frame,
+        truth: scene.ground_truth,
+        model_files,
+        label: format!("generated parts on a table, seed {}{noise}", args.seed),
+    })
+}
+
+fn bop_scene(args: &DemoArgs, root: &Path) -> Result<DemoScene, String> {
+    let dataset = BopDataset::open(root).map_err(|e| e.to_string())?;
     let (scene, im) = match &args.image {
         Some(v) => (v[0], v[1]),
         None => dataset
@@ -60,7 +116,7 @@ fn bop_scene(args: &DemoArgs) -> Result<DemoScene, String> {
                     .map(move |i| (s, i))
             })
             .find(|&(s, i)| dataset.has_depth(s, i))
-            .ok_or_else(|| format!("{}: no image with depth", args.dataset.display()))?,
+            .ok_or_else(|| format!("{}: no image with depth", root.display()))?,
     };
     let frame = dataset.depth_frame(scene, im).map_err(|e| e.to_string())?;
     let truth: Vec<(u32, Pose)> = dataset
@@ -79,21 +135,21 @@ fn bop_scene(args: &DemoArgs) -> Result<DemoScene, String> {
     Ok(DemoScene {
         frame,
         truth,
-        meshes,
-        label: format!("{} scene {scene} image {im}", args.dataset.display()),
+        model_files: meshes,
+        label: format!("{} scene {scene} image {im}", root.display()),
     })
 }
 
-fn ppfd_executable(given: &Option<PathBuf>) -> PathBuf {
-    if let Some(p) = given {
-        return p.clone();
-    }
-    let beside = std::env::current_exe()
-        .ok()
-        .and_then(|e| e.parent().map(|d| d.join("ppfd")));
-    match beside {
-        Some(p) if p.is_file() => p,
-        _ => PathBuf::from("ppfd"),
+/// The daemon command: the given `ppfd` executable, else this executable's `serve` (the same
+/// daemon code, so `cargo run -p ppfd-client --bin ppf -- demo` needs nothing else built).
+fn daemon_command(given: &Option<PathBuf>) -> Result<(PathBuf, Vec<&'static str>), String> {
+    match given {
+        Some(p) => Ok((p.clone(), vec![])),
+        None => {
+            let me =
+                std::env::current_exe().map_err(|e| format!("cannot find this executable: {e}"))?;
+            Ok((me, vec!["serve"]))
+        }
     }
 }
 
@@ -121,20 +177,21 @@ extern "C" {
     fn libc_kill(pid: i32, sig: i32) -> i32;
 }
 
-fn start_daemon(exe: &Path, models: &Path, cache: &Path, prefix: &str) -> Result<Daemon, String> {
+fn start_daemon(
+    (exe, first): &(PathBuf, Vec<&'static str>),
+    models: &Path,
+    cache: &Path,
+    prefix: &str,
+) -> Result<Daemon, String> {
     let mut child = Command::new(exe)
+        .args(first)
         .args(["--models", models.to_str().unwrap_or("."), "--model-cache"])
         .arg(cache)
         .args(["--prefix", prefix])
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())
         .spawn()
-        .map_err(|e| {
-            format!(
-                "cannot start {}: {e} (build it: cargo build --release -p ppfd)",
-                exe.display()
-            )
-        })?;
+        .map_err(|e| format!("cannot start {} {}: {e}", exe.display(), first.join(" ")))?;
     let stdout = child.stdout.take().expect("piped stdout");
     let daemon = Daemon(child);
     let mut line = String::new();
@@ -158,7 +215,15 @@ fn rotation_error_deg(a: &Pose, b: &Pose) -> f32 {
 }
 
 pub fn run(args: DemoArgs) -> Result<(), String> {
-    let scene = bop_scene(&args)?;
+    let cache = args
+        .model_cache
+        .clone()
+        .unwrap_or_else(|| std::env::temp_dir().join("ppf-demo-models"));
+    std::fs::create_dir_all(&cache).map_err(|e| format!("{}: {e}", cache.display()))?;
+    let scene = match &args.dataset {
+        Some(root) => bop_scene(&args, root)?,
+        None => generated_scene(&args, &cache)?,
+    };
     println!(
         "scene: {} ({}x{}), objects {:?}",
         scene.label,
@@ -167,25 +232,21 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
         scene.truth.iter().map(|t| t.0).collect::<Vec<_>>()
     );
 
-    // The daemon builds models from the meshes once and keeps them in the cache.
+    // The daemon loads the model files (or builds models from meshes once, into the cache).
     let work = std::env::temp_dir().join(format!("ppf-demo-{}", std::process::id()));
     let models = work.join("models");
     std::fs::create_dir_all(&models).map_err(|e| e.to_string())?;
-    for mesh in &scene.meshes {
-        let link = models.join(mesh.file_name().unwrap_or_default());
-        let abs = std::fs::canonicalize(mesh).map_err(|e| format!("{}: {e}", mesh.display()))?;
+    for file in &scene.model_files {
+        let link = models.join(file.file_name().unwrap_or_default());
+        let abs = std::fs::canonicalize(file).map_err(|e| format!("{}: {e}", file.display()))?;
         std::os::unix::fs::symlink(&abs, &link).map_err(|e| e.to_string())?;
     }
-    let cache = args
-        .model_cache
-        .clone()
-        .unwrap_or_else(|| std::env::temp_dir().join("ppf-demo-models"));
-    std::fs::create_dir_all(&cache).map_err(|e| e.to_string())?;
     let prefix = format!("ppfd_demo_{}_", std::process::id());
-    let exe = ppfd_executable(&args.ppfd);
+    let exe = daemon_command(&args.ppfd)?;
     println!(
-        "starting {} (models are built on first use and cached in {})",
-        exe.display(),
+        "starting the daemon: {} {} (models cached in {})",
+        exe.0.display(),
+        exe.1.join(" "),
         cache.display()
     );
     let started = Instant::now();
@@ -221,7 +282,7 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
     };
     let options = DetectOptions {
         hypotheses_per_object: args.hypotheses,
-        timeout: Duration::from_secs(60),
+        timeout: Duration::from_secs(900),
         ..Default::default()
     };
     // Publish until the daemon has subscribed and answers from this camera.

@@ -44,10 +44,24 @@ enum Command {
     Stats(daemon::StatsArgs),
     /// Start a daemon, publish a generated scene, detect, compare with the truth, stop.
     Demo(demo::DemoArgs),
+    /// Run the ppfd daemon in this process, with ppfd's flags (what `ppf demo` starts).
+    #[command(hide = true)]
+    Serve {
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
+    },
 }
 
 fn main() {
     let cli = Cli::parse();
+    if let Command::Serve { args } = &cli.command {
+        let engine = std::sync::Arc::new(ppfd::ppf_engine::PpfEngine::default());
+        let argv = std::iter::once("ppfd".to_owned()).chain(args.iter().cloned());
+        std::process::exit(match ppfd::cli::main_with_args(argv, engine) {
+            code if code == std::process::ExitCode::SUCCESS => 0,
+            _ => 1,
+        });
+    }
     let result = match cli.command {
         Command::Model(cmd) => model::run(cmd),
         Command::Profile(args) => profile::run(args),
@@ -61,6 +75,7 @@ fn main() {
         Command::Models(args) => daemon::models(args).map_err(Into::into),
         Command::Stats(args) => daemon::stats(args).map_err(Into::into),
         Command::Demo(args) => demo::run(args).map_err(Into::into),
+        Command::Serve { .. } => unreachable!("handled above"),
     };
     if let Err(e) = result {
         eprintln!("error: {e}");
