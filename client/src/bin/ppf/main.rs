@@ -1,6 +1,7 @@
 //! `ppf`: the ppfd command line.
 
 mod model;
+mod score;
 
 use clap::{Parser, Subcommand};
 
@@ -20,12 +21,15 @@ enum Command {
     /// Build and inspect object model files.
     #[command(subcommand)]
     Model(model::ModelCommand),
+    /// Score a BOP results CSV against a dataset (BOP 2018 recall, BOP 2019 AR).
+    Score(score::ScoreArgs),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Model(cmd) => model::run(cmd),
+        Command::Score(args) => score::run(args),
     };
     if let Err(e) = result {
         eprintln!("error: {e}");
