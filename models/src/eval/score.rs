@@ -290,7 +290,7 @@ where
             .push(row);
     }
 
-    let images: Vec<(&(u32, u32), &Vec<(u32, u32)>)> = by_image.iter().collect();
+    let images: Vec<_> = by_image.iter().collect();
     let per_image: Vec<Vec<TargetErrors>> = images
         .par_iter()
         .map_init(
