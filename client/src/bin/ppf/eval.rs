@@ -53,14 +53,30 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     if images.is_empty() {
-        return Err(format!("{}: no image with depth to evaluate", args.dataset.display()).into());
+        return Err(format!(
+            "{}: no image with depth to evaluate",
+            args.dataset.display()
+        )
+        .into());
     }
-    let ids: Vec<u32> = if args.objects.is_empty() { dataset.object_ids().to_vec() } else { args.objects.clone() };
+    let ids: Vec<u32> = if args.objects.is_empty() {
+        dataset.object_ids().to_vec()
+    } else {
+        args.objects.clone()
+    };
     let models = dataset_models(&dataset, &ids)?;
     let detector = Detector::default();
-    let opts = DetectOptions { hypotheses_per_object: args.hypotheses.max(1), deadline: None };
+    let opts = DetectOptions {
+        hypotheses_per_object: args.hypotheses.max(1),
+        deadline: None,
+    };
     let bar = ProgressBar::new(images.len() as u64);
-    bar.set_style(ProgressStyle::with_template("detect {bar:30} {pos}/{len} images [{elapsed} < {eta}] {msg}").unwrap());
+    bar.set_style(
+        ProgressStyle::with_template(
+            "detect {bar:30} {pos}/{len} images [{elapsed} < {eta}] {msg}",
+        )
+        .unwrap(),
+    );
     let mut rows = Vec::new();
     for &(scene, im) in &images {
         let wanted: Vec<u32> = match dataset.ground_truth(scene, im) {
@@ -72,7 +88,10 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
             }
             _ => ids.clone(),
         };
-        let refs: Vec<_> = models.iter().filter(|m| wanted.contains(&m.object_id())).collect();
+        let refs: Vec<_> = models
+            .iter()
+            .filter(|m| wanted.contains(&m.object_id()))
+            .collect();
         if refs.is_empty() {
             bar.inc(1);
             continue;
@@ -83,7 +102,14 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
         let time_s = t.elapsed().as_secs_f32();
         for o in &det.objects {
             for h in &o.hypotheses {
-                rows.push(EstimateRow { scene_id: scene, im_id: im, obj_id: o.object_id, score: h.score, pose: h.pose, time_s });
+                rows.push(EstimateRow {
+                    scene_id: scene,
+                    im_id: im,
+                    obj_id: o.object_id,
+                    score: h.score,
+                    pose: h.pose,
+                    time_s,
+                });
             }
         }
         bar.set_message(format!("{:.2} s/image", time_s));
@@ -91,11 +117,25 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
     }
     bar.finish_and_clear();
     write_results_file(&args.out, &rows)?;
-    eprintln!("{} estimates for {} images written to {}", rows.len(), images.len(), args.out.display());
+    eprintln!(
+        "{} estimates for {} images written to {}",
+        rows.len(),
+        images.len(),
+        args.out.display()
+    );
     if args.no_score {
         return Ok(());
     }
     let report = score_results(&dataset, &rows, &ScoreOptions::default())?;
-    crate::score::print_report(&report, args.json);
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        let targets = if dataset.test_targets().is_some() {
+            "test_targets_bop19.json"
+        } else {
+            "from the ground truth (visible fraction >= 0.1)"
+        };
+        crate::score::print_report(&args.dataset, &args.out, targets, &report);
+    }
     Ok(())
 }

@@ -6,10 +6,12 @@ mod daemon;
 mod demo;
 mod detect;
 mod detect_offline;
+mod eval;
 mod model;
 mod offline;
 mod profile;
 mod replay;
+mod score;
 
 use clap::{Parser, Subcommand};
 
@@ -50,6 +52,10 @@ enum Command {
         #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
         args: Vec<String>,
     },
+    /// Detect in every image of a BOP dataset, write the BOP results CSV and score it.
+    Eval(eval::EvalArgs),
+    /// Score a BOP results CSV against a dataset (BOP 2018 recall, BOP 2019 AR).
+    Score(score::ScoreArgs),
 }
 
 fn main() {
@@ -76,6 +82,8 @@ fn main() {
         Command::Stats(args) => daemon::stats(args).map_err(Into::into),
         Command::Demo(args) => demo::run(args).map_err(Into::into),
         Command::Serve { .. } => unreachable!("handled above"),
+        Command::Score(args) => score::run(args),
+        Command::Eval(args) => eval::run(args),
     };
     if let Err(e) = result {
         eprintln!("error: {e}");
