@@ -50,6 +50,7 @@ pub mod model;
 pub mod parts;
 pub mod render;
 pub mod rescoring;
+pub mod rng;
 pub mod sampling;
 pub mod scene;
 pub mod store;
