@@ -95,16 +95,7 @@ fn model_points_moved_by_a_pose_vote_for_that_pose() {
 #[test]
 #[ignore = "diagnostic: prints the normal error of a generated view; the nearest-point matching it relies on is unreliable at edges"]
 fn scene_normals_on_a_noise_free_view() {
-    let mut params = DetectParams::new();
-    if let Ok(v) = std::env::var("NR") {
-        params.scene.normal_radius_mm = v.parse().unwrap();
-    }
-    if let Ok(v) = std::env::var("SR") {
-        params.scene.smoothing_radius_px = v.parse().unwrap();
-    }
-    if let Ok(v) = std::env::var("JUMP") {
-        params.scene.max_depth_jump_mm = v.parse().unwrap();
-    }
+    let params = DetectParams::new();
     let mut rng = Rng::new(3);
     let part = Part::LBracket;
     let model = ObjectModel::build(&part.mesh(), 1, part.name(), &ModelParams::default()).unwrap();
