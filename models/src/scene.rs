@@ -32,6 +32,28 @@ pub struct SceneParams {
     /// Depths outside this range are ignored, mm.
     pub min_depth_mm: f32,
     pub max_depth_mm: f32,
+    /// How normals (and the smoothed depth) are estimated.
+    pub normal_estimation: NormalEstimation,
+    /// Plane fit: after a first fit, window pixels within this distance of the plane (mm, or
+    /// `plane_residual_fraction` of the depth, whichever is larger) make the second fit: it
+    /// takes in a slope that the depth-jump rule cut off and drops other surfaces.
+    pub plane_residual_mm: f32,
+    pub plane_residual_fraction: f32,
+    /// Plane fit: at most this many samples per window row and column (the window is strided
+    /// beyond it), which bounds the cost of wide windows.
+    pub plane_samples_per_axis: u32,
+}
+
+/// How scene normals are estimated from the depth image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NormalEstimation {
+    /// Edge-aware box smoothing of depth, then the cross product of central differences.
+    CentralDifferences,
+    /// A least-squares plane `z = a·du + b·dv + c` over the window around each pixel (pixels of
+    /// other surfaces left out), twice: its gradient gives the normal, `c` the smoothed depth.
+    /// Structured-light depth comes in steps of 3–4 mm at 1 m; a fit over the whole window
+    /// sees through the staircase better than differences of two smoothed values.
+    PlaneFit,
 }
 
 impl Default for SceneParams {
@@ -43,6 +65,10 @@ impl Default for SceneParams {
             smoothing_radius_px: 2,
             min_depth_mm: 100.0,
             max_depth_mm: 5000.0,
+            normal_estimation: NormalEstimation::PlaneFit,
+            plane_residual_mm: 4.0,
+            plane_residual_fraction: 0.004,
+            plane_samples_per_axis: 9,
         }
     }
 }
@@ -242,12 +268,136 @@ impl PreparedScene {
     }
 }
 
+/// Per pixel, a plane fitted to the depth around it (see [`NormalEstimation::PlaneFit`]): the
+/// camera-space point on the plane and the plane's normal facing the camera (NaN where there is
+/// no depth or too few neighbours on the same surface).
+pub fn plane_fit(
+    frame: &DepthFrame,
+    params: &SceneParams,
+) -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
+    let (w, h) = (frame.width as i64, frame.height as i64);
+    let k = frame.intrinsics;
+    let z_of = |u: i64, v: i64| -> Option<f32> {
+        let raw = frame.depth[(v * w + u) as usize];
+        let z = raw as f32 * frame.depth_scale_mm;
+        (raw != 0 && z >= params.min_depth_mm && z <= params.max_depth_mm).then_some(z)
+    };
+    let nan_p = Point3::new(f32::NAN, f32::NAN, f32::NAN);
+    let nan_n = Vector3::new(f32::NAN, f32::NAN, f32::NAN);
+    let max_samples = params.plane_samples_per_axis.max(3) as i64;
+    let out: Vec<(Point3<f32>, Vector3<f32>)> = (0..h)
+        .into_par_iter()
+        .flat_map_iter(|v| {
+            (0..w).map(move |u| {
+                let Some(z) = z_of(u, v) else {
+                    return (nan_p, nan_n);
+                };
+                let raw_point = k.backproject(u as f32, v as f32, z);
+                let r = ((params.normal_radius_mm * k.fx / z).round() as i64).clamp(1, 8);
+                let stride = ((2 * r + 1) + max_samples - 1) / max_samples;
+                let jump = params.jump_mm(z);
+                let residual = params
+                    .plane_residual_mm
+                    .max(params.plane_residual_fraction * z);
+                // Two fits: neighbours within the jump of the centre, then those near the plane.
+                let mut plane: Option<(f32, f32, f32)> = None;
+                for pass in 0..2 {
+                    let mut m = [0f64; 6]; // Σdu², Σdu·dv, Σdu, Σdv², Σdv, n
+                    let mut b = [0f64; 3]; // Σdu·z, Σdv·z, Σz
+                    let mut dv = -r;
+                    while dv <= r {
+                        let y = v + dv;
+                        if y >= 0 && y < h {
+                            let mut du = -r;
+                            while du <= r {
+                                let x = u + du;
+                                if x >= 0 && x < w {
+                                    if let Some(zn) = z_of(x, y) {
+                                        let keep = match plane {
+                                            None => (zn - z).abs() <= jump,
+                                            Some((a, bb, c)) => {
+                                                (zn - (a * du as f32 + bb * dv as f32 + c)).abs()
+                                                    <= residual
+                                            }
+                                        };
+                                        if keep {
+                                            let (fu, fv, fz) =
+                                                (du as f64, dv as f64, (zn - z) as f64);
+                                            m[0] += fu * fu;
+                                            m[1] += fu * fv;
+                                            m[2] += fu;
+                                            m[3] += fv * fv;
+                                            m[4] += fv;
+                                            m[5] += 1.0;
+                                            b[0] += fu * fz;
+                                            b[1] += fv * fz;
+                                            b[2] += fz;
+                                        }
+                                    }
+                                }
+                                du += stride;
+                            }
+                        }
+                        dv += stride;
+                    }
+                    if m[5] < 4.0 {
+                        return (raw_point, nan_n);
+                    }
+                    let a = nalgebra::Matrix3::new(
+                        m[0], m[1], m[2], m[1], m[3], m[4], m[2], m[4], m[5],
+                    );
+                    let Some(x) = a
+                        .cholesky()
+                        .map(|c| c.solve(&nalgebra::Vector3::new(b[0], b[1], b[2])))
+                    else {
+                        return (raw_point, nan_n);
+                    };
+                    plane = Some((x[0] as f32, x[1] as f32, x[2] as f32 + z));
+                    if pass == 0 && params.plane_residual_mm <= 0.0 {
+                        break;
+                    }
+                }
+                let (zu, zv, zc) = plane.unwrap();
+                let (uf, vf) = (u as f32, v as f32);
+                let ray = Vector3::new((uf - k.cx) / k.fx, (vf - k.cy) / k.fy, 1.0);
+                let pu = ray * zu + Vector3::new(zc / k.fx, 0.0, 0.0);
+                let pv = ray * zv + Vector3::new(0.0, zc / k.fy, 0.0);
+                let n = pu.cross(&pv);
+                let len = n.norm();
+                if len <= 1e-12 || !(zc > 0.0) {
+                    return (raw_point, nan_n);
+                }
+                let n = n / len;
+                let p = k.backproject(uf, vf, zc);
+                (p, if n.dot(&p.coords) > 0.0 { -n } else { n })
+            })
+        })
+        .collect();
+    out.into_iter().unzip()
+}
+
 /// Validates `frame`, back-projects it and estimates normals; refuses a frame without a single
 /// usable point.
 pub fn prepare(frame: &DepthFrame, params: &SceneParams) -> Result<SceneImage> {
     frame.validate()?;
-    let image = PointImage::from_frame(frame, params);
-    let normals = estimate_normals(&image, &frame.intrinsics, params);
+    let (image, normals) = match params.normal_estimation {
+        NormalEstimation::CentralDifferences => {
+            let image = PointImage::from_frame(frame, params);
+            let normals = estimate_normals(&image, &frame.intrinsics, params);
+            (image, normals)
+        }
+        NormalEstimation::PlaneFit => {
+            let (points, normals) = plane_fit(frame, params);
+            (
+                PointImage {
+                    width: frame.width,
+                    height: frame.height,
+                    points,
+                },
+                normals,
+            )
+        }
+    };
     if !normals.iter().any(|n| n.x.is_finite()) {
         return Err(Error::InvalidFrame(format!(
             "no valid depth in the {}x{} frame (all values zero or out of {}..{} mm)",

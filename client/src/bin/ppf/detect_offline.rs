@@ -93,11 +93,15 @@ pub struct DatasetDetectArgs {
     pub reference_step: Option<usize>,
     pub peaks: Option<usize>,
     pub top: usize,
+    /// Override any detector parameter, e.g. `--set scene.normal_radius_mm=8` (repeatable; see
+    /// `set_param` for the names).
+    #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
+    pub set: Vec<String>,
 }
 
 impl DatasetDetectArgs {
     /// The detector's parameters with this command's overrides.
-    pub fn params(&self) -> ppfd_models::detector::DetectParams {
+    pub fn params(&self) -> Result<ppfd_models::detector::DetectParams, String> {
         let mut p = ppfd_models::detector::DetectParams::new();
         if let Some(s) = self.reference_step {
             p.voting.reference_step = s;
@@ -105,8 +109,80 @@ impl DatasetDetectArgs {
         if let Some(k) = self.peaks {
             p.voting.peaks_per_reference = k;
         }
-        p
+        for kv in &self.set {
+            set_param(&mut p, kv)?;
+        }
+        Ok(p)
     }
+}
+
+/// Applies one `stage.field=value` override to `p`.
+pub fn set_param(p: &mut ppfd_models::detector::DetectParams, kv: &str) -> Result<(), String> {
+    use ppfd_models::scene::NormalEstimation;
+    let (key, value) = kv
+        .split_once('=')
+        .ok_or_else(|| format!("--set needs stage.field=value, got {kv:?}"))?;
+    let f = || {
+        value
+            .parse::<f32>()
+            .map_err(|_| format!("{key}: not a number: {value:?}"))
+    };
+    let u = || {
+        value
+            .parse::<usize>()
+            .map_err(|_| format!("{key}: not a count: {value:?}"))
+    };
+    let b = || {
+        value
+            .parse::<bool>()
+            .map_err(|_| format!("{key}: not true/false: {value:?}"))
+    };
+    match key {
+        "scene.normal_radius_mm" => p.scene.normal_radius_mm = f()?,
+        "scene.max_depth_jump_mm" => p.scene.max_depth_jump_mm = f()?,
+        "scene.max_depth_jump_fraction" => p.scene.max_depth_jump_fraction = f()?,
+        "scene.smoothing_radius_px" => p.scene.smoothing_radius_px = u()? as u32,
+        "scene.plane_residual_mm" => p.scene.plane_residual_mm = f()?,
+        "scene.plane_residual_fraction" => p.scene.plane_residual_fraction = f()?,
+        "scene.plane_samples_per_axis" => p.scene.plane_samples_per_axis = u()? as u32,
+        "scene.normal_estimation" => {
+            p.scene.normal_estimation = match value {
+                "plane" => NormalEstimation::PlaneFit,
+                "differences" => NormalEstimation::CentralDifferences,
+                _ => return Err(format!("{key}: plane or differences, got {value:?}")),
+            }
+        }
+        "voting.reference_step" => p.voting.reference_step = u()?,
+        "voting.peaks_per_reference" => p.voting.peaks_per_reference = u()?,
+        "voting.peak_ratio" => p.voting.peak_ratio = f()?,
+        "voting.min_distance_fraction" => p.voting.min_distance_fraction = f()?,
+        "voting.neighbour_keys" => p.voting.neighbour_keys = b()?,
+        "voting.vote_once" => p.voting.vote_once = b()?,
+        "clustering.translation_fraction" => p.clustering.translation_fraction = f()?,
+        "clustering.rotation_deg" => p.clustering.rotation_deg = f()?,
+        "rescoring.top_clusters" => p.rescoring.top_clusters = u()?,
+        "rescoring.tolerance_fraction" => p.rescoring.tolerance_fraction = f()?,
+        "rescoring.refined_tolerance_fraction" => p.rescoring.refined_tolerance_fraction = f()?,
+        "rescoring.min_tolerance_mm" => p.rescoring.min_tolerance_mm = f()?,
+        "rescoring.max_normal_angle_deg" => p.rescoring.max_normal_angle_deg = f()?,
+        "rescoring.conflict_fraction" => p.rescoring.conflict_fraction = f()?,
+        "rescoring.min_conflict_mm" => p.rescoring.min_conflict_mm = f()?,
+        "icp.top_poses" => p.icp.top_poses = u()?,
+        "icp.iterations" => p.icp.iterations = u()?,
+        "icp.initial_distance_fraction" => p.icp.initial_distance_fraction = f()?,
+        "icp.final_distance_fraction" => p.icp.final_distance_fraction = f()?,
+        "icp.max_normal_angle_deg" => p.icp.max_normal_angle_deg = f()?,
+        "filters.max_see_through_fraction" => p.filters.max_see_through_fraction = f()?,
+        "filters.min_support_fraction" => p.filters.min_support_fraction = f()?,
+        "filters.edge_jump_mm" => p.filters.edge_jump_mm = f()?,
+        "filters.edge_jump_fraction" => p.filters.edge_jump_fraction = f()?,
+        "filters.edge_radius_px" => p.filters.edge_radius_px = u()? as u32,
+        "filters.min_silhouette_fraction" => p.filters.min_silhouette_fraction = f()?,
+        "filters.max_candidates" => p.filters.max_candidates = u()?,
+        "shared_cloud_diameter_ratio" => p.shared_cloud_diameter_ratio = f()?,
+        _ => return Err(format!("unknown parameter {key:?}")),
+    }
+    Ok(())
 }
 
 pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
@@ -129,7 +205,7 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
     };
     let models = dataset_models(&dataset, &ids)?;
     let frame = dataset.depth_frame(args.scene, args.image)?;
-    let detector = Detector::new(args.params());
+    let detector = Detector::new(args.params()?);
     let refs: Vec<_> = models.iter().collect();
     let opts = DetectOptions {
         hypotheses_per_object: args.top.max(10),
@@ -238,11 +314,12 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
     };
     let models = dataset_models(&dataset, &ids)?;
     let frame = dataset.depth_frame(args.scene, args.image)?;
-    let p = args.params();
+    let p = args.params()?;
     let scene = prepare(&frame.view(), &p.scene)?;
     let points = scene.oriented_points();
-    println!("| object | cloud points | on object | normal error (median °) | clusters | rank by votes | after re-scoring | after ICP + re-scoring |");
-    println!("|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("| object | cloud points | on object | normal error (median °) | clusters | rank by votes | after re-scoring | after ICP + re-scoring | best cluster t err (mm) | R err (°) | voting + clustering (ms) |");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let (mut in_top10, mut first_after_icp) = (0, 0);
     for model in &models {
         let d = model.diameter_mm();
         let truth = gt
@@ -289,8 +366,19 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
                 errs.get(errs.len() / 2).copied().unwrap_or(f32::NAN),
             )
         };
+        let t = std::time::Instant::now();
         let (raw, _) = vote(model, &cloud, &p.voting);
         let clusters = cluster_poses(&raw, d, &p.clustering);
+        let vote_ms = t.elapsed().as_secs_f64() * 1e3;
+        let first_correct = |poses: &[ppfd_models::Pose]| poses.iter().position(|q| ok(q));
+        let cluster_poses_list: Vec<_> = clusters.iter().map(|c| c.pose).collect();
+        if first_correct(&cluster_poses_list).is_some_and(|r| r < 10) {
+            in_top10 += 1;
+        }
+        let best_err = clusters
+            .first()
+            .map(|c| symmetric_pose_errors(&c.pose, &truth, &syms))
+            .unwrap_or((f32::NAN, f32::NAN));
         let surface = model.surface_points();
         let top: Vec<_> = clusters
             .iter()
@@ -318,18 +406,28 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             p.rescoring.conflict_mm(d),
             &p.rescoring,
         );
+        let final_poses: Vec<_> = rescored.iter().map(|s| s.pose).collect();
+        if first_correct(&final_poses) == Some(0) {
+            first_after_icp += 1;
+        }
         println!(
-            "| {} | {} | {} | {:.1} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {:.1} | {} | {} | {} | {} | {:.1} | {:.1} | {vote_ms:.0} |",
             model.object_id(),
             cloud.points.len(),
             on_object.0,
             on_object.1,
             clusters.len(),
-            rank(clusters.iter().map(|c| c.pose).collect()),
+            rank(cluster_poses_list),
             rank(scored.iter().map(|s| s.pose).collect()),
-            rank(rescored.iter().map(|s| s.pose).collect()),
+            rank(final_poses),
+            best_err.0,
+            best_err.1,
         );
     }
+    println!(
+        "\n{in_top10} of {} objects have a correct pose among the 10 best clusters; {first_after_icp} rank it first after ICP + re-scoring",
+        models.len()
+    );
     Ok(())
 }
 
