@@ -295,7 +295,7 @@ pub fn plane_fit(
                 let raw_point = k.backproject(u as f32, v as f32, z);
                 let r = ((params.normal_radius_mm * k.fx / z).round() as i64).clamp(1, 8);
                 let stride = ((2 * r + 1) + max_samples - 1) / max_samples;
-                let jump = params.jump_mm(z);
+                let per_pixel = params.jump_mm(z, 1.0, k.fx);
                 let residual = params
                     .plane_residual_mm
                     .max(params.plane_residual_fraction * z);
@@ -314,7 +314,11 @@ pub fn plane_fit(
                                 if x >= 0 && x < w {
                                     if let Some(zn) = z_of(x, y) {
                                         let keep = match plane {
-                                            None => (zn - z).abs() <= jump,
+                                            None => {
+                                                let d = du.abs().max(dv.abs()) as f32;
+                                                (zn - z).abs()
+                                                    <= (per_pixel * d).max(params.min_depth_jump_mm)
+                                            }
                                             Some((a, bb, c)) => {
                                                 (zn - (a * du as f32 + bb * dv as f32 + c)).abs()
                                                     <= residual

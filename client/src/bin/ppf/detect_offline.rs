@@ -45,6 +45,10 @@ pub struct DetectCommand {
     /// With --dataset, override: accumulator peaks per reference point.
     #[arg(long)]
     pub peaks: Option<usize>,
+    /// With --dataset: override any detector parameter, e.g. `--set scene.normal_radius_mm=8`
+    /// (repeatable; see `set_param` for the names).
+    #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
+    pub set: Vec<String>,
     #[command(flatten)]
     pub connect: crate::common::Connect,
 }
@@ -66,6 +70,7 @@ impl DetectCommand {
                 reference_step: self.reference_step,
                 peaks: self.peaks,
                 top: self.hypotheses.max(1) as usize,
+                set: self.set,
             }));
         }
         if self.objects.is_empty() {
@@ -93,9 +98,6 @@ pub struct DatasetDetectArgs {
     pub reference_step: Option<usize>,
     pub peaks: Option<usize>,
     pub top: usize,
-    /// Override any detector parameter, e.g. `--set scene.normal_radius_mm=8` (repeatable; see
-    /// `set_param` for the names).
-    #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
     pub set: Vec<String>,
 }
 
@@ -139,8 +141,8 @@ pub fn set_param(p: &mut ppfd_models::detector::DetectParams, kv: &str) -> Resul
     };
     match key {
         "scene.normal_radius_mm" => p.scene.normal_radius_mm = f()?,
-        "scene.max_depth_jump_mm" => p.scene.max_depth_jump_mm = f()?,
-        "scene.max_depth_jump_fraction" => p.scene.max_depth_jump_fraction = f()?,
+        "scene.max_slope_deg" => p.scene.max_slope_deg = f()?,
+        "scene.min_depth_jump_mm" => p.scene.min_depth_jump_mm = f()?,
         "scene.smoothing_radius_px" => p.scene.smoothing_radius_px = u()? as u32,
         "scene.plane_residual_mm" => p.scene.plane_residual_mm = f()?,
         "scene.plane_residual_fraction" => p.scene.plane_residual_fraction = f()?,
