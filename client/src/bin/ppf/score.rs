@@ -1,13 +1,16 @@
 //! `ppf score`: score a BOP results CSV (from any method) against a BOP dataset and print the
 //! benchmark's figures per object and overall.
 
+use std::collections::BTreeSet;
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::PathBuf;
 
 use clap::Args;
 use ppfd_models::bop::{read_test_targets, BopDataset};
-use ppfd_models::eval::{read_results, score_results, ObjectScore, ScoreOptions, ScoreReport};
+use ppfd_models::eval::{
+    read_results, score_results, targets_from_ground_truth, ObjectScore, ScoreOptions, ScoreReport,
+};
 
 #[derive(Args, Debug)]
 pub struct ScoreArgs {
@@ -25,6 +28,10 @@ pub struct ScoreArgs {
     /// Split folder of the dataset (default: `test`).
     #[arg(long)]
     pub split: Option<String>,
+    /// Score only the images that have an estimate in the results (for a run over part of a
+    /// dataset; the benchmark itself counts every target).
+    #[arg(long)]
+    pub only_result_images: bool,
 }
 
 pub fn run(args: ScoreArgs) -> Result<(), Box<dyn std::error::Error>> {
@@ -44,14 +51,27 @@ pub fn run(args: ScoreArgs) -> Result<(), Box<dyn std::error::Error>> {
             return Err(format!("targets file {} not found", args.targets.display()).into());
         }
     };
+    let rows = read_results(&args.results)?;
+    let mut targets = match &targets_path {
+        Some(path) => Some(read_test_targets(path)?),
+        None => None,
+    };
+    if args.only_result_images {
+        let images: BTreeSet<(u32, u32)> = rows.iter().map(|r| (r.scene_id, r.im_id)).collect();
+        let all = match targets {
+            Some(t) => t,
+            None => targets_from_ground_truth(&dataset, ScoreOptions::default().visib_gt_min)?,
+        };
+        targets = Some(
+            all.into_iter()
+                .filter(|t| images.contains(&(t.scene_id, t.im_id)))
+                .collect(),
+        );
+    }
     let options = ScoreOptions {
-        targets: match &targets_path {
-            Some(path) => Some(read_test_targets(path)?),
-            None => None,
-        },
+        targets,
         ..ScoreOptions::default()
     };
-    let rows = read_results(&args.results)?;
     let report = score_results(&dataset, &rows, &options)?;
     let text = if args.json {
         serde_json::to_string_pretty(&report)? + "\n"
