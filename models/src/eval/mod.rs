@@ -39,6 +39,6 @@ pub mod vsd;
 
 pub use csv::{parse_results, read_results, write_results, write_results_file, EstimateRow};
 pub use score::{
-    image_errors, score_results, score_results_with, summarize, EvalImage, EvalObject, ObjectScore,
-    ScoreOptions, ScoreReport, TargetErrors, VisibBin,
+    image_errors, score_results, score_results_with, summarize, targets_from_ground_truth,
+    EvalImage, EvalObject, ObjectScore, ScoreOptions, ScoreReport, TargetErrors, VisibBin,
 };

@@ -353,7 +353,10 @@ fn image_times(rows: &[EstimateRow]) -> Result<BTreeMap<(u32, u32), f64>> {
 
 /// Targets as BOP derives them from the ground truth: in every image with depth, each object
 /// with instances at least `visib_gt_min` visible, as many as there are.
-fn targets_from_ground_truth(dataset: &BopDataset, visib_gt_min: f32) -> Result<Vec<TestTarget>> {
+pub fn targets_from_ground_truth(
+    dataset: &BopDataset,
+    visib_gt_min: f32,
+) -> Result<Vec<TestTarget>> {
     let mut targets = Vec::new();
     for scene_id in dataset.scene_ids() {
         for im_id in dataset.image_ids(scene_id)? {

@@ -135,7 +135,10 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
         } else {
             "from the ground truth (visible fraction >= 0.1)"
         };
-        crate::score::print_report(&args.dataset, &args.out, targets, &report);
+        print!(
+            "{}",
+            crate::score::format_report(&args.dataset, &args.out, targets, &report)
+        );
     }
     Ok(())
 }
