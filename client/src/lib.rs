@@ -1,1 +1,84 @@
-//! ppfd client library.
+//! What robot and camera processes link to talk to the `ppfd` daemon over iceoryx2 shared memory.
+//! Light: the protocol and iceoryx2, no matching engine (depend on this crate with
+//! `default-features = false`; the default `cli` feature only builds the `ppf` command line).
+//!
+//! - [`Client`] opens the daemon's services; [`Client::detect`] asks for objects in the newest
+//!   frame of a camera and returns [`Detections`]: pose hypotheses and a [`Latency`] breakdown.
+//!   [`Client::detect_inline`] sends a frame of its own instead. Control: [`Client::models`],
+//!   [`Client::load_model`], [`Client::drop_model`], [`Client::stats`].
+//! - [`CameraPublisher`] is the driver side: it loans a shared-memory slice, the driver writes
+//!   the depth straight into it, and [`ReadyFrame::send`] publishes it (no copy after that).
+//!
+//! Ports are not `Send`: use one `Client` per thread.
+//!
+//! ```no_run
+//! use ppfd_client::{Client, DetectOptions};
+//! let client = Client::connect()?;
+//! let found = client.detect("kinect", &[1, 5], &DetectOptions::default())?;
+//! for h in &found.hypotheses {
+//!     println!("object {} at {:?} mm, score {:.2}", h.object_id, h.translation_mm, h.score);
+//! }
+//! println!("overhead {} µs", found.latency.overhead_ns() / 1000);
+//! # Ok::<(), ppfd_client::Error>(())
+//! ```
+
+mod camera;
+mod client;
+
+pub use camera::{CameraPublisher, FrameLoan, ReadyFrame};
+pub use client::{isometry, Client, ClientOptions, DetectOptions, Detections, Latency};
+pub use ppfd_protocol as protocol;
+pub use ppfd_protocol::clock::monotonic_now_ns;
+pub use ppfd_protocol::control::{DaemonStats, ModelInfo};
+pub use ppfd_protocol::detect::{checks, DetectCounts, LatencyBreakdown, PoseHypothesis, Status};
+pub use ppfd_protocol::frame::{FrameHeader, Intrinsics};
+
+/// What can go wrong talking to the daemon.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// The daemon answered with a refusal.
+    #[error("refused ({status}): {message}")]
+    Refused {
+        /// Why.
+        status: Status,
+        /// The daemon's explanation.
+        message: String,
+        /// The status's value: the unknown object id, the stale frame's age in ns, ...
+        value: u64,
+    },
+    /// No answer within the timeout.
+    #[error("no answer from ppfd within {0:?}")]
+    Timeout(std::time::Duration),
+    /// No daemon serves (with this prefix).
+    #[error("no ppfd daemon is serving {0}; start one (ppfd --models <dir>)")]
+    NoDaemon(&'static str),
+    /// The request was malformed before it was sent.
+    #[error("{0}")]
+    Protocol(#[from] ppfd_protocol::ProtocolError),
+    /// An iceoryx2 operation failed.
+    #[error("{0}")]
+    Transport(String),
+}
+
+/// `Result` with this crate's [`Error`].
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+pub(crate) fn transport<E: std::fmt::Debug>(what: &'static str) -> impl FnOnce(E) -> Error {
+    move |e| Error::Transport(format!("{what}: {e:?}"))
+}
+
+/// The iceoryx2 configuration for a prefix (`None`: the default one).
+pub(crate) fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::Config> {
+    let mut config = iceoryx2::config::Config::default();
+    if let Some(prefix) = prefix {
+        use iceoryx2::prelude::SemanticString;
+        config.global.prefix = iceoryx2::prelude::FileName::new(prefix.as_bytes())
+            .map_err(|e| Error::Transport(format!("iceoryx2 prefix {prefix:?}: {e:?}")))?;
+    }
+    Ok(config)
+}
+
+/// The prefix from the environment: `PPFD_PREFIX`, if set and non-empty.
+pub fn prefix_from_env() -> Option<String> {
+    std::env::var("PPFD_PREFIX").ok().filter(|p| !p.is_empty())
+}

@@ -668,7 +668,7 @@ fn by_id<'v>(root: &'v Value, what: &str) -> std::result::Result<BTreeMap<u32, &
 }
 
 /// The rotation nearest to `m`; refuses a matrix that is not close to a rotation.
-fn rotation(
+pub(crate) fn rotation(
     m: Matrix3<f64>,
     key: &str,
     at: &str,
@@ -939,6 +939,12 @@ fn parse_test_targets(root: &Value) -> std::result::Result<Vec<TestTarget>, Stri
             })
         })
         .collect()
+}
+
+/// Reads a test-target file in the layout of `test_targets_bop19.json` (a list of `scene_id`,
+/// `im_id`, `obj_id`, `inst_count`); errors name the file and the entry.
+pub fn read_test_targets(path: impl AsRef<Path>) -> Result<Vec<TestTarget>> {
+    parse_file(path.as_ref(), parse_test_targets)
 }
 
 /// Reads a 16-bit grayscale PNG into row-major samples. PNG stores 16-bit samples big-endian,

@@ -399,12 +399,14 @@ impl Detector {
             };
             if checks.0 & all == all {
                 passed.push(h);
-            } else if !overlaps(&failed, &s.pose) {
+            } else {
                 failed.push(h);
             }
         }
         // Poses that failed a filter still fill the list, after those that passed, with their
-        // checks saying so.
+        // checks saying so: those that passed one filter before those that passed none, each
+        // group by score (the sort is stable).
+        failed.sort_by_key(|h| std::cmp::Reverse((h.checks.0 & all).count_ones()));
         let mut out = passed;
         for h in failed {
             if out.len() == opts.hypotheses_per_object {

@@ -49,7 +49,7 @@ impl Default for FilterParams {
     fn default() -> Self {
         Self {
             max_see_through_fraction: 0.2,
-            min_support_fraction: 0.5,
+            min_support_fraction: 0.3,
             edge_jump_mm: 10.0,
             edge_jump_fraction: 0.02,
             edge_radius_px: 2,

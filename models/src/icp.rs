@@ -5,8 +5,9 @@
 //! linearised point-to-plane problem (a 6×6 system) and rejects pairs farther apart than a
 //! distance that shrinks from iteration to iteration.
 
-use nalgebra::{Matrix6, Point3, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
 
+use crate::rescoring::facing_projection;
 use crate::scene::SceneImage;
 use crate::subsample::OrientedPoints;
 use crate::Pose;
@@ -77,13 +78,10 @@ pub fn refine(
         let mut count = 0u32;
         let mut sq = 0f64;
         for (p, n) in surface.positions.iter().zip(&surface.normals) {
-            let pc: Point3<f32> = pose * p;
-            let nc: Vector3<f32> = pose * n;
-            if pc.z <= 0.0 || nc.dot(&pc.coords) >= 0.0 {
+            let Some((pc, nc, u, v)) = facing_projection(&pose, p, n, k) else {
                 continue;
-            }
-            let uv = k.project(&pc);
-            let Some((q, qn)) = scene.at(uv.x.round() as i64, uv.y.round() as i64) else {
+            };
+            let Some((q, qn)) = scene.at(u, v) else {
                 continue;
             };
             let d = pc - q;

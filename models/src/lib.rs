@@ -13,14 +13,35 @@
 //!   ([`clustering`]), re-scored from the camera's view ([`rescoring`]), refined by projective
 //!   ICP ([`icp`]) and filtered ([`filters`]). [`detector::Detector`] runs all of it.
 //!
+//! Around the pipeline: [`render`] draws meshes into depth images (silhouettes, generated
+//! scenes, the VSD metric), [`synthetic`] makes table-top scenes with ground truth and sensor
+//! noise, [`bop`] reads BOP datasets and [`eval`] scores poses as the BOP toolkit does.
+//!
 //! Units: millimetres for lengths, radians for angles; a pose maps model coordinates into camera
 //! coordinates, `p_cam = R p_model + t`, OpenCV camera convention.
+//!
+//! ```
+//! use ppfd_models::detector::{DetectOptions, Detector};
+//! use ppfd_models::model::{ModelParams, ObjectModel};
+//! use ppfd_models::parts::Part;
+//! use ppfd_models::synthetic::SceneSpec;
+//!
+//! let mesh = Part::TPipe.mesh();
+//! let model = ObjectModel::build(&mesh, 4, "t_pipe", &ModelParams::default()).unwrap();
+//! let scene = SceneSpec::new(1).object(4, &mesh).build().unwrap();
+//! let found = Detector::default()
+//!     .detect(&scene.frame.view(), &[&model], &DetectOptions::default())
+//!     .unwrap();
+//! let best = &found.objects[0].hypotheses[0];
+//! println!("pose {:?}, score {:.2}, {:?} in voting", best.pose, best.score, found.timings.voting);
+//! ```
 
 pub mod bop;
 pub mod camera;
 pub mod clustering;
 pub mod detector;
 pub mod error;
+pub mod eval;
 pub mod feature;
 pub mod filters;
 pub mod icp;
@@ -29,6 +50,7 @@ pub mod model;
 pub mod parts;
 pub mod render;
 pub mod rescoring;
+pub mod rng;
 pub mod sampling;
 pub mod scene;
 pub mod store;

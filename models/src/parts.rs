@@ -206,16 +206,16 @@ fn l_bracket() -> Mesh {
 
 fn flanged_cylinder() -> Mesh {
     const FLANGE_R: f64 = 60.0;
-    const FLANGE_FLAT_X: f64 = -48.0; // the flange is cut flat on its -x side
+    const FLANGE_FLAT_X: f64 = -42.0; // the flange is cut flat on its -x side
     const FLANGE_T: f64 = 12.0;
     const BODY_R: f64 = 35.0;
-    const BODY_FLAT_X: f64 = 29.0;
+    const BODY_FLAT_X: f64 = 27.0;
     const BORE_R: f64 = 22.0;
     const HEIGHT: f64 = 90.0;
     const BOLT_CIRCLE_R: f64 = 48.0;
     const BOLT_R: f64 = 5.0;
-    const BOSS_R: f64 = 9.0;
-    const BOSS_H: f64 = 20.0;
+    const BOSS_R: f64 = 10.0;
+    const BOSS_H: f64 = 28.0;
     let mut b = SolidBuilder::default();
     let (x, y) = (Vector3::x(), Vector3::y());
     let at = |r: f64, angle: f64, z: f64| Point3::new(r * angle.cos(), r * angle.sin(), z);
@@ -330,7 +330,7 @@ fn toothed_disc() -> Mesh {
     let hub_bottom = b.ring(Point3::new(0.0, 0.0, WEB_T), x, y, HUB_R, 48);
     let hub_top = b.ring(Point3::new(0.0, 0.0, WEB_T + HUB_H), x, y, HUB_R, 48);
     // Two lightening holes of different sizes, not opposite each other.
-    let holes = [(44.0, 0.35 * PI, 9.0), (45.0, 1.15 * PI, 6.0)];
+    let holes = [(44.0, 0.35 * PI, 12.0), (45.0, 1.15 * PI, 7.0)];
     let mut hole_rings = Vec::new();
     for &(r, a, hr) in &holes {
         let centre = |z| Point3::new(r * a.cos(), r * a.sin(), z);

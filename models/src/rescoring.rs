@@ -23,6 +23,7 @@
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
+use crate::camera::Intrinsics;
 use crate::scene::SceneImage;
 use crate::subsample::OrientedPoints;
 use crate::Pose;
@@ -115,6 +116,24 @@ impl Fit {
     }
 }
 
+/// A model point moved into the camera by `pose`, if its normal faces the camera: its camera
+/// position, camera normal and the pixel it projects to (not checked against the image size).
+#[inline]
+pub fn facing_projection(
+    pose: &Pose,
+    p: &Point3<f32>,
+    n: &Vector3<f32>,
+    k: &Intrinsics,
+) -> Option<(Point3<f32>, Vector3<f32>, i64, i64)> {
+    let pc: Point3<f32> = pose * p;
+    let nc: Vector3<f32> = pose * n;
+    if pc.z <= 0.0 || nc.dot(&pc.coords) >= 0.0 {
+        return None;
+    }
+    let uv = k.project(&pc);
+    Some((pc, nc, uv.x.round() as i64, uv.y.round() as i64))
+}
+
 /// Measures the fit of `surface` (model coordinates) at `pose` against `scene`.
 pub fn fit(
     surface: &OrientedPoints,
@@ -128,13 +147,9 @@ pub fn fit(
     let cos_max = max_normal_angle_deg.to_radians().cos();
     let mut f = Fit::default();
     for (p, n) in surface.positions.iter().zip(&surface.normals) {
-        let pc: Point3<f32> = pose * p;
-        let nc: Vector3<f32> = pose * n;
-        if pc.z <= 0.0 || nc.dot(&pc.coords) >= 0.0 {
+        let Some((pc, nc, u, v)) = facing_projection(pose, p, n, k) else {
             continue;
-        }
-        let uv = k.project(&pc);
-        let (u, v) = (uv.x.round() as i64, uv.y.round() as i64);
+        };
         if u < 0 || v < 0 || u >= scene.width as i64 || v >= scene.height as i64 {
             continue;
         }

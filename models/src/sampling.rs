@@ -7,31 +7,9 @@
 use nalgebra::{Point3, Vector3};
 
 use crate::mesh::Mesh;
+use crate::rng::Rng;
 use crate::subsample::OrientedPoints;
 use crate::{Error, Result};
-
-/// A small deterministic generator (SplitMix64): reproducible models without a dependency.
-#[derive(Clone, Debug)]
-pub struct SplitMix64(u64);
-
-impl SplitMix64 {
-    pub fn new(seed: u64) -> Self {
-        Self(seed)
-    }
-
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in `[0, 1)`.
-    pub fn next_f32(&mut self) -> f32 {
-        (self.next_u64() >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
-    }
-}
 
 /// Samples the surface of `mesh` uniformly by area with about `count` points. Normals are the
 /// vertex normals interpolated at the sample and normalised (the face normal where they cancel).
@@ -53,7 +31,7 @@ pub fn sample_surface(mesh: &Mesh, count: usize, seed: u64) -> Result<OrientedPo
     if !(total > 0.0) {
         return Err(Error::InvalidMesh("mesh has zero surface area".into()));
     }
-    let mut rng = SplitMix64::new(seed);
+    let mut rng = Rng::new(seed);
     let mut out = OrientedPoints::default();
     let per_area = count as f64 / total;
     for (f, &area) in mesh.faces.iter().zip(&areas) {
@@ -61,14 +39,14 @@ pub fn sample_surface(mesh: &Mesh, count: usize, seed: u64) -> Result<OrientedPo
         // no face, however small, is systematically skipped.
         let expected = area as f64 * per_area;
         let mut n = expected.floor() as usize;
-        if (rng.next_f32() as f64) < expected - n as f64 {
+        if ((rng.uniform() as f32) as f64) < expected - n as f64 {
             n += 1;
         }
         let [ia, ib, ic] = f.map(|i| i as usize);
         let (a, b, c) = (mesh.positions[ia], mesh.positions[ib], mesh.positions[ic]);
         let face_normal = (b - a).cross(&(c - a));
         for _ in 0..n {
-            let (mut u, mut v) = (rng.next_f32(), rng.next_f32());
+            let (mut u, mut v) = ((rng.uniform() as f32), (rng.uniform() as f32));
             if u + v > 1.0 {
                 (u, v) = (1.0 - u, 1.0 - v);
             }

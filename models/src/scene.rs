@@ -19,14 +19,17 @@ pub struct SceneParams {
     /// When non-zero, the normal window's half-size in pixels, whatever the depth (replaces
     /// `normal_radius_mm`).
     pub normal_radius_px: u32,
-    /// Neighbours whose depth differs from the centre by more than `max_depth_jump_mm` or
-    /// `max_depth_jump_fraction` of the depth, whichever is larger, are taken to be on another
-    /// surface and not used for smoothing or normals. Measured on generated views: 15 mm mixes
-    /// surfaces of small parts (median normal error 27°), 3–6 mm keeps it near 5°.
-    pub max_depth_jump_mm: f32,
-    pub max_depth_jump_fraction: f32,
+    /// A neighbour `d` pixels away is on the same surface as the centre when their depths
+    /// differ by at most what a surface inclined `max_slope_deg` from facing the camera
+    /// allows over `d` pixels, `d · (z / fx) · tan(max_slope_deg)`, and never less than
+    /// `min_depth_jump_mm` (sensor noise). Farther neighbours are across a depth edge and not used
+    /// for smoothing or normals. An absolute threshold instead either mixes surfaces of small parts
+    /// or drops steep surfaces (measured on generated views: 45 % of an L-bracket's pixels had no
+    /// normal with a 6 mm threshold).
+    pub max_slope_deg: f32,
+    pub min_depth_jump_mm: f32,
     /// Before normals are estimated, depth is averaged over a square of this radius (pixels),
-    /// using only neighbours on the same surface (within `max_depth_jump_mm`): structured-light
+    /// using only neighbours on the same surface (see `max_slope_deg`): structured-light
     /// depth is quantised in steps of 2–3 mm at 1 m, too coarse for normals from differences.
     pub smoothing_radius_px: u32,
     /// Depths outside this range are ignored, mm.
@@ -77,8 +80,8 @@ impl Default for SceneParams {
         Self {
             normal_radius_mm: 5.0,
             normal_radius_px: 3,
-            max_depth_jump_mm: 6.0,
-            max_depth_jump_fraction: 0.01,
+            max_slope_deg: 75.0,
+            min_depth_jump_mm: 3.0,
             smoothing_radius_px: 2,
             min_depth_mm: 100.0,
             max_depth_mm: 5000.0,
@@ -102,11 +105,11 @@ impl SceneParams {
         ((self.normal_radius_mm * fx / z_mm).round() as i64).clamp(1, 8)
     }
 
-    /// The largest depth difference between neighbours on one surface at depth `z_mm`.
+    /// The largest depth difference between neighbours `pixels` apart on one surface at depth
+    /// `z_mm`, for focal length `fx`.
     #[inline]
-    pub fn jump_mm(&self, z_mm: f32) -> f32 {
-        self.max_depth_jump_mm
-            .max(self.max_depth_jump_fraction * z_mm)
+    pub fn jump_mm(&self, z_mm: f32, pixels: f32, fx: f32) -> f32 {
+        (pixels * z_mm / fx * self.max_slope_deg.to_radians().tan()).max(self.min_depth_jump_mm)
     }
 }
 
@@ -134,12 +137,13 @@ impl PointImage {
             .flat_map_iter(|v| {
                 (0..w).map(move |u| {
                     let Some(z) = z_of(u, v) else { return nan };
-                    let jump = params.jump_mm(z);
+                    let per_pixel = params.jump_mm(z, 1.0, k.fx);
                     let (mut sum, mut n) = (0.0f32, 0u32);
                     for y in (v - r).max(0)..=(v + r).min(h - 1) {
                         for x in (u - r).max(0)..=(u + r).min(w - 1) {
                             if let Some(zn) = z_of(x, y) {
-                                if (zn - z).abs() <= jump {
+                                let d = (x - u).abs().max((y - v).abs()) as f32;
+                                if (zn - z).abs() <= (per_pixel * d).max(params.min_depth_jump_mm) {
                                     sum += zn;
                                     n += 1;
                                 }
@@ -226,7 +230,7 @@ pub fn estimate_normals(
             (0..w).map(move |u| {
                 let Some(p) = image.at(u, v) else { return none };
                 let k = params.normal_window_px(intrinsics.fx, p.z);
-                let jump = params.jump_mm(p.z);
+                let jump = params.jump_mm(p.z, k as f32, intrinsics.fx);
                 let near = |q: Option<Point3<f32>>| q.filter(|q| (q.z - p.z).abs() <= jump);
                 let diff = |a: Option<Point3<f32>>, b: Option<Point3<f32>>| match (near(a), near(b))
                 {
@@ -463,7 +467,9 @@ pub fn best_window_plane_fit(
                 }
                 // A window mixing two surfaces fits badly; leave such pixels to the fit that
                 // drops pixels across depth jumps.
-                let limit = 0.5 * params.jump_mm(z) as f64;
+                let limit = params
+                    .plane_residual_mm
+                    .max(params.plane_residual_fraction * z) as f64;
                 let Some(plane) = best.filter(|p| p.rms <= limit) else {
                     return (
                         k.backproject(u as f32, v as f32, z),
@@ -546,7 +552,7 @@ pub fn plane_fit(
                 let raw_point = k.backproject(u as f32, v as f32, z);
                 let r = params.normal_window_px(k.fx, z);
                 let stride = ((2 * r + 1) + max_samples - 1) / max_samples;
-                let jump = params.jump_mm(z);
+                let per_pixel = params.jump_mm(z, 1.0, k.fx);
                 let residual = params
                     .plane_residual_mm
                     .max(params.plane_residual_fraction * z);
@@ -565,7 +571,11 @@ pub fn plane_fit(
                                 if x >= 0 && x < w {
                                     if let Some(zn) = z_of(x, y) {
                                         let keep = match plane {
-                                            None => (zn - z).abs() <= jump,
+                                            None => {
+                                                let d = du.abs().max(dv.abs()) as f32;
+                                                (zn - z).abs()
+                                                    <= (per_pixel * d).max(params.min_depth_jump_mm)
+                                            }
                                             Some((a, bb, c)) => {
                                                 (zn - (a * du as f32 + bb * dv as f32 + c)).abs()
                                                     <= residual

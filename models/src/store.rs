@@ -2,7 +2,7 @@
 //! map without decoding. A mapped file *is* the lookup table.
 //!
 //! Layout: a 32-byte header (magic `PPFDMODL`, format version, payload length, CRC-32 of the
-//! payload), then the rkyv archive of [`ModelData`]. Loading checks all of it and validates the
+//! payload), then the rkyv archive of [`crate::model::ModelData`]. Loading checks all of it and validates the
 //! archive and the table's internal consistency before handing out an [`ObjectModel`]: a
 //! truncated, corrupted, wrong-version or wrong-parameter file is refused, never trusted.
 

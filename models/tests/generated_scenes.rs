@@ -3,7 +3,7 @@
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use ppfd_models::clustering::cluster_poses;
-use ppfd_models::detector::{DetectOptions, DetectParams, Detector};
+use ppfd_models::detector::DetectParams;
 use ppfd_models::mesh::Mesh;
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_models::parts::Part;
@@ -124,7 +124,7 @@ fn occluded_scene(mesh: &Mesh, object_id: u32, pose: Pose, seed: u64) -> Synthet
 }
 
 #[test]
-#[ignore = "target of the detection issue not reached: about 80 % of best clusters within 0.05 D and 5 deg (the rotation about a part's near-symmetry axis is the weak spot)"]
+#[ignore = "target of the detection issue not reached: 31 of 40 (78 %) best clusters within 0.05 D and 5 deg; the rotation about a part's near-symmetry axis is the weak spot"]
 fn noisy_single_object_behind_two_occluders() {
     let runs = 40;
     let visible = std::cell::RefCell::new(Vec::new());
@@ -172,72 +172,4 @@ fn model_points_moved_by_a_pose_vote_for_that_pose() {
         }
     }
     assert!(hits >= 19, "{hits}/20");
-}
-
-#[test]
-#[ignore = "diagnostic: prints the normal error of a generated view; the nearest-point matching it relies on is unreliable at edges"]
-fn scene_normals_on_a_noise_free_view() {
-    let mut params = DetectParams::new();
-    if let Ok(v) = std::env::var("NR") {
-        params.scene.normal_radius_mm = v.parse().unwrap();
-    }
-    if let Ok(v) = std::env::var("SR") {
-        params.scene.smoothing_radius_px = v.parse().unwrap();
-    }
-    if let Ok(v) = std::env::var("JUMP") {
-        params.scene.max_depth_jump_mm = v.parse().unwrap();
-    }
-    let mut rng = Rng::new(3);
-    let part = Part::LBracket;
-    let model = ObjectModel::build(&part.mesh(), 1, part.name(), &ModelParams::default()).unwrap();
-    let d = model.diameter_mm();
-    let pose = random_pose_in_view(&mut rng, d, (600.0, 1000.0));
-    let scene = SyntheticScene::single(&part.mesh(), 1, pose, None, 1).unwrap();
-    let image = prepare(&scene.frame.view(), &params.scene).unwrap();
-    let pts = model.surface_points();
-    let posed: Vec<_> = pts
-        .positions
-        .iter()
-        .zip(&pts.normals)
-        .map(|(p, n)| (pose * p, pose * n))
-        .filter(|(p, n)| n.dot(&p.coords) < 0.0)
-        .collect();
-    let all = image.oriented_points();
-    let mut errs = Vec::new();
-    for (q, n) in all.positions.iter().zip(&all.normals) {
-        if let Some((_, mn)) = posed
-            .iter()
-            .filter(|(m, _)| (m - q).norm() < 2.0)
-            .min_by(|a, b| (a.0 - q).norm().total_cmp(&(b.0 - q).norm()))
-        {
-            let e = n.dot(mn).clamp(-1.0, 1.0).acos().to_degrees();
-            errs.push(e);
-        }
-    }
-    errs.sort_by(f32::total_cmp);
-    eprintln!(
-        "{} pixels on object, normal error median {:.1} deg, 90th pct {:.1}",
-        errs.len(),
-        errs[errs.len() / 2],
-        errs[errs.len() * 9 / 10]
-    );
-    let cloud = PreparedScene::new(&all, &model.params().subsample_params(d)).unwrap();
-    let mut errs = Vec::new();
-    for (q, n) in cloud.points.positions.iter().zip(&cloud.points.normals) {
-        if let Some((_, mn)) = posed
-            .iter()
-            .filter(|(m, _)| (m - q).norm() < 3.0)
-            .min_by(|a, b| (a.0 - q).norm().total_cmp(&(b.0 - q).norm()))
-        {
-            errs.push(n.dot(mn).clamp(-1.0, 1.0).acos().to_degrees());
-        }
-    }
-    errs.sort_by(f32::total_cmp);
-    eprintln!(
-        "{} cloud points on object, normal error median {:.1} deg, 90th pct {:.1}",
-        errs.len(),
-        errs[errs.len() / 2],
-        errs[errs.len() * 9 / 10]
-    );
-    assert!(errs[errs.len() / 2] < 5.0);
 }

@@ -1,1 +1,228 @@
-//! The ppfd wire contract.
+//! The ppfd wire contract: what crosses the process boundary between camera drivers, the `ppfd`
+//! daemon and robot processes. Every type here is `#[repr(C)]`, holds no pointer, derives
+//! iceoryx2's `ZeroCopySend` with a `#[type_name]`, and states its units; nothing is serialised.
+//!
+//! - [`frame::FrameHeader`] heads a depth frame (a `[u16]` slice) that a camera driver publishes
+//!   on `ppfd/camera/<name>/depth`.
+//! - [`detect::DetectRequestHeader`] asks the daemon, on `ppfd/detect`, to find some objects in
+//!   the newest frame of a camera (or in a frame carried inline as the request's `[u16]`
+//!   payload). The answer is a [`detect::DetectResponseHeader`] with a [`detect::Status`], a
+//!   [`detect::LatencyBreakdown`] and [`detect::DetectCounts`], over a `[`[`detect::PoseHypothesis`]`]`
+//!   payload.
+//! - [`control::ControlRequest`] lists, loads or drops models and reads
+//!   [`control::DaemonStats`] on `ppfd/control`.
+//! - [`services`] names every service and holds every port limit; its builders are the only way
+//!   participants open services, so they always agree.
+//!
+//! Units: millimetres, pixels, nanoseconds of `CLOCK_MONOTONIC` ([`clock`]). Every header
+//! carries [`PROTOCOL_VERSION`]; a mismatch is refused with [`detect::Status::ProtocolVersion`],
+//! never misread. (A change of a type's layout also changes its size, which iceoryx2 itself
+//! refuses when the service is opened.)
+//!
+//! ```
+//! use ppfd_protocol::{detect::DetectRequestHeader, text, detect::FrameSource};
+//! let mut request = DetectRequestHeader::default();
+//! request.camera_name = text::encode_name("camera", "kinect").unwrap();
+//! request.set_objects(&[1, 5, 6]).unwrap();
+//! assert_eq!(request.validate(0).unwrap(), FrameSource::Camera("kinect".into()));
+//! ```
+
+pub mod clock;
+pub mod control;
+pub mod detect;
+pub mod frame;
+pub mod services;
+pub mod text;
+
+/// Version of this contract; it travels in every header.
+pub const PROTOCOL_VERSION: u32 = 1;
+/// Bytes of a camera name field (names are at most one less: the last byte stays NUL).
+pub const CAMERA_NAME_BYTES: usize = 32;
+/// Bytes of a message field.
+pub const MESSAGE_BYTES: usize = 192;
+/// Bytes of a path field.
+pub const PATH_BYTES: usize = 256;
+/// Bytes of a model name field.
+pub const MODEL_NAME_BYTES: usize = 48;
+/// Objects one detect request may ask for.
+pub const MAX_OBJECTS_PER_REQUEST: usize = 32;
+/// Hypotheses per object one detect request may ask for.
+pub const MAX_HYPOTHESES_PER_OBJECT: u32 = 16;
+
+/// Refuses a header written by another protocol version.
+pub fn check_version(version: u32) -> Result<(), ProtocolError> {
+    if version == PROTOCOL_VERSION {
+        Ok(())
+    } else {
+        Err(ProtocolError::Version {
+            got: version,
+            expected: PROTOCOL_VERSION,
+        })
+    }
+}
+
+/// What is wrong with a message, as far as the contract alone can tell.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ProtocolError {
+    /// The header's protocol version is not [`PROTOCOL_VERSION`].
+    Version { got: u32, expected: u32 },
+    /// A name does not fit its fixed field.
+    NameTooLong {
+        field: &'static str,
+        name: String,
+        max_bytes: usize,
+    },
+    /// A name holds characters it may not.
+    InvalidName {
+        field: &'static str,
+        name: String,
+        reason: &'static str,
+    },
+    /// The frame's payload does not hold `width × height` values (or the size is zero).
+    FrameSize {
+        width: u32,
+        height: u32,
+        values: usize,
+    },
+    /// Zero, negative or non-finite focal lengths, or a non-finite principal point.
+    InvalidIntrinsics(frame::Intrinsics),
+    /// Zero, negative or non-finite depth scale.
+    InvalidDepthScale(f32),
+    /// A request without objects.
+    EmptyObjectList,
+    /// More objects than [`MAX_OBJECTS_PER_REQUEST`].
+    TooManyObjects(usize),
+    /// The same object id twice.
+    DuplicateObject(u32),
+    /// Hypotheses per object outside 1..=[`MAX_HYPOTHESES_PER_OBJECT`].
+    HypothesesPerObject(u32),
+    /// Flag bits this version does not know.
+    UnknownFlags(u32),
+    /// A request naming a camera carried a payload.
+    UnexpectedPayload(usize),
+}
+
+impl ProtocolError {
+    /// The status a daemon answers this error with.
+    pub fn status(&self) -> detect::Status {
+        use detect::Status;
+        match self {
+            ProtocolError::Version { .. } => Status::ProtocolVersion,
+            ProtocolError::FrameSize { .. } | ProtocolError::InvalidDepthScale(_) => {
+                Status::InvalidFrame
+            }
+            ProtocolError::InvalidIntrinsics(_) => Status::InvalidIntrinsics,
+            ProtocolError::EmptyObjectList => Status::EmptyObjectList,
+            _ => Status::InvalidRequest,
+        }
+    }
+}
+
+impl std::fmt::Display for ProtocolError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ProtocolError::Version { got, expected } => {
+                write!(
+                    f,
+                    "protocol version {got} is not supported, expected {expected}"
+                )
+            }
+            ProtocolError::NameTooLong {
+                field,
+                name,
+                max_bytes,
+            } => {
+                write!(
+                    f,
+                    "{field} name {name:?} is too long: at most {max_bytes} bytes"
+                )
+            }
+            ProtocolError::InvalidName {
+                field,
+                name,
+                reason,
+            } => {
+                write!(f, "{field} name {name:?} {reason}")
+            }
+            ProtocolError::FrameSize {
+                width,
+                height,
+                values,
+            } => write!(
+                f,
+                "depth frame {width}x{height} needs {} values, got {values}",
+                *width as usize * *height as usize
+            ),
+            ProtocolError::InvalidIntrinsics(k) => write!(
+                f,
+                "intrinsics must have finite positive focal lengths and a finite principal point, \
+                 got fx={} fy={} cx={} cy={}",
+                k.fx, k.fy, k.cx, k.cy
+            ),
+            ProtocolError::InvalidDepthScale(s) => {
+                write!(f, "depth scale must be finite and positive, got {s}")
+            }
+            ProtocolError::EmptyObjectList => write!(f, "the request asks for no object"),
+            ProtocolError::TooManyObjects(n) => {
+                write!(
+                    f,
+                    "the request asks for {n} objects, at most {MAX_OBJECTS_PER_REQUEST} allowed"
+                )
+            }
+            ProtocolError::DuplicateObject(id) => write!(f, "object id {id} is asked for twice"),
+            ProtocolError::HypothesesPerObject(n) => write!(
+                f,
+                "hypotheses per object must be 1 to {MAX_HYPOTHESES_PER_OBJECT}, got {n}"
+            ),
+            ProtocolError::UnknownFlags(bits) => write!(f, "unknown request flags {bits:#x}"),
+            ProtocolError::UnexpectedPayload(n) => write!(
+                f,
+                "a request naming a camera must carry no frame, got {n} depth values \
+                 (set the inline-frame flag to send a frame)"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for ProtocolError {}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn version_check_names_both_versions() {
+        assert!(check_version(PROTOCOL_VERSION).is_ok());
+        let e = check_version(PROTOCOL_VERSION + 7).unwrap_err();
+        assert_eq!(e.status(), detect::Status::ProtocolVersion);
+        let m = e.to_string();
+        assert!(
+            m.contains(&(PROTOCOL_VERSION + 7).to_string())
+                && m.contains(&PROTOCOL_VERSION.to_string())
+        );
+    }
+
+    #[test]
+    fn every_wire_type_has_a_stable_type_name() {
+        use iceoryx2::prelude::ZeroCopySend;
+        // SAFETY: type_name only returns a static string.
+        unsafe {
+            assert_eq!(frame::FrameHeader::type_name(), "ppfd::FrameHeader");
+            assert_eq!(
+                detect::DetectRequestHeader::type_name(),
+                "ppfd::DetectRequestHeader"
+            );
+            assert_eq!(
+                detect::DetectResponseHeader::type_name(),
+                "ppfd::DetectResponseHeader"
+            );
+            assert_eq!(detect::PoseHypothesis::type_name(), "ppfd::PoseHypothesis");
+            assert_eq!(control::ControlRequest::type_name(), "ppfd::ControlRequest");
+            assert_eq!(
+                control::ControlResponseHeader::type_name(),
+                "ppfd::ControlResponseHeader"
+            );
+            assert_eq!(control::ModelInfo::type_name(), "ppfd::ModelInfo");
+        }
+    }
+}

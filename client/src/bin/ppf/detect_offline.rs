@@ -7,35 +7,98 @@ use ppfd_models::bop::BopDataset;
 use ppfd_models::detector::{DetectOptions, Detector};
 use rayon::prelude::*;
 
-use crate::offline::{dataset_models, parse_ids, symmetric_pose_errors};
+use crate::offline::{dataset_models, symmetric_pose_errors};
 
+/// `ppf detect`: through the daemon on a camera's newest frame, or offline on a dataset frame.
 #[derive(Args, Debug)]
-pub struct DatasetDetectArgs {
-    /// A BOP dataset directory (with models/ and test/ or a single scene).
+pub struct DetectCommand {
+    /// Camera whose newest frame the daemon should use.
+    #[arg(long, conflicts_with = "dataset", required_unless_present = "dataset")]
+    pub camera: Option<String>,
+    /// A BOP dataset directory: detect in one of its frames in this process, no daemon.
+    #[arg(long, requires_all = ["scene", "image"])]
+    pub dataset: Option<PathBuf>,
+    /// Scene id (with --dataset).
     #[arg(long)]
-    pub dataset: PathBuf,
+    pub scene: Option<u32>,
+    /// Image id (with --dataset).
     #[arg(long)]
-    pub scene: u32,
+    pub image: Option<u32>,
+    /// Object ids, comma separated (with --dataset: default those in the image's ground truth).
+    #[arg(long, value_delimiter = ',')]
+    pub objects: Vec<u32>,
+    /// Hypotheses per object.
+    #[arg(long, default_value_t = 1)]
+    pub hypotheses: u32,
+    /// Give up after this long, milliseconds (with --camera).
+    #[arg(long, default_value_t = 5000)]
+    pub timeout_ms: u64,
+    /// Print the answer as JSON (with --camera).
     #[arg(long)]
-    pub image: u32,
-    /// Object ids, comma separated; default: those in the image's ground truth, else all.
-    #[arg(long)]
-    pub objects: Option<String>,
-    /// Instead of detecting, print the rank of the first correct pose after each stage.
+    pub json: bool,
+    /// With --dataset: instead of detecting, print the rank of the first correct pose after
+    /// each stage.
     #[arg(long)]
     pub diagnose: bool,
-    /// Override: every n-th subsampled scene point is a reference point.
+    /// With --dataset, override: every n-th subsampled scene point is a reference point.
     #[arg(long)]
     pub reference_step: Option<usize>,
-    /// Override: accumulator peaks per reference point.
+    /// With --dataset, override: accumulator peaks per reference point.
     #[arg(long)]
     pub peaks: Option<usize>,
-    /// Hypotheses to print per object.
-    #[arg(long, default_value_t = 3)]
-    pub top: usize,
-    /// Override any detector parameter, e.g. `--set scene.normal_radius_mm=8` (repeatable; see
-    /// `set_param` for the names).
+    /// With --dataset: override any detector parameter, e.g. `--set scene.normal_radius_mm=8`
+    /// (repeatable; see `set_param` for the names).
     #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
+    pub set: Vec<String>,
+    #[command(flatten)]
+    pub connect: crate::common::Connect,
+}
+
+pub enum DetectTarget {
+    Camera(crate::detect::DetectArgs),
+    Dataset(DatasetDetectArgs),
+}
+
+impl DetectCommand {
+    pub fn into_target(self) -> Result<DetectTarget, String> {
+        if let Some(dataset) = self.dataset {
+            return Ok(DetectTarget::Dataset(DatasetDetectArgs {
+                dataset,
+                scene: self.scene.ok_or("--dataset needs --scene")?,
+                image: self.image.ok_or("--dataset needs --image")?,
+                objects: self.objects,
+                diagnose: self.diagnose,
+                reference_step: self.reference_step,
+                peaks: self.peaks,
+                top: self.hypotheses.max(1) as usize,
+                set: self.set,
+            }));
+        }
+        if self.objects.is_empty() {
+            return Err("--camera needs --objects".into());
+        }
+        Ok(DetectTarget::Camera(crate::detect::DetectArgs {
+            camera: self.camera.ok_or("give --camera or --dataset")?,
+            objects: self.objects,
+            hypotheses: self.hypotheses,
+            timeout_ms: self.timeout_ms,
+            json: self.json,
+            connect: self.connect,
+        }))
+    }
+}
+
+/// Offline detection on one frame of a BOP dataset.
+#[derive(Debug)]
+pub struct DatasetDetectArgs {
+    pub dataset: PathBuf,
+    pub scene: u32,
+    pub image: u32,
+    pub objects: Vec<u32>,
+    pub diagnose: bool,
+    pub reference_step: Option<usize>,
+    pub peaks: Option<usize>,
+    pub top: usize,
     pub set: Vec<String>,
 }
 
@@ -80,8 +143,8 @@ pub fn set_param(p: &mut ppfd_models::detector::DetectParams, kv: &str) -> Resul
     match key {
         "scene.normal_radius_mm" => p.scene.normal_radius_mm = f()?,
         "scene.normal_radius_px" => p.scene.normal_radius_px = u()? as u32,
-        "scene.max_depth_jump_mm" => p.scene.max_depth_jump_mm = f()?,
-        "scene.max_depth_jump_fraction" => p.scene.max_depth_jump_fraction = f()?,
+        "scene.max_slope_deg" => p.scene.max_slope_deg = f()?,
+        "scene.min_depth_jump_mm" => p.scene.min_depth_jump_mm = f()?,
         "scene.smoothing_radius_px" => p.scene.smoothing_radius_px = u()? as u32,
         "scene.plane_residual_mm" => p.scene.plane_residual_mm = f()?,
         "scene.plane_residual_fraction" => p.scene.plane_residual_fraction = f()?,
@@ -151,13 +214,13 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
         .map(|g| g.to_vec())
         .unwrap_or_default();
     let ids = match &args.objects {
-        Some(s) => parse_ids(s)?,
-        None if !gt.is_empty() => {
+        ids if !ids.is_empty() => ids.clone(),
+        _ if !gt.is_empty() => {
             let mut ids: Vec<u32> = gt.iter().map(|g| g.obj_id).collect();
             ids.dedup();
             ids
         }
-        None => dataset.object_ids().to_vec(),
+        _ => dataset.object_ids().to_vec(),
     };
     let models = dataset_models(&dataset, &ids)?;
     let frame = dataset.depth_frame(args.scene, args.image)?;
@@ -265,9 +328,10 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
     use ppfd_models::voting::vote;
     let dataset = BopDataset::open(&args.dataset)?;
     let gt = dataset.ground_truth(args.scene, args.image)?.to_vec();
-    let ids = match &args.objects {
-        Some(s) => parse_ids(s)?,
-        None => gt.iter().map(|g| g.obj_id).collect(),
+    let ids = if args.objects.is_empty() {
+        gt.iter().map(|g| g.obj_id).collect()
+    } else {
+        args.objects.clone()
     };
     let models = dataset_models(&dataset, &ids)?;
     let frame = dataset.depth_frame(args.scene, args.image)?;

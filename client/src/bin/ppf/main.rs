@@ -1,8 +1,17 @@
 //! `ppf`: the ppfd command line.
 
+mod bench;
+mod common;
+mod daemon;
+mod demo;
+mod detect;
 mod detect_offline;
+mod eval;
 mod model;
 mod offline;
+mod profile;
+mod replay;
+mod score;
 
 use clap::{Parser, Subcommand};
 
@@ -22,18 +31,99 @@ enum Command {
     /// Build and inspect object model files.
     #[command(subcommand)]
     Model(model::ModelCommand),
-    /// Detect objects in one frame of a BOP dataset (offline, in this process).
-    Detect(detect_offline::DatasetDetectArgs),
+    /// Time the detector's stages on a dataset frame, per object (medians of repeated runs).
+    Profile(profile::ProfileArgs),
+    /// Publish the depth frames of a BOP dataset as a camera.
+    Replay(replay::ReplayArgs),
+    /// Detect objects: in a camera's newest frame through the daemon (`--camera`), or in a
+    /// frame of a BOP dataset in this process (`--dataset --scene --image`).
+    Detect(detect_offline::DetectCommand),
+    /// Profile the daemon's latency with many requests from several clients.
+    Bench(bench::BenchArgs),
+    /// List, load or drop the daemon's models.
+    Models(daemon::ModelsArgs),
+    /// Print the daemon's statistics.
+    Stats(daemon::StatsArgs),
+    /// Start a daemon, publish a generated scene, detect, compare with the truth, stop.
+    Demo(demo::DemoArgs),
+    /// Run the ppfd daemon in this process, with ppfd's flags (what `ppf demo` starts).
+    #[command(hide = true)]
+    Serve {
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
+    },
+    /// Detect in every image of a BOP dataset, write the BOP results CSV and score it.
+    Eval(eval::EvalArgs),
+    /// Score a BOP results CSV against a dataset (BOP 2018 recall, BOP 2019 AR).
+    Score(score::ScoreArgs),
 }
 
 fn main() {
     let cli = Cli::parse();
+    if let Command::Serve { args } = &cli.command {
+        let engine = std::sync::Arc::new(ppfd::ppf_engine::PpfEngine::default());
+        let argv = std::iter::once("ppfd".to_owned()).chain(args.iter().cloned());
+        std::process::exit(match ppfd::cli::main_with_args(argv, engine) {
+            code if code == std::process::ExitCode::SUCCESS => 0,
+            _ => 1,
+        });
+    }
     let result = match cli.command {
         Command::Model(cmd) => model::run(cmd),
-        Command::Detect(args) => detect_offline::run(args),
+        Command::Profile(args) => profile::run(args),
+        Command::Replay(args) => replay::run(args).map_err(Into::into),
+        Command::Detect(args) => match args.into_target() {
+            Ok(detect_offline::DetectTarget::Camera(a)) => detect::run(a).map_err(Into::into),
+            Ok(detect_offline::DetectTarget::Dataset(a)) => detect_offline::run(a),
+            Err(e) => Err(e.into()),
+        },
+        Command::Bench(args) => bench::run(args).map_err(Into::into),
+        Command::Models(args) => daemon::models(args).map_err(Into::into),
+        Command::Stats(args) => daemon::stats(args).map_err(Into::into),
+        Command::Demo(args) => demo::run(args).map_err(Into::into),
+        Command::Serve { .. } => unreachable!("handled above"),
+        Command::Score(args) => score::run(args),
+        Command::Eval(args) => eval::run(args),
     };
     if let Err(e) = result {
         eprintln!("error: {e}");
         std::process::exit(1);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn daemon_subcommands_parse() {
+        let cli =
+            Cli::try_parse_from(["ppf", "detect", "--camera", "k", "--objects", "1,5,6"]).unwrap();
+        match cli.command {
+            Command::Detect(a) => assert_eq!(a.objects, vec![1, 5, 6]),
+            other => panic!("{other:?}"),
+        }
+        let cli = Cli::try_parse_from([
+            "ppf",
+            "bench",
+            "--camera",
+            "k",
+            "--objects",
+            "2",
+            "--clients",
+            "3",
+        ])
+        .unwrap();
+        assert!(
+            matches!(cli.command, Command::Bench(ref a) if a.clients == 3 && a.objects == vec![2])
+        );
+        for args in [
+            vec!["ppf", "replay", "/d", "--camera", "k", "--loop"],
+            vec!["ppf", "models", "--drop", "3"],
+            vec!["ppf", "stats", "--json"],
+            vec!["ppf", "demo"],
+        ] {
+            Cli::try_parse_from(&args).unwrap_or_else(|e| panic!("{args:?}: {e}"));
+        }
     }
 }

@@ -101,15 +101,3 @@ pub fn symmetric_pose_errors(est: &Pose, gt: &Pose, symmetries: &[Pose]) -> (f32
     }
     best
 }
-
-/// Parses `1,5,6` into ids.
-pub fn parse_ids(s: &str) -> Result<Vec<u32>, String> {
-    s.split(',')
-        .filter(|p| !p.trim().is_empty())
-        .map(|p| {
-            p.trim()
-                .parse::<u32>()
-                .map_err(|_| format!("not an object id: {p:?}"))
-        })
-        .collect()
-}

@@ -1,0 +1,51 @@
+//! One detect call: the newest frame of a camera, some objects, the poses and where the time
+//! went.
+//!
+//! ```sh
+//! cargo run --release -p ppfd-client --example detect -- kinect 1 5 6
+//! ```
+
+use ppfd_client::{isometry, Client, DetectOptions};
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let mut args = std::env::args().skip(1);
+    let camera = args.next().unwrap_or_else(|| "kinect".into());
+    let objects: Vec<u32> = args.filter_map(|a| a.parse().ok()).collect();
+    let objects = if objects.is_empty() { vec![1] } else { objects };
+
+    let client = Client::connect()?;
+    let found = client.detect(
+        &camera,
+        &objects,
+        &DetectOptions {
+            hypotheses_per_object: 3,
+            ..Default::default()
+        },
+    )?;
+    for h in &found.hypotheses {
+        let pose = isometry(h);
+        let t = pose.translation.vector;
+        println!(
+            "object {:>3} #{}: score {:.3}, t = ({:.1}, {:.1}, {:.1}) mm, rotation {:.1} deg about {:?}",
+            h.object_id,
+            h.instance_rank,
+            h.score,
+            t.x,
+            t.y,
+            t.z,
+            pose.rotation.angle().to_degrees(),
+            pose.rotation.axis().map(|a| [a.x, a.y, a.z])
+        );
+    }
+    let l = &found.latency;
+    println!(
+        "end to end {:.2} ms = detection {:.2} ms + overhead {:.3} ms (transport {:.3} + queue {:.3} + return {:.3})",
+        l.end_to_end_ns as f64 / 1e6,
+        l.daemon.detection_ns as f64 / 1e6,
+        l.overhead_ns() as f64 / 1e6,
+        l.daemon.transport_ns as f64 / 1e6,
+        l.daemon.queue_wait_ns as f64 / 1e6,
+        l.response_transport_ns as f64 / 1e6,
+    );
+    Ok(())
+}

@@ -1,0 +1,134 @@
+//! `ppf models` and `ppf stats`: the daemon's control requests.
+
+use clap::Args;
+use ppfd_client::DaemonStats;
+
+use crate::common::{ms, Connect};
+
+#[derive(Args, Debug)]
+pub struct ModelsArgs {
+    /// Load a model file (`.ppfm`) or build one from a PLY mesh, as the daemon sees the path.
+    #[arg(long)]
+    pub load: Option<String>,
+    /// Object id for `--load` (default: from the file).
+    #[arg(long, default_value_t = 0)]
+    pub id: u32,
+    /// Drop the model with this object id.
+    #[arg(long)]
+    pub drop: Option<u32>,
+    #[command(flatten)]
+    pub connect: Connect,
+}
+
+pub fn models(args: ModelsArgs) -> Result<(), String> {
+    let client = args.connect.client()?;
+    if let Some(path) = &args.load {
+        let m = client
+            .load_model(path, args.id)
+            .map_err(|e| e.to_string())?;
+        println!(
+            "loaded object {} ({}): {} points, {} bytes",
+            m.object_id,
+            m.name(),
+            m.point_count,
+            m.byte_size
+        );
+    }
+    if let Some(id) = args.drop {
+        client.drop_model(id).map_err(|e| e.to_string())?;
+        println!("dropped object {id}");
+    }
+    let models = client.models().map_err(|e| e.to_string())?;
+    println!(
+        "{:>6}  {:<24} {:>8} {:>12} {:>12} {:>10}",
+        "object", "name", "points", "table", "bytes", "diameter"
+    );
+    for m in &models {
+        println!(
+            "{:>6}  {:<24} {:>8} {:>12} {:>12} {:>8.1}mm",
+            m.object_id,
+            m.name(),
+            m.point_count,
+            m.table_entries,
+            m.byte_size,
+            m.diameter_mm
+        );
+    }
+    println!("{} models", models.len());
+    Ok(())
+}
+
+#[derive(Args, Debug)]
+pub struct StatsArgs {
+    /// Print as JSON.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub connect: Connect,
+}
+
+pub fn stats(args: StatsArgs) -> Result<(), String> {
+    let client = args.connect.client()?;
+    let s = client.stats().map_err(|e| e.to_string())?;
+    if args.json {
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&stats_json(&s)).map_err(|e| e.to_string())?
+        );
+        return Ok(());
+    }
+    println!("uptime            {:.1} s", s.uptime_ns as f64 / 1e9);
+    println!(
+        "requests          {} received, {} served, {} refused ({} past deadline), {} abandoned",
+        s.requests_received,
+        s.requests_served,
+        s.requests_refused,
+        s.requests_expired,
+        s.requests_abandoned
+    );
+    println!(
+        "frames received   {} from {} cameras",
+        s.frames_received, s.cameras
+    );
+    println!(
+        "models            {} ({:.1} MB)",
+        s.models_loaded,
+        s.model_bytes as f64 / 1e6
+    );
+    println!("resident memory   {:.1} MB", s.resident_bytes as f64 / 1e6);
+    println!(
+        "now               {} running, {} queued",
+        s.in_flight, s.queued
+    );
+    println!(
+        "latency (ms)      {:>8} {:>8} {:>8} {:>8} {:>8}",
+        "count", "p50", "p90", "p99", "max"
+    );
+    for (name, l) in [
+        ("total", &s.total),
+        ("overhead", &s.overhead),
+        ("detection", &s.detection),
+    ] {
+        println!(
+            "  {name:<15} {:>8} {:>8} {:>8} {:>8} {:>8}",
+            l.count,
+            ms(l.p50_ns),
+            ms(l.p90_ns),
+            ms(l.p99_ns),
+            ms(l.max_ns)
+        );
+    }
+    Ok(())
+}
+
+fn stats_json(s: &DaemonStats) -> serde_json::Value {
+    let l = |l: &ppfd_client::protocol::control::LatencySummary| serde_json::json!({"count": l.count, "p50_ns": l.p50_ns, "p90_ns": l.p90_ns, "p99_ns": l.p99_ns, "max_ns": l.max_ns});
+    serde_json::json!({
+        "uptime_ns": s.uptime_ns, "requests_received": s.requests_received, "requests_served": s.requests_served,
+        "requests_refused": s.requests_refused, "requests_expired": s.requests_expired,
+        "requests_abandoned": s.requests_abandoned, "frames_received": s.frames_received, "cameras": s.cameras,
+        "models_loaded": s.models_loaded, "model_bytes": s.model_bytes, "resident_bytes": s.resident_bytes,
+        "in_flight": s.in_flight, "queued": s.queued,
+        "total": l(&s.total), "overhead": l(&s.overhead), "detection": l(&s.detection),
+    })
+}

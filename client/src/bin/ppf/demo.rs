@@ -1,0 +1,347 @@
+//! `ppf demo`: the whole path on one machine — starts a `ppfd` daemon as a child process (under
+//! a private iceoryx2 prefix), publishes a depth frame as a camera (by default a generated scene
+//! of the generated parts; no data files needed), asks for the objects in it,
+//! prints each pose against the truth and the latency breakdown, and stops everything.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use clap::Args;
+use ppfd_client::{
+    isometry, monotonic_now_ns, CameraPublisher, Client, ClientOptions, DetectOptions, Intrinsics,
+};
+use ppfd_models::bop::BopDataset;
+use ppfd_models::camera::OwnedDepthFrame;
+use ppfd_models::model::{ModelParams, ObjectModel};
+use ppfd_models::parts::Part;
+use ppfd_models::store;
+use ppfd_models::synthetic::{NoiseModel, SceneSpec};
+use ppfd_models::Pose;
+
+use crate::common::print_latency;
+
+#[derive(Args, Debug)]
+pub struct DemoArgs {
+    /// Take the scene and the object meshes from a BOP dataset instead of generating them.
+    #[arg(long)]
+    pub dataset: Option<PathBuf>,
+    /// Seed of the generated scene.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Render the generated scene without sensor noise.
+    #[arg(long)]
+    pub no_noise: bool,
+    /// Scene and image of the dataset (default: the first with depth).
+    #[arg(long, num_args = 2, value_names = ["SCENE", "IMAGE"])]
+    pub image: Option<Vec<u32>>,
+    /// Where models built from the meshes are kept between runs.
+    #[arg(long)]
+    pub model_cache: Option<PathBuf>,
+    /// A `ppfd` executable to start (default: this executable's built-in daemon, `ppf serve`).
+    #[arg(long)]
+    pub ppfd: Option<PathBuf>,
+    /// Hypotheses per object.
+    #[arg(long, default_value_t = 1)]
+    pub hypotheses: u32,
+}
+
+/// A scene to detect in, with the truth.
+struct DemoScene {
+    frame: OwnedDepthFrame,
+    truth: Vec<(u32, Pose)>,
+    /// Files for the daemon's model directory: meshes (built by the daemon) or model files.
+    model_files: Vec<PathBuf>,
+    label: String,
+}
+
+/// The embedded default: the generated parts resting on a table, seen by a Kinect-like camera.
+fn generated_scene(args: &DemoArgs, cache: &Path) -> Result<DemoScene, String> {
+    let meshes: Vec<(Part, ppfd_models::mesh::Mesh)> =
+        Part::ALL.iter().map(|p| (*p, p.mesh())).collect();
+    let noise = if args.no_noise {
+        None
+    } else {
+        Some(NoiseModel::kinect())
+    };
+    let mut spec = SceneSpec::new(args.seed).noise(noise);
+    for (part, mesh) in &meshes {
+        spec = spec.object(part.object_id(), mesh);
+    }
+    let scene = spec.build().map_err(|e| e.to_string())?;
+    // Models are built here once and kept in the cache; the daemon maps the files.
+    let params = ModelParams::default();
+    let mut model_files = Vec::new();
+    for (part, mesh) in &meshes {
+        let path = cache.join(format!("{}_{:06}.ppfm", part.name(), part.object_id()));
+        if store::load_expecting(&path, &params).is_err() {
+            let started = Instant::now();
+            let model = ObjectModel::build(mesh, part.object_id(), part.name(), &params)
+                .map_err(|e| e.to_string())?;
+            store::save(&model, &path).map_err(|e| e.to_string())?;
+            println!(
+                "built the model of {} in {:.1} s",
+                part.name(),
+                started.elapsed().as_secs_f64()
+            );
+        }
+        model_files.push(path);
+    }
+    let noise = if args.no_noise {
+        ""
+    } else {
+        ", Kinect-like noise"
+    };
+    Ok(DemoScene {
+        frame: scene.frame,
+        truth: scene.ground_truth,
+        model_files,
+        label: format!("generated parts on a table, seed {}{noise}", args.seed),
+    })
+}
+
+fn bop_scene(args: &DemoArgs, root: &Path) -> Result<DemoScene, String> {
+    let dataset = BopDataset::open(root).map_err(|e| e.to_string())?;
+    let (scene, im) = match &args.image {
+        Some(v) => (v[0], v[1]),
+        None => dataset
+            .scene_ids()
+            .into_iter()
+            .flat_map(|s| {
+                dataset
+                    .image_ids(s)
+                    .unwrap_or_default()
+                    .into_iter()
+                    .map(move |i| (s, i))
+            })
+            .find(|&(s, i)| dataset.has_depth(s, i))
+            .ok_or_else(|| format!("{}: no image with depth", root.display()))?,
+    };
+    let frame = dataset.depth_frame(scene, im).map_err(|e| e.to_string())?;
+    let truth: Vec<(u32, Pose)> = dataset
+        .ground_truth(scene, im)
+        .map_err(|e| e.to_string())?
+        .iter()
+        .map(|g| (g.obj_id, g.pose))
+        .collect();
+    let mut meshes = Vec::new();
+    for (id, _) in &truth {
+        let path = dataset.model_path(*id).map_err(|e| e.to_string())?;
+        if !meshes.contains(&path) {
+            meshes.push(path);
+        }
+    }
+    Ok(DemoScene {
+        frame,
+        truth,
+        model_files: meshes,
+        label: format!("{} scene {scene} image {im}", root.display()),
+    })
+}
+
+/// The daemon command: the given `ppfd` executable, else this executable's `serve` (the same
+/// daemon code, so `cargo run -p ppfd-client --bin ppf -- demo` needs nothing else built).
+fn daemon_command(given: &Option<PathBuf>) -> Result<(PathBuf, Vec<&'static str>), String> {
+    match given {
+        Some(p) => Ok((p.clone(), vec![])),
+        None => {
+            let me =
+                std::env::current_exe().map_err(|e| format!("cannot find this executable: {e}"))?;
+            Ok((me, vec!["serve"]))
+        }
+    }
+}
+
+/// A child process stopped (SIGTERM, then SIGKILL) when dropped.
+struct Daemon(Child);
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        // SAFETY: signals our own child.
+        unsafe { libc_kill(self.0.id() as i32, 15) };
+        let end = Instant::now() + Duration::from_secs(5);
+        while Instant::now() < end {
+            if let Ok(Some(_)) = self.0.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+extern "C" {
+    #[link_name = "kill"]
+    fn libc_kill(pid: i32, sig: i32) -> i32;
+}
+
+fn start_daemon(
+    (exe, first): &(PathBuf, Vec<&'static str>),
+    models: &Path,
+    cache: &Path,
+    prefix: &str,
+) -> Result<Daemon, String> {
+    let mut child = Command::new(exe)
+        .args(first)
+        .args(["--models", models.to_str().unwrap_or("."), "--model-cache"])
+        .arg(cache)
+        .args(["--prefix", prefix])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .map_err(|e| format!("cannot start {} {}: {e}", exe.display(), first.join(" ")))?;
+    let stdout = child.stdout.take().expect("piped stdout");
+    let daemon = Daemon(child);
+    let mut line = String::new();
+    let mut reader = BufReader::new(stdout);
+    loop {
+        line.clear();
+        match reader.read_line(&mut line) {
+            Ok(0) | Err(_) => {
+                return Err("ppfd stopped before it was ready (see its log above)".into())
+            }
+            Ok(_) if line.starts_with("ppfd ready") => break,
+            Ok(_) => {}
+        }
+    }
+    std::thread::spawn(move || for _ in reader.lines() {});
+    Ok(daemon)
+}
+
+fn rotation_error_deg(a: &Pose, b: &Pose) -> f32 {
+    a.rotation.angle_to(&b.rotation).to_degrees()
+}
+
+pub fn run(args: DemoArgs) -> Result<(), String> {
+    let cache = args
+        .model_cache
+        .clone()
+        .unwrap_or_else(|| std::env::temp_dir().join("ppf-demo-models"));
+    std::fs::create_dir_all(&cache).map_err(|e| format!("{}: {e}", cache.display()))?;
+    let scene = match &args.dataset {
+        Some(root) => bop_scene(&args, root)?,
+        None => generated_scene(&args, &cache)?,
+    };
+    println!(
+        "scene: {} ({}x{}), objects {:?}",
+        scene.label,
+        scene.frame.width,
+        scene.frame.height,
+        scene.truth.iter().map(|t| t.0).collect::<Vec<_>>()
+    );
+
+    // The daemon loads the model files (or builds models from meshes once, into the cache).
+    let work = std::env::temp_dir().join(format!("ppf-demo-{}", std::process::id()));
+    let models = work.join("models");
+    std::fs::create_dir_all(&models).map_err(|e| e.to_string())?;
+    for file in &scene.model_files {
+        let link = models.join(file.file_name().unwrap_or_default());
+        let abs = std::fs::canonicalize(file).map_err(|e| format!("{}: {e}", file.display()))?;
+        std::os::unix::fs::symlink(&abs, &link).map_err(|e| e.to_string())?;
+    }
+    let prefix = format!("ppfd_demo_{}_", std::process::id());
+    let exe = daemon_command(&args.ppfd)?;
+    println!(
+        "starting the daemon: {} {} (models cached in {})",
+        exe.0.display(),
+        exe.1.join(" "),
+        cache.display()
+    );
+    let started = Instant::now();
+    let daemon = start_daemon(&exe, &models, &cache, &prefix)?;
+    println!("daemon ready in {:.1} s", started.elapsed().as_secs_f64());
+
+    let f = &scene.frame;
+    let k = f.intrinsics;
+    let mut camera = CameraPublisher::new(
+        Some(&prefix),
+        "demo",
+        1,
+        f.width,
+        f.height,
+        Intrinsics {
+            fx: k.fx,
+            fy: k.fy,
+            cx: k.cx,
+            cy: k.cy,
+        },
+        f.depth_scale_mm,
+    )
+    .map_err(|e| e.to_string())?;
+    let client = Client::connect_with(&ClientOptions {
+        prefix: Some(prefix.clone()),
+        ..Default::default()
+    })
+    .map_err(|e| e.to_string())?;
+    let ids: Vec<u32> = {
+        let mut v: Vec<u32> = scene.truth.iter().map(|t| t.0).collect();
+        v.dedup();
+        v
+    };
+    let options = DetectOptions {
+        hypotheses_per_object: args.hypotheses,
+        timeout: Duration::from_secs(900),
+        ..Default::default()
+    };
+    // Publish until the daemon has subscribed and answers from this camera.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let found = loop {
+        camera
+            .loan()
+            .and_then(|l| l.write_from_slice(&f.depth))
+            .and_then(|r| r.send(monotonic_now_ns()))
+            .map_err(|e| e.to_string())?;
+        match client.detect("demo", &ids, &options) {
+            Ok(found) => break found,
+            Err(ppfd_client::Error::Refused { status, .. })
+                if matches!(
+                    status,
+                    ppfd_client::Status::NoFrame | ppfd_client::Status::UnknownCamera
+                ) && Instant::now() < deadline =>
+            {
+                std::thread::sleep(Duration::from_millis(50));
+            }
+            Err(e) => return Err(e.to_string()),
+        }
+    };
+
+    println!(
+        "\n{:>6} {:>6} {:>10} {:>10} {:>8}",
+        "object", "score", "dt (mm)", "dR (deg)", "checks"
+    );
+    let mut correct = 0;
+    for (id, truth) in &scene.truth {
+        match found.best(*id) {
+            Some(h) => {
+                let pose = isometry(h);
+                let dt = (pose.translation.vector - truth.translation.vector).norm();
+                let dr = rotation_error_deg(&pose, truth);
+                if dt < 20.0 && dr < 10.0 {
+                    correct += 1;
+                }
+                println!(
+                    "{:>6} {:>6.3} {:>10.1} {:>10.1} {:>8}",
+                    id,
+                    h.score,
+                    dt,
+                    dr,
+                    format!("{:04b}", h.checks)
+                );
+            }
+            None => println!("{id:>6}      - (no hypothesis)"),
+        }
+    }
+    println!(
+        "{correct} of {} objects within 20 mm and 10 degrees\n",
+        scene.truth.len()
+    );
+    print_latency(&found);
+    drop(camera);
+    drop(client);
+    drop(daemon);
+    let _ = std::fs::remove_dir_all(&work);
+    println!("\ndaemon stopped");
+    Ok(())
+}

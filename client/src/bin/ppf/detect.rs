@@ -1,0 +1,88 @@
+//! `ppf detect`: one detect request against a running daemon; prints the poses and the latency
+//! breakdown.
+
+use clap::Args;
+use ppfd_client::DetectOptions;
+
+use crate::common::{millis, print_hypotheses, print_latency, Connect};
+
+#[derive(Args, Debug)]
+pub struct DetectArgs {
+    /// Camera whose newest frame to use.
+    #[arg(long)]
+    pub camera: String,
+    /// Object ids, comma-separated.
+    #[arg(long, value_delimiter = ',', required = true)]
+    pub objects: Vec<u32>,
+    /// Hypotheses per object.
+    #[arg(long, default_value_t = 1)]
+    pub hypotheses: u32,
+    /// Give up after this long, milliseconds.
+    #[arg(long, default_value_t = 5000)]
+    pub timeout_ms: u64,
+    /// Print the answer as JSON.
+    #[arg(long)]
+    pub json: bool,
+    #[command(flatten)]
+    pub connect: Connect,
+}
+
+pub fn run(args: DetectArgs) -> Result<(), String> {
+    let client = args.connect.client()?;
+    let options = DetectOptions {
+        hypotheses_per_object: args.hypotheses,
+        timeout: millis(args.timeout_ms),
+        ..Default::default()
+    };
+    let found = client
+        .detect(&args.camera, &args.objects, &options)
+        .map_err(|e| e.to_string())?;
+    if args.json {
+        let hyps: Vec<serde_json::Value> = found
+            .hypotheses
+            .iter()
+            .map(|h| {
+                serde_json::json!({
+                    "object_id": h.object_id, "rank": h.instance_rank, "score": h.score, "votes": h.votes,
+                    "checks": h.checks, "rotation": h.rotation, "translation_mm": h.translation_mm,
+                })
+            })
+            .collect();
+        let l = &found.latency;
+        let latency: serde_json::Map<String, serde_json::Value> = crate::common::stages(&l.daemon)
+            .iter()
+            .map(|(n, v)| (format!("{}_ns", n.replace([' ', '-'], "_")), (*v).into()))
+            .chain([
+                ("detection_ns".to_owned(), l.daemon.detection_ns.into()),
+                (
+                    "response_transport_ns".to_owned(),
+                    l.response_transport_ns.into(),
+                ),
+                ("end_to_end_ns".to_owned(), l.end_to_end_ns.into()),
+                ("overhead_ns".to_owned(), l.overhead_ns().into()),
+            ])
+            .collect();
+        let out = serde_json::json!({
+            "request_id": found.request_id, "frame_sequence": found.frame_sequence,
+            "frame_age_ns": found.frame_age_ns, "hypotheses": hyps, "latency": latency,
+            "counts": { "scene_points": found.counts.scene_points, "reference_points": found.counts.reference_points,
+                        "pairs": found.counts.pairs, "hypotheses": found.counts.hypotheses },
+        });
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&out).map_err(|e| e.to_string())?
+        );
+        return Ok(());
+    }
+    println!(
+        "frame {} ({:.1} ms old): {} scene points, {} reference points, {} pairs",
+        found.frame_sequence,
+        found.frame_age_ns as f64 / 1e6,
+        found.counts.scene_points,
+        found.counts.reference_points,
+        found.counts.pairs
+    );
+    print_hypotheses(&found);
+    print_latency(&found);
+    Ok(())
+}

@@ -1,0 +1,144 @@
+//! `ppf eval`: run the detector on every image of a BOP dataset that has depth, write the BOP
+//! results CSV, and score it.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use ppfd_models::bop::BopDataset;
+use ppfd_models::detector::{DetectOptions, Detector};
+use ppfd_models::eval::csv::{write_results_file, EstimateRow};
+use ppfd_models::eval::score::{score_results, ScoreOptions};
+
+use crate::offline::dataset_models;
+
+#[derive(Args, Debug)]
+pub struct EvalArgs {
+    /// A BOP dataset directory.
+    pub dataset: PathBuf,
+    /// Only this scene.
+    #[arg(long)]
+    pub scene: Option<u32>,
+    /// Only these objects (comma separated); default: the objects of each image's ground truth,
+    /// or every model when an image has none.
+    #[arg(long, value_delimiter = ',')]
+    pub objects: Vec<u32>,
+    /// Hypotheses written per object and image (more than one only helps multi-instance
+    /// targets).
+    #[arg(long, default_value_t = 1)]
+    pub hypotheses: usize,
+    /// The results CSV to write.
+    #[arg(long, default_value = "results.csv")]
+    pub out: PathBuf,
+    /// Only write the CSV, do not score it.
+    #[arg(long)]
+    pub no_score: bool,
+    /// Print the score report as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
+    let dataset = BopDataset::open(&args.dataset)?;
+    let mut images = Vec::new();
+    for scene in dataset.scene_ids() {
+        if args.scene.is_some_and(|s| s != scene) {
+            continue;
+        }
+        for im in dataset.image_ids(scene)? {
+            if dataset.has_depth(scene, im) {
+                images.push((scene, im));
+            }
+        }
+    }
+    if images.is_empty() {
+        return Err(format!(
+            "{}: no image with depth to evaluate",
+            args.dataset.display()
+        )
+        .into());
+    }
+    let ids: Vec<u32> = if args.objects.is_empty() {
+        dataset.object_ids().to_vec()
+    } else {
+        args.objects.clone()
+    };
+    let models = dataset_models(&dataset, &ids)?;
+    let detector = Detector::default();
+    let opts = DetectOptions {
+        hypotheses_per_object: args.hypotheses.max(1),
+        deadline: None,
+    };
+    let bar = ProgressBar::new(images.len() as u64);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "detect {bar:30} {pos}/{len} images [{elapsed} < {eta}] {msg}",
+        )
+        .unwrap(),
+    );
+    let mut rows = Vec::new();
+    for &(scene, im) in &images {
+        let wanted: Vec<u32> = match dataset.ground_truth(scene, im) {
+            Ok(gt) if args.objects.is_empty() && !gt.is_empty() => {
+                let mut v: Vec<u32> = gt.iter().map(|g| g.obj_id).collect();
+                v.sort_unstable();
+                v.dedup();
+                v
+            }
+            _ => ids.clone(),
+        };
+        let refs: Vec<_> = models
+            .iter()
+            .filter(|m| wanted.contains(&m.object_id()))
+            .collect();
+        if refs.is_empty() {
+            bar.inc(1);
+            continue;
+        }
+        let frame = dataset.depth_frame(scene, im)?;
+        let t = Instant::now();
+        let det = detector.detect(&frame.view(), &refs, &opts)?;
+        let time_s = t.elapsed().as_secs_f32();
+        for o in &det.objects {
+            for h in &o.hypotheses {
+                rows.push(EstimateRow {
+                    scene_id: scene,
+                    im_id: im,
+                    obj_id: o.object_id,
+                    score: h.score,
+                    pose: h.pose,
+                    time_s,
+                });
+            }
+        }
+        bar.set_message(format!("{:.2} s/image", time_s));
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    write_results_file(&args.out, &rows)?;
+    eprintln!(
+        "{} estimates for {} images written to {}",
+        rows.len(),
+        images.len(),
+        args.out.display()
+    );
+    if args.no_score {
+        return Ok(());
+    }
+    let report = score_results(&dataset, &rows, &ScoreOptions::default())?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        let targets = if dataset.test_targets().is_some() {
+            "test_targets_bop19.json"
+        } else {
+            "from the ground truth (visible fraction >= 0.1)"
+        };
+        print!(
+            "{}",
+            crate::score::format_report(&args.dataset, &args.out, targets, &report)
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,99 @@
+//! `ppf profile`: time the detector's stages on one dataset frame, per object, over repeated
+//! runs, and print medians (release build for real figures).
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use clap::Args;
+use ppfd_models::bop::BopDataset;
+use ppfd_models::detector::{DetectOptions, Detector, StageTimings};
+
+use crate::offline::dataset_models;
+
+#[derive(Args, Debug)]
+pub struct ProfileArgs {
+    /// A BOP dataset directory.
+    #[arg(long)]
+    pub dataset: PathBuf,
+    #[arg(long)]
+    pub scene: u32,
+    #[arg(long)]
+    pub image: u32,
+    /// Object ids (comma separated); default: the image's ground truth.
+    #[arg(long, value_delimiter = ',')]
+    pub objects: Vec<u32>,
+    /// Runs; the table shows medians.
+    #[arg(long, default_value_t = 5)]
+    pub repeat: usize,
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+pub fn run(args: ProfileArgs) -> Result<(), Box<dyn std::error::Error>> {
+    let dataset = BopDataset::open(&args.dataset)?;
+    let ids = if args.objects.is_empty() {
+        let mut v: Vec<u32> = dataset
+            .ground_truth(args.scene, args.image)?
+            .iter()
+            .map(|g| g.obj_id)
+            .collect();
+        v.dedup();
+        v
+    } else {
+        args.objects.clone()
+    };
+    let models = dataset_models(&dataset, &ids)?;
+    let refs: Vec<_> = models.iter().collect();
+    let frame = dataset.depth_frame(args.scene, args.image)?;
+    let detector = Detector::default();
+    let opts = DetectOptions {
+        hypotheses_per_object: 1,
+        deadline: None,
+    };
+    let repeat = args.repeat.max(1);
+    let mut per_object: Vec<Vec<StageTimings>> = vec![Vec::new(); refs.len()];
+    let mut frame_runs = Vec::new();
+    for _ in 0..repeat {
+        let det = detector.detect(&frame.view(), &refs, &opts)?;
+        for (i, t) in det.per_object_timings.iter().enumerate() {
+            per_object[i].push(*t);
+        }
+        frame_runs.push(det.timings);
+    }
+    println!("medians of {repeat} runs, ms");
+    println!("| object | voting | clustering | voting + clustering | re-scoring | ICP | filters | object total |");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for (m, runs) in models.iter().zip(&per_object) {
+        let col =
+            |f: &dyn Fn(&StageTimings) -> Duration| median(runs.iter().map(|t| ms(f(t))).collect());
+        println!(
+            "| {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |",
+            m.object_id(),
+            col(&|t| t.voting),
+            col(&|t| t.clustering),
+            col(&|t| t.voting + t.clustering),
+            col(&|t| t.rescoring),
+            col(&|t| t.icp),
+            col(&|t| t.filters),
+            col(&|t| t.total()),
+        );
+    }
+    let col = |f: &dyn Fn(&StageTimings) -> Duration| {
+        median(frame_runs.iter().map(|t| ms(f(t))).collect())
+    };
+    println!(
+        "\nwhole frame ({} objects): scene preparation {:.1}, kd-trees {:.1}, total {:.1} ms",
+        refs.len(),
+        col(&|t| t.scene_preparation),
+        col(&|t| t.kd_tree),
+        col(&|t| t.total())
+    );
+    Ok(())
+}

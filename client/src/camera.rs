@@ -1,0 +1,200 @@
+//! The camera-driver side: publish depth frames into shared memory.
+
+use std::mem::MaybeUninit;
+
+use iceoryx2::node::Node;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::prelude::*;
+use iceoryx2::sample_mut::SampleMut;
+use iceoryx2::sample_mut_uninit::SampleMutUninit;
+
+use ppfd_protocol::clock::monotonic_now_ns;
+use ppfd_protocol::frame::{FrameHeader, Intrinsics};
+use ppfd_protocol::services::{self, limits, wake, CameraService, EventService};
+use ppfd_protocol::text;
+
+use crate::{iceoryx_config, transport, Result};
+
+type Ipc = ipc::Service;
+
+/// Publishes the depth frames of one camera on `ppfd/camera/<name>/depth`. Not `Send`: keep it
+/// on the driver's thread.
+pub struct CameraPublisher {
+    publisher: Publisher<Ipc, [u16], FrameHeader>,
+    template: FrameHeader,
+    sequence: u64,
+    _wake: Option<Notifier<Ipc>>,
+    _service: CameraService<Ipc>,
+    _wake_service: Option<EventService<Ipc>>,
+    _node: Node<Ipc>,
+}
+
+/// A frame being written: depth values in shared memory, not yet initialised.
+pub struct FrameLoan<'a> {
+    sample: SampleMutUninit<Ipc, [MaybeUninit<u16>], FrameHeader>,
+    sequence: &'a mut u64,
+}
+
+/// A frame whose depth is written, ready to publish.
+pub struct ReadyFrame<'a> {
+    sample: SampleMut<Ipc, [u16], FrameHeader>,
+    sequence: &'a mut u64,
+}
+
+impl CameraPublisher {
+    /// Creates the camera's service (or joins it) and tells a running daemon about it.
+    /// `prefix` as [`crate::ClientOptions::prefix`]; `depth_scale_mm` is millimetres per raw
+    /// depth unit.
+    pub fn new(
+        prefix: Option<&str>,
+        camera: &str,
+        camera_id: u32,
+        width: u32,
+        height: u32,
+        intrinsics: Intrinsics,
+        depth_scale_mm: f32,
+    ) -> Result<CameraPublisher> {
+        let template = FrameHeader {
+            camera_id,
+            camera_name: text::encode_name("camera", camera)?,
+            width,
+            height,
+            intrinsics,
+            depth_scale_mm,
+            ..FrameHeader::default()
+        };
+        template.validate(template.pixel_count())?;
+        let config = iceoryx_config(prefix)?;
+        let node = NodeBuilder::new()
+            .config(&config)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<Ipc>()
+            .map_err(transport("cannot create an iceoryx2 node"))?;
+        let service = services::camera_builder(&node, camera)?
+            .open_or_create()
+            .map_err(transport("cannot open the camera service"))?;
+        let publisher = service
+            .publisher_builder()
+            .initial_max_slice_len(template.pixel_count().max(limits::VGA_PIXELS))
+            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            .max_loaned_samples(limits::MAX_LOANED_FRAMES)
+            .backpressure_strategy(BackpressureStrategy::DiscardData)
+            .create()
+            .map_err(transport("cannot create the camera publisher"))?;
+        // Wake a running daemon so that it subscribes before the first frame.
+        let wake_service = services::daemon_wake_builder(&node).open_or_create().ok();
+        let wake = wake_service
+            .as_ref()
+            .and_then(|s| s.notifier_builder().create().ok());
+        if let Some(n) = &wake {
+            let _ = n.notify_with_custom_event_id(wake::CAMERA_APPEARED);
+        }
+        Ok(CameraPublisher {
+            publisher,
+            template,
+            sequence: 0,
+            _wake: wake,
+            _service: service,
+            _wake_service: wake_service,
+            _node: node,
+        })
+    }
+
+    /// The header every frame starts from.
+    pub fn template(&self) -> &FrameHeader {
+        &self.template
+    }
+
+    /// Loans the next frame's `width × height` depth values in shared memory.
+    pub fn loan(&mut self) -> Result<FrameLoan<'_>> {
+        let mut sample = self
+            .publisher
+            .loan_slice_uninit(self.template.pixel_count())
+            .map_err(transport("cannot loan a frame"))?;
+        *sample.user_header_mut() = self.template;
+        Ok(FrameLoan {
+            sample,
+            sequence: &mut self.sequence,
+        })
+    }
+
+    /// Copies `depth` into a loaned frame and publishes it, captured now.
+    pub fn publish(&mut self, depth: &[u16]) -> Result<u64> {
+        self.loan()?
+            .write_from_slice(depth)?
+            .send(monotonic_now_ns())
+    }
+}
+
+impl<'a> FrameLoan<'a> {
+    /// The uninitialised depth values, for a driver that writes them itself; then
+    /// [`FrameLoan::assume_init`].
+    pub fn depth_uninit(&mut self) -> &mut [MaybeUninit<u16>] {
+        self.sample.payload_mut()
+    }
+
+    /// Declares every depth value written.
+    ///
+    /// # Safety
+    /// Every element of [`FrameLoan::depth_uninit`] must have been written.
+    pub unsafe fn assume_init(self) -> ReadyFrame<'a> {
+        // SAFETY: promised by the caller.
+        ReadyFrame {
+            sample: unsafe { self.sample.assume_init() },
+            sequence: self.sequence,
+        }
+    }
+
+    /// Writes the depth values by index.
+    pub fn write_from_fn(self, f: impl FnMut(usize) -> u16) -> ReadyFrame<'a> {
+        ReadyFrame {
+            sample: self.sample.write_from_fn(f),
+            sequence: self.sequence,
+        }
+    }
+
+    /// Copies the depth values (`width × height` of them).
+    pub fn write_from_slice(self, depth: &[u16]) -> Result<ReadyFrame<'a>> {
+        let expected = self.sample.payload().len();
+        if depth.len() != expected {
+            let h = self.sample.user_header();
+            return Err(ppfd_protocol::ProtocolError::FrameSize {
+                width: h.width,
+                height: h.height,
+                values: depth.len(),
+            }
+            .into());
+        }
+        Ok(ReadyFrame {
+            sample: self.sample.write_from_slice(depth),
+            sequence: self.sequence,
+        })
+    }
+}
+
+impl ReadyFrame<'_> {
+    /// The frame's header (starts as the publisher's template), e.g. to set per-frame
+    /// intrinsics.
+    pub fn header_mut(&mut self) -> &mut FrameHeader {
+        self.sample.user_header_mut()
+    }
+
+    /// The depth values, to adjust after writing.
+    pub fn depth_mut(&mut self) -> &mut [u16] {
+        self.sample.payload_mut()
+    }
+
+    /// Publishes the frame, captured at `capture_time_ns` (`CLOCK_MONOTONIC`). Returns its
+    /// sequence number.
+    pub fn send(mut self, capture_time_ns: u64) -> Result<u64> {
+        *self.sequence += 1;
+        let header = self.sample.user_header_mut();
+        header.sequence = *self.sequence;
+        header.capture_time_ns = capture_time_ns;
+        self.sample
+            .send()
+            .map_err(transport("cannot publish the frame"))?;
+        Ok(*self.sequence)
+    }
+}

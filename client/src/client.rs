@@ -1,0 +1,516 @@
+//! The robot side: detect requests and control requests.
+
+use std::cell::Cell;
+use std::time::{Duration, Instant};
+
+use iceoryx2::node::Node;
+use iceoryx2::port::client::Client as IoxClient;
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::prelude::*;
+
+use ppfd_protocol::clock::monotonic_now_ns;
+use ppfd_protocol::control::{
+    ControlCommand, ControlRequest, ControlResponseHeader, DaemonStats, ModelInfo,
+};
+use ppfd_protocol::detect::{
+    flags, DetectCounts, DetectRequestHeader, DetectResponseHeader, LatencyBreakdown,
+    PoseHypothesis, Status,
+};
+use ppfd_protocol::frame::FrameHeader;
+use ppfd_protocol::services::{self, wake, ControlService, DetectService, EventService};
+use ppfd_protocol::text;
+
+use crate::{iceoryx_config, transport, Error, Result};
+
+type Ipc = ipc::Service;
+type DetectPort =
+    IoxClient<Ipc, [u16], DetectRequestHeader, [PoseHypothesis], DetectResponseHeader>;
+type DetectRequest = iceoryx2::request_mut::RequestMut<
+    Ipc,
+    [u16],
+    DetectRequestHeader,
+    [PoseHypothesis],
+    DetectResponseHeader,
+>;
+type ControlPort = IoxClient<Ipc, ControlRequest, (), [ModelInfo], ControlResponseHeader>;
+
+/// How a [`Client`] connects.
+#[derive(Debug, Clone)]
+pub struct ClientOptions {
+    /// iceoryx2 prefix of the daemon (`None`: default; see `ppfd --prefix`).
+    pub prefix: Option<String>,
+    /// Depth values of the largest inline frame this client will send (0 if it only names
+    /// cameras). Preallocated in shared memory; larger frames grow it.
+    pub inline_frame_capacity: usize,
+    /// Timeout of control requests.
+    pub control_timeout: Duration,
+}
+
+impl Default for ClientOptions {
+    fn default() -> Self {
+        ClientOptions {
+            prefix: crate::prefix_from_env(),
+            inline_frame_capacity: 0,
+            control_timeout: Duration::from_secs(5),
+        }
+    }
+}
+
+/// Per-request options of [`Client::detect`].
+#[derive(Debug, Clone, Copy)]
+pub struct DetectOptions {
+    /// Best hypotheses wanted per object (1 to 16).
+    pub hypotheses_per_object: u32,
+    /// How long to wait for the answer; also sent as the request's deadline.
+    pub timeout: Duration,
+    /// Oldest acceptable camera frame (`None`: the daemon's limit).
+    pub max_frame_age: Option<Duration>,
+}
+
+impl Default for DetectOptions {
+    fn default() -> Self {
+        DetectOptions {
+            hypotheses_per_object: 1,
+            timeout: Duration::from_secs(5),
+            max_frame_age: None,
+        }
+    }
+}
+
+/// Where the time of one request went, as the client saw it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Latency {
+    /// The daemon's breakdown (transport there, queue wait, each stage, detection, total).
+    pub daemon: LatencyBreakdown,
+    /// Daemon sends the response → this client has it, ns.
+    pub response_transport_ns: u64,
+    /// Client send → client has the response, ns.
+    pub end_to_end_ns: u64,
+}
+
+impl Latency {
+    /// End to end minus detection time: transport both ways, queueing and the daemon's glue.
+    pub fn overhead_ns(&self) -> u64 {
+        self.end_to_end_ns.saturating_sub(self.daemon.detection_ns)
+    }
+}
+
+/// The answer to a detect request.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Detections {
+    /// The request's id.
+    pub request_id: u64,
+    /// Hypotheses grouped by object in request order, best first within an object.
+    pub hypotheses: Vec<PoseHypothesis>,
+    /// Where the time went.
+    pub latency: Latency,
+    /// Sizes of the work.
+    pub counts: DetectCounts,
+    /// Sequence number of the frame used.
+    pub frame_sequence: u64,
+    /// Age of that frame when detection started, ns.
+    pub frame_age_ns: u64,
+}
+
+impl Detections {
+    /// The hypotheses of one object, best first.
+    pub fn of(&self, object_id: u32) -> impl Iterator<Item = &PoseHypothesis> {
+        self.hypotheses
+            .iter()
+            .filter(move |h| h.object_id == object_id)
+    }
+
+    /// The best-scored hypothesis of one object.
+    pub fn best(&self, object_id: u32) -> Option<&PoseHypothesis> {
+        self.of(object_id)
+            .max_by(|a, b| a.score.total_cmp(&b.score))
+    }
+}
+
+/// A pose hypothesis as a nalgebra isometry (model → camera, millimetres).
+pub fn isometry(h: &PoseHypothesis) -> nalgebra::Isometry3<f32> {
+    let r = nalgebra::Matrix3::from_row_slice(&h.rotation);
+    let rotation = nalgebra::UnitQuaternion::from_matrix(&r);
+    let t = nalgebra::Translation3::new(
+        h.translation_mm[0],
+        h.translation_mm[1],
+        h.translation_mm[2],
+    );
+    nalgebra::Isometry3::from_parts(t, rotation)
+}
+
+/// A connection to the daemon's services. Not `Send`: one per thread.
+pub struct Client {
+    detect: DetectPort,
+    control: ControlPort,
+    wake: Notifier<Ipc>,
+    replies: Listener<Ipc>,
+    reply_token: u64,
+    next_request: Cell<u64>,
+    control_timeout: Duration,
+    _detect_service: DetectService<Ipc>,
+    _control_service: ControlService<Ipc>,
+    _wake_service: EventService<Ipc>,
+    _replies_service: EventService<Ipc>,
+    _node: Node<Ipc>,
+}
+
+fn new_token() -> u64 {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+    // Unique per process and client; the daemon matches it to this client's listener name.
+    let t = ((std::process::id() as u64) << 32) ^ (monotonic_now_ns() & 0xffff_ffff) ^ (n << 24);
+    t.max(1)
+}
+
+impl Client {
+    /// Connects with default options (prefix from `PPFD_PREFIX`).
+    pub fn connect() -> Result<Client> {
+        Self::connect_with(&ClientOptions::default())
+    }
+
+    /// Connects. Works before the daemon starts: requests then fail with [`Error::NoDaemon`]
+    /// until it serves, and the same client keeps working across daemon restarts.
+    pub fn connect_with(options: &ClientOptions) -> Result<Client> {
+        let config = iceoryx_config(options.prefix.as_deref())?;
+        let node = NodeBuilder::new()
+            .config(&config)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<Ipc>()
+            .map_err(transport("cannot create an iceoryx2 node"))?;
+        let detect_service = services::detect_builder(&node)
+            .open_or_create()
+            .map_err(transport("cannot open ppfd/detect"))?;
+        let detect = detect_service
+            .client_builder()
+            .initial_max_slice_len(options.inline_frame_capacity.max(1))
+            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            .create()
+            .map_err(transport("cannot create a ppfd/detect client"))?;
+        let control_service = services::control_builder(&node)
+            .open_or_create()
+            .map_err(transport("cannot open ppfd/control"))?;
+        let control = control_service
+            .client_builder()
+            .create()
+            .map_err(transport("cannot create a ppfd/control client"))?;
+        let wake_service = services::daemon_wake_builder(&node)
+            .open_or_create()
+            .map_err(transport("cannot open ppfd/daemon"))?;
+        let wake = wake_service
+            .notifier_builder()
+            .create()
+            .map_err(transport("cannot notify ppfd/daemon"))?;
+        let replies_service = services::responses_builder(&node)
+            .open_or_create()
+            .map_err(transport("cannot open ppfd/responses"))?;
+        let reply_token = new_token();
+        let name = PortName::new(&services::reply_listener_name(reply_token))
+            .map_err(transport("reply listener name"))?;
+        let replies = replies_service
+            .listener_builder()
+            .name(&name)
+            .create()
+            .map_err(transport("cannot listen on ppfd/responses"))?;
+        Ok(Client {
+            detect,
+            control,
+            wake,
+            replies,
+            reply_token,
+            // Ids unique across clients: a response can never be taken for another client's.
+            next_request: Cell::new(reply_token.rotate_left(24) & !0xff_ffff),
+            control_timeout: options.control_timeout,
+            _detect_service: detect_service,
+            _control_service: control_service,
+            _wake_service: wake_service,
+            _replies_service: replies_service,
+            _node: node,
+        })
+    }
+
+    fn request_id(&self) -> u64 {
+        let id = self.next_request.get();
+        self.next_request.set(id + 1);
+        id
+    }
+
+    /// Detects `objects` in the newest frame of `camera`.
+    pub fn detect(
+        &self,
+        camera: &str,
+        objects: &[u32],
+        options: &DetectOptions,
+    ) -> Result<Detections> {
+        services::check_camera_name(camera)?;
+        let mut header = self.request_header(objects, options)?;
+        header.camera_name = text::encode_name("camera", camera)?;
+        header.validate(0)?;
+        let request = self
+            .detect
+            .loan_slice_uninit(0)
+            .map_err(transport("cannot loan a request"))?;
+        let mut request = request.write_from_fn(|_| 0);
+        *request.user_header_mut() = header;
+        self.send_detect(request, options.timeout)
+    }
+
+    /// Detects `objects` in a frame this process owns: `frame` describes it, `depth` holds its
+    /// `width × height` values, written straight into the request's shared memory.
+    pub fn detect_inline(
+        &self,
+        frame: &FrameHeader,
+        depth: &[u16],
+        objects: &[u32],
+        options: &DetectOptions,
+    ) -> Result<Detections> {
+        let mut header = self.request_header(objects, options)?;
+        header.flags |= flags::INLINE_FRAME;
+        header.inline_frame = *frame;
+        header.validate(depth.len())?;
+        let request = self
+            .detect
+            .loan_slice_uninit(depth.len())
+            .map_err(transport("cannot loan a request"))?;
+        let mut request = request.write_from_slice(depth);
+        *request.user_header_mut() = header;
+        self.send_detect(request, options.timeout)
+    }
+
+    /// Sends a request exactly as given, unchecked (to exercise the daemon's refusals); only
+    /// its id, reply token, send time and deadline are set here.
+    pub fn send_raw(
+        &self,
+        header: &DetectRequestHeader,
+        depth: &[u16],
+        timeout: Duration,
+    ) -> Result<Detections> {
+        let request = self
+            .detect
+            .loan_slice_uninit(depth.len())
+            .map_err(transport("cannot loan a request"))?;
+        let mut request = request.write_from_slice(depth);
+        *request.user_header_mut() = *header;
+        self.send_detect(request, timeout)
+    }
+
+    fn request_header(
+        &self,
+        objects: &[u32],
+        options: &DetectOptions,
+    ) -> Result<DetectRequestHeader> {
+        let mut header = DetectRequestHeader {
+            hypotheses_per_object: options.hypotheses_per_object,
+            ..Default::default()
+        };
+        header.set_objects(objects)?;
+        header.max_frame_age_ns = options
+            .max_frame_age
+            .map(|d| d.as_nanos() as u64)
+            .unwrap_or(0);
+        Ok(header)
+    }
+
+    fn send_detect(&self, mut request: DetectRequest, timeout: Duration) -> Result<Detections> {
+        let request_id = self.request_id();
+        let header = request.user_header_mut();
+        header.request_id = request_id;
+        header.reply_token = self.reply_token;
+        let send_ns = monotonic_now_ns();
+        header.send_time_ns = send_ns;
+        header.deadline_ns = send_ns + timeout.as_nanos() as u64;
+        let pending = request
+            .send()
+            .map_err(transport("cannot send the request"))?;
+        if pending.number_of_server_connections() == 0 {
+            return Err(Error::NoDaemon(services::DETECT));
+        }
+        let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
+        let deadline = Instant::now() + timeout;
+        loop {
+            if let Some(response) = pending
+                .receive()
+                .map_err(transport("cannot receive the response"))?
+            {
+                let received_ns = monotonic_now_ns();
+                let h = *response.user_header();
+                if h.request_id != request_id {
+                    continue;
+                }
+                return decode_detect(&h, response.payload(), send_ns, received_ns);
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Err(Error::Timeout(timeout));
+            }
+            self.wait_reply(left)?;
+        }
+    }
+
+    fn wait_reply(&self, left: Duration) -> Result<()> {
+        self.replies
+            .timed_wait(|_| {}, left)
+            .map_err(transport("waiting for the response failed"))?;
+        Ok(())
+    }
+
+    fn control(
+        &self,
+        command: ControlCommand,
+        object_id: u32,
+        path: &str,
+    ) -> Result<(ControlResponseHeader, Vec<ModelInfo>)> {
+        let request = ControlRequest {
+            command: command as u32,
+            request_id: self.request_id(),
+            reply_token: self.reply_token,
+            object_id,
+            path: text::encode_name("path", path)?,
+            ..Default::default()
+        };
+        let pending = self
+            .control
+            .send_copy(request)
+            .map_err(transport("cannot send the control request"))?;
+        if pending.number_of_server_connections() == 0 {
+            return Err(Error::NoDaemon(services::CONTROL));
+        }
+        let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
+        let deadline = Instant::now() + self.control_timeout;
+        loop {
+            if let Some(response) = pending
+                .receive()
+                .map_err(transport("cannot receive the response"))?
+            {
+                let h = *response.user_header();
+                let status = Status::from_code(h.status).unwrap_or(Status::Internal);
+                if status != Status::Ok {
+                    return Err(Error::Refused {
+                        status,
+                        message: h.message().into_owned(),
+                        value: 0,
+                    });
+                }
+                return Ok((h, response.payload().to_vec()));
+            }
+            let left = deadline.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Err(Error::Timeout(self.control_timeout));
+            }
+            self.wait_reply(left)?;
+        }
+    }
+
+    /// The loaded models.
+    pub fn models(&self) -> Result<Vec<ModelInfo>> {
+        Ok(self.control(ControlCommand::ListModels, 0, "")?.1)
+    }
+
+    /// Loads a model file (or builds one from a PLY mesh) in the daemon; `path` as the daemon
+    /// sees it; `object_id` 0 takes the id from the file.
+    pub fn load_model(&self, path: &str, object_id: u32) -> Result<ModelInfo> {
+        let (h, models) = self.control(ControlCommand::LoadModel, object_id, path)?;
+        models.first().copied().ok_or_else(|| {
+            Error::Transport(format!("load answered without a model: {}", h.message()))
+        })
+    }
+
+    /// Drops a model from the daemon.
+    pub fn drop_model(&self, object_id: u32) -> Result<()> {
+        self.control(ControlCommand::DropModel, object_id, "")
+            .map(|_| ())
+    }
+
+    /// The daemon's statistics.
+    pub fn stats(&self) -> Result<DaemonStats> {
+        Ok(self.control(ControlCommand::Statistics, 0, "")?.0.stats)
+    }
+}
+
+fn decode_detect(
+    h: &DetectResponseHeader,
+    payload: &[PoseHypothesis],
+    send_ns: u64,
+    received_ns: u64,
+) -> Result<Detections> {
+    let status = Status::from_code(h.status).ok_or_else(|| Error::Refused {
+        status: Status::Internal,
+        message: format!("unknown status code {} from the daemon", h.status),
+        value: h.status as u64,
+    })?;
+    if status != Status::Ok {
+        return Err(Error::Refused {
+            status,
+            message: h.message().into_owned(),
+            value: h.error_value,
+        });
+    }
+    Ok(Detections {
+        request_id: h.request_id,
+        hypotheses: payload.to_vec(),
+        latency: Latency {
+            daemon: h.latency,
+            response_transport_ns: received_ns.saturating_sub(h.response_send_ns),
+            end_to_end_ns: received_ns.saturating_sub(send_ns),
+        },
+        counts: h.counts,
+        frame_sequence: h.frame_sequence,
+        frame_age_ns: h.frame_age_ns,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn refusals_decode_with_their_status_and_value() {
+        let h = DetectResponseHeader {
+            status: Status::CameraStale.code(),
+            error_value: 1_500_000_000,
+            message: text::encode_truncated("camera \"k\" is stale"),
+            ..Default::default()
+        };
+        match decode_detect(&h, &[], 5, 10) {
+            Err(Error::Refused {
+                status,
+                value,
+                message,
+            }) => {
+                assert_eq!(status, Status::CameraStale);
+                assert_eq!(value, 1_500_000_000);
+                assert!(message.contains("stale"));
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn overhead_is_end_to_end_minus_detection() {
+        let mut h = DetectResponseHeader::default();
+        h.latency.total_ns = 900;
+        h.latency.detection_ns = 700;
+        h.response_send_ns = 1000;
+        let d = decode_detect(&h, &[PoseHypothesis::default()], 100, 1100).unwrap();
+        assert_eq!(d.latency.response_transport_ns, 100);
+        assert_eq!(d.latency.end_to_end_ns, 1000);
+        assert_eq!(d.latency.overhead_ns(), 300);
+        assert_eq!(d.hypotheses.len(), 1);
+    }
+
+    #[test]
+    fn isometry_matches_the_wire_pose() {
+        let h = PoseHypothesis {
+            rotation: [0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+            translation_mm: [1.0, 2.0, 3.0],
+            ..Default::default()
+        };
+        let p = isometry(&h) * nalgebra::Point3::new(1.0, 0.0, 0.0);
+        assert!(
+            (p - nalgebra::Point3::new(1.0, 3.0, 3.0)).norm() < 1e-5,
+            "{p}"
+        );
+    }
+}

@@ -1,0 +1,56 @@
+//! `CLOCK_MONOTONIC`, the one clock of the protocol: every timestamp on the wire is nanoseconds of
+//! it, so instants taken in different processes on the same machine compare directly.
+
+use std::time::{Duration, Instant};
+
+/// Now, `CLOCK_MONOTONIC`, nanoseconds.
+pub fn monotonic_now_ns() -> u64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec; CLOCK_MONOTONIC always exists on Linux.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts) };
+    debug_assert_eq!(rc, 0);
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+/// The `Instant` of a `CLOCK_MONOTONIC` timestamp (for deadlines handed to library code that
+/// takes an `Instant`). Timestamps in the past map to now.
+pub fn instant_of(monotonic_ns: u64) -> Instant {
+    let now_ns = monotonic_now_ns();
+    let now = Instant::now();
+    now + Duration::from_nanos(monotonic_ns.saturating_sub(now_ns))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn monotonic_clock_advances_with_std_instant() {
+        let a = monotonic_now_ns();
+        let t = Instant::now();
+        std::thread::sleep(Duration::from_millis(5));
+        let b = monotonic_now_ns();
+        let elapsed = t.elapsed().as_nanos() as u64;
+        assert!(b > a);
+        assert!(
+            (b - a).abs_diff(elapsed) < 2_000_000,
+            "{} vs {}",
+            b - a,
+            elapsed
+        );
+    }
+
+    #[test]
+    fn instants_of_future_timestamps_lie_ahead() {
+        let d = instant_of(monotonic_now_ns() + 50_000_000);
+        let ahead = d.saturating_duration_since(Instant::now());
+        assert!(
+            ahead > Duration::from_millis(40) && ahead <= Duration::from_millis(50),
+            "{ahead:?}"
+        );
+        assert!(instant_of(0) <= Instant::now());
+    }
+}

@@ -1,0 +1,241 @@
+//! Control requests on `ppfd/control`: list the loaded models, load or drop a model at run time,
+//! read the daemon's statistics. The request is a fixed [`ControlRequest`]; the response carries a
+//! [`ControlResponseHeader`] and a `[ModelInfo]` payload (the model list, or the model just
+//! loaded; empty otherwise).
+
+use iceoryx2::prelude::ZeroCopySend;
+
+use crate::{text, MESSAGE_BYTES, MODEL_NAME_BYTES, PATH_BYTES, PROTOCOL_VERSION};
+
+/// What a [`ControlRequest`] asks for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum ControlCommand {
+    /// List the loaded models.
+    ListModels = 1,
+    /// Load a model file (`.ppfm`) given by `path`, or build one from a PLY file (then
+    /// `object_id` is the id to give it); replaces a loaded model of the same id.
+    LoadModel = 2,
+    /// Drop the model with `object_id`.
+    DropModel = 3,
+    /// Read the daemon's statistics.
+    Statistics = 4,
+}
+
+impl ControlCommand {
+    /// The command of a wire code.
+    pub fn from_code(code: u32) -> Option<ControlCommand> {
+        Some(match code {
+            1 => ControlCommand::ListModels,
+            2 => ControlCommand::LoadModel,
+            3 => ControlCommand::DropModel,
+            4 => ControlCommand::Statistics,
+            _ => return None,
+        })
+    }
+}
+
+/// A control request (the request payload of `ppfd/control`).
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("ppfd::ControlRequest")]
+#[repr(C)]
+pub struct ControlRequest {
+    /// [`PROTOCOL_VERSION`] of the client.
+    pub protocol_version: u32,
+    /// A [`ControlCommand`] code.
+    pub command: u32,
+    /// Chosen by the client; echoed in the response.
+    pub request_id: u64,
+    /// As [`crate::detect::DetectRequestHeader::reply_token`].
+    pub reply_token: u64,
+    /// Object id for `LoadModel` (PLY input) and `DropModel`.
+    pub object_id: u32,
+    /// Zero.
+    pub reserved: u32,
+    /// File path for `LoadModel`, NUL-padded UTF-8, as the daemon sees the file system.
+    pub path: [u8; PATH_BYTES],
+}
+
+impl Default for ControlRequest {
+    fn default() -> Self {
+        ControlRequest {
+            protocol_version: PROTOCOL_VERSION,
+            command: 0,
+            request_id: 0,
+            reply_token: 0,
+            object_id: 0,
+            reserved: 0,
+            path: [0; PATH_BYTES],
+        }
+    }
+}
+
+impl ControlRequest {
+    /// The path as text.
+    pub fn path(&self) -> std::borrow::Cow<'_, str> {
+        text::decode(&self.path)
+    }
+}
+
+/// Percentiles of one latency measure over the daemon's lifetime, nanoseconds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
+#[type_name("ppfd::LatencySummary")]
+#[repr(C)]
+pub struct LatencySummary {
+    /// Number of samples.
+    pub count: u64,
+    /// Median, ns.
+    pub p50_ns: u64,
+    /// 90th percentile, ns.
+    pub p90_ns: u64,
+    /// 99th percentile, ns.
+    pub p99_ns: u64,
+    /// Largest sample, ns.
+    pub max_ns: u64,
+}
+
+/// Daemon statistics since it started.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
+#[type_name("ppfd::DaemonStats")]
+#[repr(C)]
+pub struct DaemonStats {
+    /// Time since start, ns.
+    pub uptime_ns: u64,
+    /// Detect requests taken off the port.
+    pub requests_received: u64,
+    /// Detect requests answered `Ok`.
+    pub requests_served: u64,
+    /// Detect requests refused (any status but `Ok`, including deadline and busy).
+    pub requests_refused: u64,
+    /// Of the refused: deadline passed while queued.
+    pub requests_expired: u64,
+    /// Requests dropped because their client went away before the answer.
+    pub requests_abandoned: u64,
+    /// Camera frames taken off the camera ports.
+    pub frames_received: u64,
+    /// Cameras the daemon subscribes to.
+    pub cameras: u64,
+    /// Models loaded.
+    pub models_loaded: u64,
+    /// Bytes of all loaded models (mapped or in memory).
+    pub model_bytes: u64,
+    /// Resident set size of the daemon process, bytes.
+    pub resident_bytes: u64,
+    /// Detections running now.
+    pub in_flight: u64,
+    /// Requests waiting for a worker now.
+    pub queued: u64,
+    /// Client send → response sent, over served requests.
+    pub total: LatencySummary,
+    /// Transport + queue wait (the daemon's overhead), over served requests.
+    pub overhead: LatencySummary,
+    /// Detection wall time, over served requests.
+    pub detection: LatencySummary,
+}
+
+/// The user header of a control response.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("ppfd::ControlResponseHeader")]
+#[repr(C)]
+pub struct ControlResponseHeader {
+    /// [`PROTOCOL_VERSION`] of the daemon.
+    pub protocol_version: u32,
+    /// A [`crate::detect::Status`] code.
+    pub status: u32,
+    /// The request's id.
+    pub request_id: u64,
+    /// Statistics (filled for every command: they are cheap).
+    pub stats: DaemonStats,
+    /// Human-readable detail of a refusal, NUL-padded UTF-8.
+    pub message: [u8; MESSAGE_BYTES],
+}
+
+impl Default for ControlResponseHeader {
+    fn default() -> Self {
+        ControlResponseHeader {
+            protocol_version: PROTOCOL_VERSION,
+            status: 0,
+            request_id: 0,
+            stats: DaemonStats::default(),
+            message: [0; MESSAGE_BYTES],
+        }
+    }
+}
+
+impl ControlResponseHeader {
+    /// The message as text.
+    pub fn message(&self) -> std::borrow::Cow<'_, str> {
+        text::decode(&self.message)
+    }
+}
+
+/// One loaded model (an element of the control response payload).
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("ppfd::ModelInfo")]
+#[repr(C)]
+pub struct ModelInfo {
+    /// Object id detect requests use.
+    pub object_id: u32,
+    /// Oriented model points after subsampling.
+    pub point_count: u32,
+    /// Entries of the point pair lookup table.
+    pub table_entries: u64,
+    /// Bytes of the model in memory.
+    pub byte_size: u64,
+    /// Object diameter, millimetres.
+    pub diameter_mm: f32,
+    /// Zero.
+    pub reserved: u32,
+    /// Object name, NUL-padded UTF-8.
+    pub name: [u8; MODEL_NAME_BYTES],
+}
+
+impl Default for ModelInfo {
+    fn default() -> Self {
+        ModelInfo {
+            object_id: 0,
+            point_count: 0,
+            table_entries: 0,
+            byte_size: 0,
+            diameter_mm: 0.0,
+            reserved: 0,
+            name: [0; MODEL_NAME_BYTES],
+        }
+    }
+}
+
+impl ModelInfo {
+    /// The name as text.
+    pub fn name(&self) -> std::borrow::Cow<'_, str> {
+        text::decode(&self.name)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::mem::{offset_of, size_of};
+
+    #[test]
+    fn layouts_are_fixed() {
+        assert_eq!(size_of::<ControlRequest>(), 288);
+        assert_eq!(size_of::<LatencySummary>(), 40);
+        assert_eq!(size_of::<DaemonStats>(), 13 * 8 + 3 * 40);
+        assert_eq!(size_of::<ControlResponseHeader>(), 16 + 224 + 192);
+        assert_eq!(offset_of!(ControlResponseHeader, protocol_version), 0);
+        assert_eq!(size_of::<ModelInfo>(), 80);
+    }
+
+    #[test]
+    fn commands_round_trip() {
+        for c in [
+            ControlCommand::ListModels,
+            ControlCommand::LoadModel,
+            ControlCommand::DropModel,
+            ControlCommand::Statistics,
+        ] {
+            assert_eq!(ControlCommand::from_code(c as u32), Some(c));
+        }
+        assert_eq!(ControlCommand::from_code(0), None);
+    }
+}

@@ -1,0 +1,506 @@
+//! The detect request/response on `ppfd/detect`: a request names a camera (or carries a frame
+//! inline) and the objects wanted; the response carries pose hypotheses, a status, and where the
+//! time went.
+
+use iceoryx2::prelude::ZeroCopySend;
+
+use crate::frame::FrameHeader;
+use crate::{
+    text, ProtocolError, CAMERA_NAME_BYTES, MAX_HYPOTHESES_PER_OBJECT, MAX_OBJECTS_PER_REQUEST,
+    MESSAGE_BYTES, PROTOCOL_VERSION,
+};
+
+/// Bits of [`DetectRequestHeader::flags`].
+pub mod flags {
+    /// The depth frame travels in the request's `[u16]` payload, described by
+    /// [`super::DetectRequestHeader::inline_frame`]; the camera name is ignored.
+    pub const INLINE_FRAME: u32 = 1 << 0;
+    /// Every bit this protocol version knows; a request with any other bit set is refused.
+    pub const KNOWN: u32 = INLINE_FRAME;
+}
+
+/// Bits of [`PoseHypothesis::checks`]: which verification stages a hypothesis passed.
+pub mod checks {
+    /// Re-scored against the scene from the camera's view.
+    pub const RESCORED: u32 = 1;
+    /// Refined by ICP.
+    pub const REFINED: u32 = 2;
+    /// Passed the geometric consistency filter.
+    pub const CONSISTENT: u32 = 4;
+    /// Passed the silhouette (occlusion/boundary) filter.
+    pub const SILHOUETTE: u32 = 8;
+}
+
+/// The user header of a detect request. The payload is a `[u16]` slice: empty when the request
+/// names a camera, the depth frame when [`flags::INLINE_FRAME`] is set.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("ppfd::DetectRequestHeader")]
+#[repr(C)]
+pub struct DetectRequestHeader {
+    /// [`PROTOCOL_VERSION`] of the client.
+    pub protocol_version: u32,
+    /// [`flags`] bits.
+    pub flags: u32,
+    /// Chosen by the client; echoed in the response.
+    pub request_id: u64,
+    /// Names the client's listener on `ppfd/responses`, which the daemon wakes when the answer
+    /// is sent ([`crate::services::reply_listener_name`]); 0 for a client that polls.
+    pub reply_token: u64,
+    /// When the client sent the request: `CLOCK_MONOTONIC`, nanoseconds.
+    pub send_time_ns: u64,
+    /// Absolute deadline, `CLOCK_MONOTONIC` nanoseconds; 0 for none. A request still queued at
+    /// its deadline is answered [`Status::DeadlineExceeded`]; a detection running past it stops
+    /// early and returns what it has.
+    pub deadline_ns: u64,
+    /// Oldest acceptable camera frame, nanoseconds of age at the start of detection; 0 for the
+    /// daemon's default. An older frame is refused with [`Status::CameraStale`].
+    pub max_frame_age_ns: u64,
+    /// Camera to read the newest frame of, NUL-padded UTF-8.
+    pub camera_name: [u8; CAMERA_NAME_BYTES],
+    /// Geometry of the inline frame when [`flags::INLINE_FRAME`] is set (its camera name and
+    /// sequence are informative only).
+    pub inline_frame: FrameHeader,
+    /// Number of valid entries of `object_ids`, 1 to [`MAX_OBJECTS_PER_REQUEST`].
+    pub object_count: u32,
+    /// Best hypotheses wanted per object, 1 to [`MAX_HYPOTHESES_PER_OBJECT`].
+    pub hypotheses_per_object: u32,
+    /// Object ids wanted (the ids of the loaded models); only the first `object_count` count.
+    pub object_ids: [u32; MAX_OBJECTS_PER_REQUEST],
+}
+
+impl Default for DetectRequestHeader {
+    fn default() -> Self {
+        DetectRequestHeader {
+            protocol_version: PROTOCOL_VERSION,
+            flags: 0,
+            request_id: 0,
+            reply_token: 0,
+            send_time_ns: 0,
+            deadline_ns: 0,
+            max_frame_age_ns: 0,
+            camera_name: [0; CAMERA_NAME_BYTES],
+            inline_frame: FrameHeader::default(),
+            object_count: 0,
+            hypotheses_per_object: 1,
+            object_ids: [0; MAX_OBJECTS_PER_REQUEST],
+        }
+    }
+}
+
+/// Where the frame of a valid request comes from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FrameSource {
+    /// The newest frame of this camera.
+    Camera(String),
+    /// The request's own payload.
+    Inline,
+}
+
+impl DetectRequestHeader {
+    /// The valid object ids.
+    pub fn objects(&self) -> &[u32] {
+        &self.object_ids[..(self.object_count as usize).min(MAX_OBJECTS_PER_REQUEST)]
+    }
+
+    /// Sets the object ids, refusing an empty list, too many ids or duplicates.
+    pub fn set_objects(&mut self, ids: &[u32]) -> Result<(), ProtocolError> {
+        check_object_list(ids)?;
+        self.object_ids = [0; MAX_OBJECTS_PER_REQUEST];
+        self.object_ids[..ids.len()].copy_from_slice(ids);
+        self.object_count = ids.len() as u32;
+        Ok(())
+    }
+
+    /// Checks everything that can be checked without the daemon's state: version, flags, the
+    /// object list, the hypothesis count, the camera name or the inline frame against the
+    /// payload length. Returns where the frame comes from.
+    pub fn validate(&self, payload_len: usize) -> Result<FrameSource, ProtocolError> {
+        crate::check_version(self.protocol_version)?;
+        if self.flags & !flags::KNOWN != 0 {
+            return Err(ProtocolError::UnknownFlags(self.flags & !flags::KNOWN));
+        }
+        if self.object_count as usize > MAX_OBJECTS_PER_REQUEST {
+            return Err(ProtocolError::TooManyObjects(self.object_count as usize));
+        }
+        check_object_list(self.objects())?;
+        if self.hypotheses_per_object == 0 || self.hypotheses_per_object > MAX_HYPOTHESES_PER_OBJECT
+        {
+            return Err(ProtocolError::HypothesesPerObject(
+                self.hypotheses_per_object,
+            ));
+        }
+        if self.flags & flags::INLINE_FRAME != 0 {
+            self.inline_frame.validate(payload_len)?;
+            Ok(FrameSource::Inline)
+        } else {
+            if payload_len != 0 {
+                return Err(ProtocolError::UnexpectedPayload(payload_len));
+            }
+            let name = text::decode(&self.camera_name);
+            crate::services::check_camera_name(&name)?;
+            Ok(FrameSource::Camera(name.into_owned()))
+        }
+    }
+}
+
+fn check_object_list(ids: &[u32]) -> Result<(), ProtocolError> {
+    if ids.is_empty() {
+        return Err(ProtocolError::EmptyObjectList);
+    }
+    if ids.len() > MAX_OBJECTS_PER_REQUEST {
+        return Err(ProtocolError::TooManyObjects(ids.len()));
+    }
+    for (i, id) in ids.iter().enumerate() {
+        if ids[..i].contains(id) {
+            return Err(ProtocolError::DuplicateObject(*id));
+        }
+    }
+    Ok(())
+}
+
+/// One pose hypothesis, an element of the response's `[PoseHypothesis]` payload. The pose maps
+/// model coordinates to camera coordinates: `p_cam = R p_model + t`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[type_name("ppfd::PoseHypothesis")]
+#[repr(C)]
+pub struct PoseHypothesis {
+    /// Object id of the model.
+    pub object_id: u32,
+    /// 0 for the best hypothesis of this object, 1 for the next, ...
+    pub instance_rank: u32,
+    /// Rotation `R`, row-major (`r[3 * row + col]`), unitless.
+    pub rotation: [f32; 9],
+    /// Translation `t`, millimetres.
+    pub translation_mm: [f32; 3],
+    /// Score of the hypothesis after the last stage it passed: the fraction of the model's
+    /// visible points supported by the scene (0 to 1).
+    pub score: f32,
+    /// Votes of the pose cluster the hypothesis came from.
+    pub votes: u32,
+    /// [`checks`] bits.
+    pub checks: u32,
+}
+
+/// Where the time of one request went, in nanoseconds. All instants are `CLOCK_MONOTONIC` of the
+/// same machine, so client and daemon timestamps compare directly.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
+#[type_name("ppfd::LatencyBreakdown")]
+#[repr(C)]
+pub struct LatencyBreakdown {
+    /// Client send → daemon takes the request off the port, ns.
+    pub transport_ns: u64,
+    /// Daemon takes the request → detection starts on a worker, ns.
+    pub queue_wait_ns: u64,
+    /// Depth → oriented, subsampled scene points, ns.
+    pub scene_preparation_ns: u64,
+    /// Building the scene kd-tree, ns.
+    pub kd_tree_ns: u64,
+    /// Point pair voting, ns.
+    pub voting_ns: u64,
+    /// Pose clustering, ns.
+    pub clustering_ns: u64,
+    /// Re-scoring from the camera's view, ns.
+    pub rescoring_ns: u64,
+    /// ICP refinement, ns.
+    pub icp_ns: u64,
+    /// Verification filters, ns.
+    pub filters_ns: u64,
+    /// Wall time of the whole detection on the worker (the stages plus glue), ns.
+    pub detection_ns: u64,
+    /// Client send → daemon sends the response, ns (the client adds the way back).
+    pub total_ns: u64,
+}
+
+/// Sizes of the work done for one request.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
+#[type_name("ppfd::DetectCounts")]
+#[repr(C)]
+pub struct DetectCounts {
+    /// Oriented scene points after subsampling.
+    pub scene_points: u32,
+    /// Scene reference points that voted.
+    pub reference_points: u32,
+    /// Point pairs examined in voting.
+    pub pairs: u64,
+    /// Pose hypotheses that came out of clustering (before the verification stages).
+    pub hypotheses: u32,
+    /// Hypotheses in this response's payload.
+    pub returned: u32,
+}
+
+/// Outcome of a request: [`DetectResponseHeader::status`] and
+/// [`crate::control::ControlResponseHeader::status`] hold one of these codes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[repr(u32)]
+pub enum Status {
+    /// Served; the payload holds the hypotheses.
+    Ok = 0,
+    /// The request's protocol version is not the daemon's.
+    ProtocolVersion = 1,
+    /// Malformed request (bad flags, hypothesis count, duplicate object, bad camera name, ...).
+    InvalidRequest = 2,
+    /// The request asked for no object.
+    EmptyObjectList = 3,
+    /// No loaded model has the object id given in `error_value`.
+    UnknownObject = 4,
+    /// The frame does not match its own header (size, depth scale).
+    InvalidFrame = 5,
+    /// The frame's intrinsics are zero, negative or not finite.
+    InvalidIntrinsics = 6,
+    /// No camera service of that name exists.
+    UnknownCamera = 7,
+    /// The camera exists but no frame has arrived yet.
+    NoFrame = 8,
+    /// The camera's newest frame is older than allowed; `error_value` is its age in ns.
+    CameraStale = 9,
+    /// The deadline passed before the detection could start.
+    DeadlineExceeded = 10,
+    /// The daemon's queue is full; retry later.
+    Busy = 11,
+    /// The daemon failed in a way that is not the request's fault.
+    Internal = 12,
+    /// The daemon is shutting down.
+    ShuttingDown = 13,
+    /// A model could not be loaded, built or dropped (control).
+    ModelError = 14,
+}
+
+impl Status {
+    /// The status of a wire code, `None` for a code this version does not know.
+    pub fn from_code(code: u32) -> Option<Status> {
+        use Status::*;
+        Some(match code {
+            0 => Ok,
+            1 => ProtocolVersion,
+            2 => InvalidRequest,
+            3 => EmptyObjectList,
+            4 => UnknownObject,
+            5 => InvalidFrame,
+            6 => InvalidIntrinsics,
+            7 => UnknownCamera,
+            8 => NoFrame,
+            9 => CameraStale,
+            10 => DeadlineExceeded,
+            11 => Busy,
+            12 => Internal,
+            13 => ShuttingDown,
+            14 => ModelError,
+            _ => return None,
+        })
+    }
+
+    /// The wire code.
+    pub fn code(self) -> u32 {
+        self as u32
+    }
+
+    /// A short lowercase name (for logs and tables).
+    pub fn name(self) -> &'static str {
+        use Status::*;
+        match self {
+            Ok => "ok",
+            ProtocolVersion => "protocol version mismatch",
+            InvalidRequest => "invalid request",
+            EmptyObjectList => "empty object list",
+            UnknownObject => "unknown object",
+            InvalidFrame => "invalid frame",
+            InvalidIntrinsics => "invalid intrinsics",
+            UnknownCamera => "unknown camera",
+            NoFrame => "no frame yet",
+            CameraStale => "camera stale",
+            DeadlineExceeded => "deadline exceeded",
+            Busy => "busy",
+            Internal => "internal error",
+            ShuttingDown => "shutting down",
+            ModelError => "model error",
+        }
+    }
+}
+
+impl std::fmt::Display for Status {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// The user header of a detect response; the payload is a `[PoseHypothesis]` slice, grouped by
+/// object in request order and by rank within an object (empty unless the status is `Ok`).
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("ppfd::DetectResponseHeader")]
+#[repr(C)]
+pub struct DetectResponseHeader {
+    /// [`PROTOCOL_VERSION`] of the daemon.
+    pub protocol_version: u32,
+    /// A [`Status`] code.
+    pub status: u32,
+    /// The request's id.
+    pub request_id: u64,
+    /// What the status refers to: the unknown object id, the stale frame's age in ns, the
+    /// daemon's protocol version; 0 otherwise.
+    pub error_value: u64,
+    /// Sequence number of the frame that was used (0 for an inline frame without one).
+    pub frame_sequence: u64,
+    /// Age of that frame when the detection started, ns.
+    pub frame_age_ns: u64,
+    /// When the daemon sent this response: `CLOCK_MONOTONIC`, ns.
+    pub response_send_ns: u64,
+    /// Where the time went.
+    pub latency: LatencyBreakdown,
+    /// Sizes of the work done.
+    pub counts: DetectCounts,
+    /// Number of hypotheses in the payload.
+    pub hypothesis_count: u32,
+    /// Zero.
+    pub reserved: u32,
+    /// Human-readable detail of a refusal, NUL-padded UTF-8.
+    pub message: [u8; MESSAGE_BYTES],
+}
+
+impl Default for DetectResponseHeader {
+    fn default() -> Self {
+        DetectResponseHeader {
+            protocol_version: PROTOCOL_VERSION,
+            status: Status::Ok.code(),
+            request_id: 0,
+            error_value: 0,
+            frame_sequence: 0,
+            frame_age_ns: 0,
+            response_send_ns: 0,
+            latency: LatencyBreakdown::default(),
+            counts: DetectCounts::default(),
+            hypothesis_count: 0,
+            reserved: 0,
+            message: [0; MESSAGE_BYTES],
+        }
+    }
+}
+
+impl DetectResponseHeader {
+    /// The message as text.
+    pub fn message(&self) -> std::borrow::Cow<'_, str> {
+        text::decode(&self.message)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::Intrinsics;
+    use std::mem::{align_of, offset_of, size_of};
+
+    #[test]
+    fn layouts_are_fixed() {
+        assert_eq!(size_of::<DetectRequestHeader>(), 304);
+        assert_eq!(offset_of!(DetectRequestHeader, protocol_version), 0);
+        assert_eq!(offset_of!(DetectRequestHeader, inline_frame), 80);
+        assert_eq!(size_of::<PoseHypothesis>(), 68);
+        assert_eq!(align_of::<PoseHypothesis>(), 4);
+        assert_eq!(size_of::<LatencyBreakdown>(), 88);
+        assert_eq!(size_of::<DetectCounts>(), 24);
+        assert_eq!(size_of::<DetectResponseHeader>(), 360);
+        assert_eq!(offset_of!(DetectResponseHeader, protocol_version), 0);
+    }
+
+    fn camera_request(objects: &[u32]) -> DetectRequestHeader {
+        let mut r = DetectRequestHeader {
+            camera_name: text::encode_name("camera", "kinect").unwrap(),
+            ..Default::default()
+        };
+        r.object_ids[..objects.len()].copy_from_slice(objects);
+        r.object_count = objects.len() as u32;
+        r
+    }
+
+    #[test]
+    fn a_camera_request_names_its_camera() {
+        let r = camera_request(&[1, 5]);
+        assert_eq!(r.validate(0).unwrap(), FrameSource::Camera("kinect".into()));
+        assert_eq!(r.objects(), &[1, 5]);
+    }
+
+    #[test]
+    fn malformed_requests_are_refused_each_with_its_reason() {
+        let e = camera_request(&[]).validate(0).unwrap_err();
+        assert!(matches!(e, ProtocolError::EmptyObjectList));
+        assert_eq!(e.status(), Status::EmptyObjectList);
+
+        assert!(matches!(
+            camera_request(&[3, 3]).validate(0),
+            Err(ProtocolError::DuplicateObject(3))
+        ));
+
+        let mut r = camera_request(&[1]);
+        r.object_count = MAX_OBJECTS_PER_REQUEST as u32 + 1;
+        assert!(matches!(
+            r.validate(0),
+            Err(ProtocolError::TooManyObjects(_))
+        ));
+
+        let mut r = camera_request(&[1]);
+        r.protocol_version = 99;
+        let e = r.validate(0).unwrap_err();
+        assert_eq!(e.status(), Status::ProtocolVersion);
+        assert!(e.to_string().contains("99"), "{e}");
+
+        let mut r = camera_request(&[1]);
+        r.flags = 1 << 7;
+        assert!(matches!(
+            r.validate(0),
+            Err(ProtocolError::UnknownFlags(128))
+        ));
+
+        let mut r = camera_request(&[1]);
+        r.hypotheses_per_object = 0;
+        assert!(matches!(
+            r.validate(0),
+            Err(ProtocolError::HypothesesPerObject(0))
+        ));
+
+        assert!(matches!(
+            camera_request(&[1]).validate(10),
+            Err(ProtocolError::UnexpectedPayload(10))
+        ));
+
+        let mut r = camera_request(&[1]);
+        r.camera_name = [0; CAMERA_NAME_BYTES];
+        assert_eq!(r.validate(0).unwrap_err().status(), Status::InvalidRequest);
+    }
+
+    #[test]
+    fn an_inline_request_is_checked_against_its_payload() {
+        let mut r = camera_request(&[1]);
+        r.flags = flags::INLINE_FRAME;
+        r.inline_frame.width = 4;
+        r.inline_frame.height = 2;
+        r.inline_frame.intrinsics = Intrinsics::LMO;
+        assert_eq!(r.validate(8).unwrap(), FrameSource::Inline);
+        let e = r.validate(7).unwrap_err();
+        assert_eq!(e.status(), Status::InvalidFrame);
+        r.inline_frame.intrinsics.fy = f32::NAN;
+        assert_eq!(
+            r.validate(8).unwrap_err().status(),
+            Status::InvalidIntrinsics
+        );
+    }
+
+    #[test]
+    fn set_objects_refuses_what_validate_refuses() {
+        let mut r = DetectRequestHeader::default();
+        assert!(r.set_objects(&[]).is_err());
+        assert!(r.set_objects(&[1, 1]).is_err());
+        assert!(r.set_objects(&[1; MAX_OBJECTS_PER_REQUEST + 1]).is_err());
+        r.set_objects(&[7, 8, 9]).unwrap();
+        assert_eq!(r.objects(), &[7, 8, 9]);
+    }
+
+    #[test]
+    fn status_codes_round_trip() {
+        for code in 0..32 {
+            if let Some(s) = Status::from_code(code) {
+                assert_eq!(s.code(), code);
+            }
+        }
+        assert_eq!(Status::from_code(9), Some(Status::CameraStale));
+        assert_eq!(Status::from_code(1000), None);
+    }
+}

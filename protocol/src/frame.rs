@@ -1,0 +1,199 @@
+//! Depth frames: what a camera driver publishes, and what a detect request may carry inline.
+
+use iceoryx2::prelude::ZeroCopySend;
+
+use crate::{text, ProtocolError, CAMERA_NAME_BYTES, PROTOCOL_VERSION};
+
+/// Pinhole intrinsics in pixels, OpenCV convention (x right, y down, z forward; pixel centres at
+/// integer coordinates).
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[type_name("ppfd::Intrinsics")]
+#[repr(C)]
+pub struct Intrinsics {
+    /// Focal length along x, pixels.
+    pub fx: f32,
+    /// Focal length along y, pixels.
+    pub fy: f32,
+    /// Principal point x, pixels.
+    pub cx: f32,
+    /// Principal point y, pixels.
+    pub cy: f32,
+}
+
+impl Intrinsics {
+    /// The LM-O (Kinect v1) camera, 640×480 (digits as the dataset gives them).
+    #[allow(clippy::excessive_precision)]
+    pub const LMO: Intrinsics = Intrinsics {
+        fx: 572.4114,
+        fy: 573.57043,
+        cx: 325.2611,
+        cy: 242.04899,
+    };
+
+    /// Refuses focal lengths that are zero, negative or not finite, and non-finite centres.
+    pub fn validate(&self) -> Result<(), ProtocolError> {
+        let focal_ok = |f: f32| f.is_finite() && f > 0.0;
+        if !focal_ok(self.fx) || !focal_ok(self.fy) || !self.cx.is_finite() || !self.cy.is_finite()
+        {
+            return Err(ProtocolError::InvalidIntrinsics(*self));
+        }
+        Ok(())
+    }
+}
+
+/// The user header of a depth frame on `ppfd/camera/<name>/depth`. The payload is a `[u16]`
+/// slice of `width × height` raw depth values, row-major; raw × `depth_scale_mm` is the depth
+/// (z) in millimetres, 0 means no measurement.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("ppfd::FrameHeader")]
+#[repr(C)]
+pub struct FrameHeader {
+    /// [`PROTOCOL_VERSION`] of the writer.
+    pub protocol_version: u32,
+    /// A number the driver chooses for its camera (for logs; the name is what requests use).
+    pub camera_id: u32,
+    /// Camera name, NUL-padded UTF-8 (see [`FrameHeader::camera_name`]).
+    pub camera_name: [u8; CAMERA_NAME_BYTES],
+    /// Frame counter of the driver, increasing by one per published frame.
+    pub sequence: u64,
+    /// When the sensor captured the frame: `CLOCK_MONOTONIC`, nanoseconds
+    /// ([`crate::clock::monotonic_now_ns`]).
+    pub capture_time_ns: u64,
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Camera intrinsics, pixels.
+    pub intrinsics: Intrinsics,
+    /// Millimetres per raw depth unit (BOP's `depth_scale`; 1.0 for a sensor that reports mm).
+    pub depth_scale_mm: f32,
+    /// Zero.
+    pub reserved: u32,
+}
+
+impl Default for FrameHeader {
+    fn default() -> Self {
+        FrameHeader {
+            protocol_version: PROTOCOL_VERSION,
+            camera_id: 0,
+            camera_name: [0; CAMERA_NAME_BYTES],
+            sequence: 0,
+            capture_time_ns: 0,
+            width: 0,
+            height: 0,
+            intrinsics: Intrinsics::default(),
+            depth_scale_mm: 1.0,
+            reserved: 0,
+        }
+    }
+}
+
+impl FrameHeader {
+    /// The camera name as text.
+    pub fn camera_name(&self) -> std::borrow::Cow<'_, str> {
+        text::decode(&self.camera_name)
+    }
+
+    /// Number of depth values the payload must hold: `width × height`.
+    pub fn pixel_count(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+
+    /// Checks the header against its payload length: version, positive size, the payload holds
+    /// exactly `width × height` values, usable intrinsics and depth scale.
+    pub fn validate(&self, payload_len: usize) -> Result<(), ProtocolError> {
+        crate::check_version(self.protocol_version)?;
+        if self.width == 0 || self.height == 0 {
+            return Err(ProtocolError::FrameSize {
+                width: self.width,
+                height: self.height,
+                values: payload_len,
+            });
+        }
+        if self.pixel_count() != payload_len {
+            return Err(ProtocolError::FrameSize {
+                width: self.width,
+                height: self.height,
+                values: payload_len,
+            });
+        }
+        self.intrinsics.validate()?;
+        if !(self.depth_scale_mm.is_finite() && self.depth_scale_mm > 0.0) {
+            return Err(ProtocolError::InvalidDepthScale(self.depth_scale_mm));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn vga() -> FrameHeader {
+        FrameHeader {
+            width: 640,
+            height: 480,
+            intrinsics: Intrinsics::LMO,
+            camera_name: text::encode_name("camera", "kinect").unwrap(),
+            ..FrameHeader::default()
+        }
+    }
+
+    #[test]
+    fn layout_is_fixed() {
+        assert_eq!(std::mem::size_of::<Intrinsics>(), 16);
+        assert_eq!(std::mem::size_of::<FrameHeader>(), 88);
+        assert_eq!(std::mem::align_of::<FrameHeader>(), 8);
+        assert_eq!(std::mem::offset_of!(FrameHeader, protocol_version), 0);
+    }
+
+    #[test]
+    fn a_good_frame_header_passes() {
+        vga().validate(640 * 480).unwrap();
+        assert_eq!(vga().camera_name(), "kinect");
+    }
+
+    #[test]
+    fn size_mismatch_is_refused_with_both_numbers() {
+        let e = vga().validate(1024).unwrap_err();
+        let m = e.to_string();
+        assert!(
+            m.contains("640x480") && m.contains("307200") && m.contains("1024"),
+            "{m}"
+        );
+    }
+
+    #[test]
+    fn zero_nan_intrinsics_and_bad_scale_are_refused() {
+        let mut h = vga();
+        h.intrinsics.fx = 0.0;
+        assert!(matches!(
+            h.validate(640 * 480),
+            Err(ProtocolError::InvalidIntrinsics(_))
+        ));
+        h.intrinsics.fx = f32::NAN;
+        assert!(matches!(
+            h.validate(640 * 480),
+            Err(ProtocolError::InvalidIntrinsics(_))
+        ));
+        let mut h = vga();
+        h.intrinsics.cy = f32::INFINITY;
+        assert!(h.validate(640 * 480).is_err());
+        let mut h = vga();
+        h.depth_scale_mm = 0.0;
+        assert!(matches!(
+            h.validate(640 * 480),
+            Err(ProtocolError::InvalidDepthScale(_))
+        ));
+    }
+
+    #[test]
+    fn wrong_version_is_refused() {
+        let mut h = vga();
+        h.protocol_version = PROTOCOL_VERSION + 1;
+        assert!(matches!(
+            h.validate(640 * 480),
+            Err(ProtocolError::Version { .. })
+        ));
+    }
+}

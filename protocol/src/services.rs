@@ -1,0 +1,345 @@
+//! Service names and port limits, in one place. Every participant opens its services through the
+//! builders here, so the daemon, cameras and clients agree on each service's settings whoever
+//! creates it first (iceoryx2 treats the settings of an `open` as minimum requirements).
+//!
+//! | service | pattern | payload / header | who |
+//! |---|---|---|---|
+//! | `ppfd/camera/<name>/depth` | publish/subscribe | `[u16]` / [`FrameHeader`] | camera → daemon |
+//! | `ppfd/detect` | request/response | `[u16]` + [`DetectRequestHeader`] → `[PoseHypothesis]` + [`DetectResponseHeader`] | client ↔ daemon |
+//! | `ppfd/control` | request/response | [`ControlRequest`] → `[ModelInfo]` + [`ControlResponseHeader`] | client ↔ daemon |
+//! | `ppfd/daemon` | event | [`wake`] ids | cameras, clients → daemon |
+//! | `ppfd/responses` | event | one listener per client, named [`reply_listener_name`] | daemon → client |
+//!
+//! Request/response ports cannot wake a sleeping process by themselves: a client notifies
+//! `ppfd/daemon` after sending a request, and the daemon notifies the client's own listener on
+//! `ppfd/responses` after answering.
+
+use iceoryx2::node::Node;
+use iceoryx2::prelude::*;
+use iceoryx2::service::builder::{event, publish_subscribe, request_response};
+
+use crate::control::{ControlRequest, ControlResponseHeader, ModelInfo};
+use crate::detect::{DetectRequestHeader, DetectResponseHeader, PoseHypothesis};
+use crate::frame::FrameHeader;
+use crate::{ProtocolError, CAMERA_NAME_BYTES, MAX_HYPOTHESES_PER_OBJECT, MAX_OBJECTS_PER_REQUEST};
+
+/// The detect request/response service.
+pub const DETECT: &str = "ppfd/detect";
+/// The control request/response service.
+pub const CONTROL: &str = "ppfd/control";
+/// The event service that wakes the daemon.
+pub const DAEMON_WAKE: &str = "ppfd/daemon";
+/// The event service on which the daemon wakes clients.
+pub const RESPONSES: &str = "ppfd/responses";
+/// Camera services are `ppfd/camera/<name>/depth`.
+pub const CAMERA_PREFIX: &str = "ppfd/camera/";
+/// Suffix of camera service names.
+pub const CAMERA_SUFFIX: &str = "/depth";
+
+/// Event ids on [`DAEMON_WAKE`].
+pub mod wake {
+    use iceoryx2::prelude::EventId;
+    /// A client sent a detect or control request.
+    pub const REQUEST: EventId = EventId::new(1);
+    /// A camera publisher appeared: the daemon subscribes to it.
+    pub const CAMERA_APPEARED: EventId = EventId::new(2);
+    /// Largest id used.
+    pub const MAX: usize = 2;
+}
+
+/// Port limits: capacity is a decision. Sized for one daemon, a handful of cameras and up to
+/// [`limits::MAX_CLIENTS`] robot processes, with VGA depth frames.
+pub mod limits {
+    /// Detect (and, separately, control) clients at once.
+    pub const MAX_CLIENTS: usize = 32;
+    /// Daemons serving at once: 1, plus one while a restarted daemon replaces a dead one.
+    pub const MAX_SERVERS: usize = 2;
+    /// Outstanding detect requests per client (a client that times out may leave one behind).
+    pub const MAX_ACTIVE_REQUESTS_PER_CLIENT: usize = 4;
+    /// Requests a client may have loaned (being written) at once.
+    pub const MAX_LOANED_REQUESTS: usize = 1;
+    /// Responses buffered per request before the oldest is discarded (one is sent).
+    pub const RESPONSE_BUFFER: usize = 2;
+    /// Processes attached to one service.
+    pub const MAX_NODES: usize = 2 * MAX_CLIENTS + 8;
+    /// Hypotheses one response can carry.
+    pub const MAX_RESPONSE_HYPOTHESES: usize =
+        super::MAX_OBJECTS_PER_REQUEST * super::MAX_HYPOTHESES_PER_OBJECT as usize;
+    /// Models one `ListModels` response can list.
+    pub const MAX_LISTED_MODELS: usize = 256;
+    /// Publishers per camera: its driver, plus one while a restarted driver replaces a dead one.
+    pub const MAX_CAMERA_PUBLISHERS: usize = 2;
+    /// Subscribers per camera: the daemon plus a few viewers or recorders.
+    pub const MAX_CAMERA_SUBSCRIBERS: usize = 4;
+    /// Frames queued per subscriber; on overflow the oldest is replaced (only the newest
+    /// matters).
+    pub const CAMERA_SUBSCRIBER_BUFFER: usize = 2;
+    /// Frames a subscriber may hold at once: the daemon keeps the newest frame and any older one
+    /// still being read by a running detection.
+    pub const MAX_BORROWED_FRAMES: usize = 6;
+    /// Frames a driver may have loaned (being filled) at once.
+    pub const MAX_LOANED_FRAMES: usize = 2;
+    /// Frames kept for a subscriber that connects late (it gets the newest at once).
+    pub const CAMERA_HISTORY: usize = 1;
+    /// Depth values of a VGA frame, the size camera ports are preallocated for.
+    pub const VGA_PIXELS: usize = 640 * 480;
+}
+
+/// The `ppfd/detect` port factory.
+pub type DetectService<S> = iceoryx2::service::port_factory::request_response::PortFactory<
+    S,
+    [u16],
+    DetectRequestHeader,
+    [PoseHypothesis],
+    DetectResponseHeader,
+>;
+/// The `ppfd/control` port factory.
+pub type ControlService<S> = iceoryx2::service::port_factory::request_response::PortFactory<
+    S,
+    ControlRequest,
+    (),
+    [ModelInfo],
+    ControlResponseHeader,
+>;
+/// A camera's port factory.
+pub type CameraService<S> =
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<S, [u16], FrameHeader>;
+/// An event port factory.
+pub type EventService<S> = iceoryx2::service::port_factory::event::PortFactory<S>;
+
+fn fixed_name(name: &str) -> ServiceName {
+    // The constants above are valid service names (tested below).
+    ServiceName::new(name).expect("constant service name is valid")
+}
+
+/// The `ppfd/detect` builder with its limits.
+pub fn detect_builder<S: Service>(
+    node: &Node<S>,
+) -> request_response::Builder<[u16], DetectRequestHeader, [PoseHypothesis], DetectResponseHeader, S>
+{
+    node.service_builder(&fixed_name(DETECT))
+        .request_response::<[u16], [PoseHypothesis]>()
+        .request_user_header::<DetectRequestHeader>()
+        .response_user_header::<DetectResponseHeader>()
+        .enable_safe_overflow_for_requests(true)
+        .enable_safe_overflow_for_responses(true)
+        .enable_fire_and_forget_requests(false)
+        .max_active_requests_per_client(limits::MAX_ACTIVE_REQUESTS_PER_CLIENT)
+        .max_loaned_requests(limits::MAX_LOANED_REQUESTS)
+        .max_response_buffer_size(limits::RESPONSE_BUFFER)
+        .max_borrowed_responses_per_pending_response(1)
+        .max_servers(limits::MAX_SERVERS)
+        .max_clients(limits::MAX_CLIENTS)
+        .max_nodes(limits::MAX_NODES)
+}
+
+/// The `ppfd/control` builder with its limits.
+pub fn control_builder<S: Service>(
+    node: &Node<S>,
+) -> request_response::Builder<ControlRequest, (), [ModelInfo], ControlResponseHeader, S> {
+    node.service_builder(&fixed_name(CONTROL))
+        .request_response::<ControlRequest, [ModelInfo]>()
+        .response_user_header::<ControlResponseHeader>()
+        .enable_safe_overflow_for_requests(true)
+        .enable_safe_overflow_for_responses(true)
+        .enable_fire_and_forget_requests(false)
+        .max_active_requests_per_client(2)
+        .max_loaned_requests(1)
+        .max_response_buffer_size(limits::RESPONSE_BUFFER)
+        .max_borrowed_responses_per_pending_response(1)
+        .max_servers(limits::MAX_SERVERS)
+        .max_clients(limits::MAX_CLIENTS)
+        .max_nodes(limits::MAX_NODES)
+}
+
+/// The `ppfd/daemon` wake-up event builder.
+pub fn daemon_wake_builder<S: Service>(node: &Node<S>) -> event::Builder<S> {
+    node.service_builder(&fixed_name(DAEMON_WAKE))
+        .event()
+        .max_listeners(limits::MAX_SERVERS)
+        .max_notifiers(2 * limits::MAX_CLIENTS + 8)
+        .max_nodes(limits::MAX_NODES)
+        .event_id_max_value(wake::MAX)
+}
+
+/// The `ppfd/responses` event builder.
+pub fn responses_builder<S: Service>(node: &Node<S>) -> event::Builder<S> {
+    node.service_builder(&fixed_name(RESPONSES))
+        .event()
+        .max_listeners(2 * limits::MAX_CLIENTS)
+        .max_notifiers(limits::MAX_SERVERS)
+        .max_nodes(limits::MAX_NODES)
+        .event_id_max_value(1)
+}
+
+/// A camera's publish/subscribe builder with its limits.
+pub fn camera_builder<S: Service>(
+    node: &Node<S>,
+    camera: &str,
+) -> Result<publish_subscribe::Builder<[u16], FrameHeader, S>, ProtocolError> {
+    let name = camera_service_name(camera)?;
+    Ok(node
+        .service_builder(&name)
+        .publish_subscribe::<[u16]>()
+        .user_header::<FrameHeader>()
+        .enable_safe_overflow(true)
+        .history_size(limits::CAMERA_HISTORY)
+        .subscriber_max_buffer_size(limits::CAMERA_SUBSCRIBER_BUFFER)
+        .subscriber_max_borrowed_samples(limits::MAX_BORROWED_FRAMES)
+        .max_publishers(limits::MAX_CAMERA_PUBLISHERS)
+        .max_subscribers(limits::MAX_CAMERA_SUBSCRIBERS)
+        .max_nodes(limits::MAX_CAMERA_PUBLISHERS + limits::MAX_CAMERA_SUBSCRIBERS + 2))
+}
+
+/// Camera names: 1 to 31 bytes of ASCII letters, digits, `_` and `-` (they become part of a
+/// service name and of a fixed header field).
+pub fn check_camera_name(name: &str) -> Result<(), ProtocolError> {
+    let reason = if name.is_empty() {
+        Some("is empty")
+    } else if name.len() >= CAMERA_NAME_BYTES {
+        return Err(ProtocolError::NameTooLong {
+            field: "camera",
+            name: name.to_owned(),
+            max_bytes: CAMERA_NAME_BYTES - 1,
+        });
+    } else if !name
+        .bytes()
+        .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+    {
+        Some("may hold only ASCII letters, digits, '_' and '-'")
+    } else {
+        None
+    };
+    match reason {
+        Some(reason) => Err(ProtocolError::InvalidName {
+            field: "camera",
+            name: name.escape_debug().to_string(),
+            reason,
+        }),
+        None => Ok(()),
+    }
+}
+
+/// The service name of a camera: `ppfd/camera/<name>/depth`.
+pub fn camera_service_name(camera: &str) -> Result<ServiceName, ProtocolError> {
+    check_camera_name(camera)?;
+    let full = format!("{CAMERA_PREFIX}{camera}{CAMERA_SUFFIX}");
+    ServiceName::new(&full).map_err(|e| ProtocolError::InvalidName {
+        field: "camera",
+        name: camera.to_owned(),
+        reason: if matches!(
+            e,
+            iceoryx2::service::service_name::ServiceNameError::ExceedsMaximumLength
+        ) {
+            "makes the service name too long"
+        } else {
+            "is not a valid service name"
+        },
+    })
+}
+
+/// The camera name of a camera service name, `None` for any other service.
+pub fn camera_of_service(service_name: &str) -> Option<&str> {
+    let camera = service_name
+        .strip_prefix(CAMERA_PREFIX)?
+        .strip_suffix(CAMERA_SUFFIX)?;
+    check_camera_name(camera).ok().map(|_| camera)
+}
+
+/// The port name of a client's listener on [`RESPONSES`] for a reply token.
+pub fn reply_listener_name(reply_token: u64) -> String {
+    format!("ppf-reply-{reply_token:016x}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fixed_names_are_valid_service_names() {
+        for n in [DETECT, CONTROL, DAEMON_WAKE, RESPONSES] {
+            assert!(ServiceName::new(n).is_ok(), "{n}");
+        }
+        assert!(PortName::new(&reply_listener_name(u64::MAX)).is_ok());
+    }
+
+    #[test]
+    fn camera_names_round_trip_through_service_names() {
+        let s = camera_service_name("left-kinect_2").unwrap();
+        assert_eq!(s.as_str(), "ppfd/camera/left-kinect_2/depth");
+        assert_eq!(camera_of_service(s.as_str()), Some("left-kinect_2"));
+        assert_eq!(camera_of_service("ppfd/detect"), None);
+        assert_eq!(camera_of_service("ppfd/camera/a/b/depth"), None);
+    }
+
+    #[test]
+    fn bad_camera_names_are_refused() {
+        assert!(check_camera_name("").is_err());
+        assert!(check_camera_name("a/b").is_err());
+        assert!(check_camera_name("caméra").is_err());
+        assert!(check_camera_name(&"x".repeat(CAMERA_NAME_BYTES)).is_err());
+        assert!(check_camera_name(&"x".repeat(CAMERA_NAME_BYTES - 1)).is_ok());
+    }
+
+    fn isolated_node(tag: &str) -> Node<ipc::Service> {
+        let mut config = iceoryx2::config::Config::default();
+        let prefix = format!("ppfdt_{tag}_{}_", std::process::id());
+        config.global.prefix = FileName::new(prefix.as_bytes()).unwrap();
+        NodeBuilder::new()
+            .config(&config)
+            .create::<ipc::Service>()
+            .unwrap()
+    }
+
+    #[test]
+    fn the_builders_agree_and_carry_an_inline_frame_round_trip() {
+        let node = isolated_node("rr");
+        let server_side = detect_builder(&node).create().unwrap();
+        // A second participant opens the same service with the same limits.
+        let client_side = detect_builder(&node).open().unwrap();
+        let server = server_side
+            .server_builder()
+            .initial_max_slice_len(64)
+            .create()
+            .unwrap();
+        let client = client_side
+            .client_builder()
+            .initial_max_slice_len(8)
+            .create()
+            .unwrap();
+
+        let mut request = client.loan_slice_uninit(8).unwrap();
+        request.user_header_mut().request_id = 42;
+        let request = request.write_from_fn(|i| i as u16);
+        let pending = request.send().unwrap();
+
+        let active = server.receive().unwrap().expect("request arrived");
+        assert_eq!(active.user_header().request_id, 42);
+        assert_eq!(active.payload(), &[0, 1, 2, 3, 4, 5, 6, 7]);
+        let mut response = active.loan_slice_uninit(1).unwrap();
+        response.user_header_mut().request_id = 42;
+        let response = response.write_from_fn(|_| PoseHypothesis {
+            object_id: 7,
+            ..Default::default()
+        });
+        response.send().unwrap();
+
+        let answer = pending.receive().unwrap().expect("response arrived");
+        assert_eq!(answer.user_header().request_id, 42);
+        assert_eq!(answer.payload()[0].object_id, 7);
+
+        let wake = daemon_wake_builder(&node).create().unwrap();
+        let _opened = daemon_wake_builder(&node).open().unwrap();
+        let camera = camera_builder(&node, "cam0").unwrap().create().unwrap();
+        let _opened = camera_builder(&node, "cam0").unwrap().open().unwrap();
+        drop((wake, camera));
+    }
+
+    #[test]
+    fn response_capacity_covers_the_largest_request() {
+        assert_eq!(
+            limits::MAX_RESPONSE_HYPOTHESES,
+            MAX_OBJECTS_PER_REQUEST * MAX_HYPOTHESES_PER_OBJECT as usize
+        );
+    }
+}

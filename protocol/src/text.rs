@@ -1,0 +1,76 @@
+//! Fixed-size text fields: names and messages travel as NUL-padded UTF-8 byte arrays, because a
+//! shared-memory type holds no pointers.
+
+use crate::ProtocolError;
+
+/// Writes `name` into a NUL-padded array, refusing names that do not fit (one byte stays NUL so
+/// a reader always finds the end) or that contain a NUL.
+pub fn encode_name<const N: usize>(
+    field: &'static str,
+    name: &str,
+) -> Result<[u8; N], ProtocolError> {
+    let bytes = name.as_bytes();
+    if bytes.len() >= N {
+        return Err(ProtocolError::NameTooLong {
+            field,
+            name: name.to_owned(),
+            max_bytes: N - 1,
+        });
+    }
+    if bytes.contains(&0) {
+        return Err(ProtocolError::InvalidName {
+            field,
+            name: name.escape_debug().to_string(),
+            reason: "contains a NUL byte",
+        });
+    }
+    let mut out = [0u8; N];
+    out[..bytes.len()].copy_from_slice(bytes);
+    Ok(out)
+}
+
+/// Writes `text` into a NUL-padded array, cutting it at a character boundary when it is too long
+/// (for free-form messages, where losing the tail beats losing the message).
+pub fn encode_truncated<const N: usize>(text: &str) -> [u8; N] {
+    let mut end = text.len().min(N.saturating_sub(1));
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    let mut out = [0u8; N];
+    out[..end].copy_from_slice(&text.as_bytes()[..end]);
+    out
+}
+
+/// Reads a NUL-padded field: the bytes before the first NUL, replacing invalid UTF-8.
+pub fn decode(bytes: &[u8]) -> std::borrow::Cow<'_, str> {
+    let end = bytes.iter().position(|&b| b == 0).unwrap_or(bytes.len());
+    String::from_utf8_lossy(&bytes[..end])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_round_trip_and_are_nul_terminated() {
+        let a: [u8; 8] = encode_name("camera", "kinect").unwrap();
+        assert_eq!(decode(&a), "kinect");
+        assert_eq!(a[6..], [0, 0]);
+    }
+
+    #[test]
+    fn names_that_do_not_fit_are_refused() {
+        assert!(encode_name::<8>("camera", "1234567").is_ok());
+        let e = encode_name::<8>("camera", "12345678").unwrap_err();
+        assert!(e.to_string().contains("at most 7 bytes"), "{e}");
+        assert!(encode_name::<8>("camera", "a\0b").is_err());
+    }
+
+    #[test]
+    fn messages_are_cut_at_character_boundaries() {
+        let m: [u8; 5] = encode_truncated("ééé");
+        assert_eq!(decode(&m), "éé");
+        let m: [u8; 4] = encode_truncated("ééé");
+        assert_eq!(decode(&m), "é");
+    }
+}

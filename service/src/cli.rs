@@ -1,0 +1,144 @@
+//! The `ppfd` command line: flags that mirror the TOML configuration.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+
+use clap::Parser;
+
+use crate::config::DaemonConfig;
+use crate::engine::DetectionEngine;
+
+/// The ppfd daemon: holds PPF object models in memory and answers detect requests over
+/// iceoryx2 shared memory. Stops cleanly on SIGINT/SIGTERM. Logs go to stderr (`RUST_LOG`).
+#[derive(Debug, Parser)]
+#[command(name = "ppfd", version)]
+pub struct Args {
+    /// Directory of models: `*.ppfm` files, and PLY meshes (`obj_<id>.ply`) to build models from.
+    #[arg(long)]
+    pub models: Option<PathBuf>,
+    /// TOML configuration file; flags override it.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Where models built from PLY meshes are saved (default: beside the mesh).
+    #[arg(long)]
+    pub model_cache: Option<PathBuf>,
+    /// iceoryx2 resource prefix: daemons (and their clients) with different prefixes never
+    /// see each other.
+    #[arg(long)]
+    pub prefix: Option<String>,
+    /// Detection worker threads (0: one per core).
+    #[arg(long)]
+    pub workers: Option<usize>,
+    /// Detections running at once.
+    #[arg(long)]
+    pub parallel_detections: Option<usize>,
+    /// Waiting requests beyond which new ones are refused "busy".
+    #[arg(long)]
+    pub queue_capacity: Option<usize>,
+    /// Camera frames older than this are refused "camera stale", milliseconds.
+    #[arg(long)]
+    pub max_frame_age_ms: Option<u64>,
+    /// Period of camera discovery and dead-process cleanup, milliseconds.
+    #[arg(long)]
+    pub housekeeping_ms: Option<u64>,
+}
+
+impl Args {
+    /// The configuration: defaults, then the file, then the flags.
+    pub fn config(&self) -> Result<DaemonConfig, String> {
+        let mut c = match &self.config {
+            Some(path) => DaemonConfig::from_toml_file(path)?,
+            None => DaemonConfig::default(),
+        };
+        if self.models.is_some() {
+            c.models = self.models.clone();
+        }
+        if self.model_cache.is_some() {
+            c.model_cache = self.model_cache.clone();
+        }
+        if self.prefix.is_some() {
+            c.prefix = self.prefix.clone();
+        }
+        c.workers = self.workers.unwrap_or(c.workers);
+        c.parallel_detections = self.parallel_detections.unwrap_or(c.parallel_detections);
+        c.queue_capacity = self.queue_capacity.unwrap_or(c.queue_capacity);
+        c.max_frame_age_ms = self.max_frame_age_ms.unwrap_or(c.max_frame_age_ms);
+        c.housekeeping_ms = self.housekeeping_ms.unwrap_or(c.housekeeping_ms);
+        c.validate()?;
+        Ok(c)
+    }
+}
+
+/// Logs to stderr, filtered by `RUST_LOG` (default `info`).
+pub fn init_tracing() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
+}
+
+/// Parses the command line and runs the daemon with `engine`. Prints one line,
+/// `ppfd ready pid=<pid> models=<n>`, on stdout once it serves (scripts wait for it).
+pub fn main(engine: Arc<dyn DetectionEngine>) -> ExitCode {
+    main_with_args(std::env::args_os(), engine)
+}
+
+/// As [`main`], with the command line given (the first item is the program name).
+pub fn main_with_args<I, T>(args: I, engine: Arc<dyn DetectionEngine>) -> ExitCode
+where
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
+    let args = match Args::try_parse_from(args) {
+        Ok(a) => a,
+        Err(e) => e.exit(),
+    };
+    init_tracing();
+    let config = match args.config() {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("ppfd: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    let result = crate::daemon::run(config, engine, |ready| {
+        use std::io::Write;
+        let mut out = std::io::stdout().lock();
+        let _ = writeln!(out, "ppfd ready pid={} models={}", ready.pid, ready.models);
+        let _ = out.flush();
+    });
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("ppfd: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flags_override_the_file() {
+        let dir = std::env::temp_dir().join(format!("ppfd-cli-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("ppfd.toml");
+        std::fs::write(&file, "queue_capacity = 7\nmax_frame_age_ms = 50\n").unwrap();
+        let args = Args::parse_from([
+            "ppfd",
+            "--config",
+            file.to_str().unwrap(),
+            "--max-frame-age-ms",
+            "80",
+        ]);
+        let c = args.config().unwrap();
+        assert_eq!(c.queue_capacity, 7);
+        assert_eq!(c.max_frame_age_ms, 80);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

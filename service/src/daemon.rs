@@ -1,0 +1,1138 @@
+//! The I/O thread: owns every iceoryx2 port, sleeps on a WaitSet, and hands detections to a
+//! rayon pool.
+//!
+//! Life of a detect request: a client sends it on `ppfd/detect` and notifies `ppfd/daemon`; the
+//! WaitSet wakes this thread, which takes the request off the port, checks it against the
+//! contract and the loaded models (refusing at once what cannot be served) and queues it. When a
+//! detection slot is free, the request's frame is resolved — the newest sample of its camera, or
+//! its own inline payload — and a job runs on the pool, reading the depth values straight from
+//! shared memory. The job reports on a channel and signals an eventfd; this thread wakes, writes
+//! the response into a loaned response slice, sends it, and wakes the client's listener on
+//! `ppfd/responses`.
+//!
+//! No depth value is copied on this path: the job gets a pointer into the sample (or request)
+//! that this thread keeps alive — an `Rc` of the sample sits in the job's [`InFlight`] record
+//! until its completion is received, and the daemon never drops a record before that (see
+//! [`Daemon`]'s `Drop`).
+
+use std::collections::{HashMap, VecDeque};
+use std::path::PathBuf;
+use std::rc::Rc;
+use std::sync::mpsc::{channel, Receiver, Sender};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use iceoryx2::active_request::ActiveRequest;
+use iceoryx2::node::Node;
+use iceoryx2::port::notifier::{ListenerKey, Notifier};
+use iceoryx2::port::server::Server;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::sample::Sample;
+use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
+use iceoryx2::waitset::WaitSetRunResult;
+
+use ppfd_protocol::clock::{instant_of, monotonic_now_ns};
+use ppfd_protocol::control::{ControlCommand, ControlRequest, ControlResponseHeader, ModelInfo};
+use ppfd_protocol::detect::{
+    DetectRequestHeader, DetectResponseHeader, FrameSource, PoseHypothesis, Status,
+};
+use ppfd_protocol::frame::FrameHeader;
+use ppfd_protocol::services::{self, limits, wake, CameraService, ControlService, DetectService};
+use ppfd_protocol::text;
+
+use crate::config::DaemonConfig;
+use crate::engine::{
+    DetectOptions, DetectionEngine, EngineError, EngineOutput, FrameView, LoadedModel,
+};
+use crate::registry::Registry;
+use crate::stats::Stats;
+use crate::wakeup::{Signaller, Wakeup};
+
+type Ipc = ipc::Service;
+type DetectServer = Server<Ipc, [u16], DetectRequestHeader, [PoseHypothesis], DetectResponseHeader>;
+type DetectActive =
+    ActiveRequest<Ipc, [u16], DetectRequestHeader, [PoseHypothesis], DetectResponseHeader>;
+type ControlServer = Server<Ipc, ControlRequest, (), [ModelInfo], ControlResponseHeader>;
+type ControlActive = ActiveRequest<Ipc, ControlRequest, (), [ModelInfo], ControlResponseHeader>;
+type FrameSample = Sample<Ipc, [u16], FrameHeader>;
+type FrameSubscriber = Subscriber<Ipc, [u16], FrameHeader>;
+
+/// Why the daemon could not start or had to stop.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct DaemonError(pub String);
+
+fn fail<E: std::fmt::Debug>(what: &str) -> impl FnOnce(E) -> DaemonError + '_ {
+    move |e| DaemonError(format!("{what}: {e:?}"))
+}
+
+/// The iceoryx2 configuration of a daemon (and of its clients): the default one, with the
+/// configured prefix.
+pub fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::Config, DaemonError> {
+    let mut config = iceoryx2::config::Config::default();
+    if let Some(prefix) = prefix {
+        config.global.prefix = FileName::new(prefix.as_bytes())
+            .map_err(|e| DaemonError(format!("iceoryx2 prefix {prefix:?}: {e:?}")))?;
+    }
+    Ok(config)
+}
+
+/// Blocks SIGINT/SIGTERM on the calling thread, so they reach the I/O thread, whose WaitSet
+/// turns them into a clean shutdown.
+fn block_termination_signals() {
+    // SAFETY: plain libc signal-mask calls on a zeroed sigset_t local to this function.
+    unsafe {
+        let mut set: libc::sigset_t = std::mem::zeroed();
+        libc::sigemptyset(&mut set);
+        libc::sigaddset(&mut set, libc::SIGINT);
+        libc::sigaddset(&mut set, libc::SIGTERM);
+        libc::pthread_sigmask(libc::SIG_BLOCK, &set, std::ptr::null_mut());
+    }
+}
+
+/// Depth values in shared memory that a worker reads. Valid while the I/O thread holds the
+/// sample or request they belong to (see the module documentation).
+struct SharedDepth {
+    ptr: *const u16,
+    len: usize,
+}
+
+// SAFETY: the memory is shared memory that nobody writes while the sample/request is held
+// (a published sample and a sent request are immutable), and the holder outlives the job.
+unsafe impl Send for SharedDepth {}
+
+impl SharedDepth {
+    /// # Safety
+    /// The sample or request the values belong to must be alive and unchanged.
+    unsafe fn values(&self) -> &[u16] {
+        // SAFETY: by the caller's promise the pointer and length describe live memory.
+        unsafe { std::slice::from_raw_parts(self.ptr, self.len) }
+    }
+}
+
+/// A request waiting for a detection slot.
+struct Queued {
+    active: DetectActive,
+    header: DetectRequestHeader,
+    source: FrameSource,
+    models: Vec<Arc<LoadedModel>>,
+    received_ns: u64,
+}
+
+/// A request whose detection runs. Field order matters: the frame is released only with the
+/// record, after the job reported.
+struct InFlight {
+    active: DetectActive,
+    header: DetectRequestHeader,
+    received_ns: u64,
+    frame_sequence: u64,
+    frame_age_ns: u64,
+    _frame: Option<Rc<FrameSample>>,
+}
+
+/// What `finish` needs of a finished job besides its request.
+struct Finished {
+    header: DetectRequestHeader,
+    received_ns: u64,
+    frame_sequence: u64,
+    frame_age_ns: u64,
+}
+
+struct Completion {
+    job: u64,
+    result: Result<EngineOutput, EngineError>,
+    started_ns: u64,
+    finished_ns: u64,
+}
+
+struct ModelLoaded {
+    job: u64,
+    result: Result<LoadedModel, EngineError>,
+}
+
+/// A camera the daemon subscribes to, and its newest frame.
+struct Camera {
+    newest: Option<Rc<FrameSample>>,
+    subscriber: FrameSubscriber,
+    _service: CameraService<Ipc>,
+}
+
+impl Camera {
+    /// Takes every waiting frame, keeping the newest. Returns how many arrived.
+    fn refresh(&mut self, name: &str) -> u64 {
+        let mut n = 0;
+        loop {
+            match self.subscriber.receive() {
+                Ok(Some(sample)) => {
+                    n += 1;
+                    self.newest = Some(Rc::new(sample));
+                }
+                Ok(None) => break,
+                Err(e) => {
+                    // Typically every borrowable frame is held by running detections: the
+                    // newest one held stays in use until they finish.
+                    tracing::debug!(camera = name, error = ?e, "frame not taken");
+                    break;
+                }
+            }
+        }
+        n
+    }
+}
+
+/// The daemon's state, owned by the I/O thread. Field order is drop order: what workers may
+/// still read goes first, the ports after, the node last.
+pub struct Daemon {
+    in_flight: HashMap<u64, InFlight>,
+    queue: VecDeque<Queued>,
+    control_pending: HashMap<u64, ControlActive>,
+    cameras: HashMap<String, Camera>,
+    detect_server: DetectServer,
+    control_server: ControlServer,
+    responses: Notifier<Ipc>,
+    reply_keys: HashMap<u64, ListenerKey>,
+    _detect_service: DetectService<Ipc>,
+    _control_service: ControlService<Ipc>,
+    _responses_service: services::EventService<Ipc>,
+    registry: Registry,
+    engine: Arc<dyn DetectionEngine>,
+    pool: rayon::ThreadPool,
+    done_tx: Sender<Completion>,
+    done_rx: Receiver<Completion>,
+    loaded_tx: Sender<ModelLoaded>,
+    loaded_rx: Receiver<ModelLoaded>,
+    signaller: Signaller,
+    next_job: u64,
+    stats: Stats,
+    config: DaemonConfig,
+    last_housekeeping: Instant,
+    node: Node<Ipc>,
+}
+
+/// Runs a daemon until SIGINT or SIGTERM. `on_ready` is called once it serves.
+pub fn run(
+    config: DaemonConfig,
+    engine: Arc<dyn DetectionEngine>,
+    on_ready: impl FnOnce(&ReadyInfo),
+) -> Result<(), DaemonError> {
+    config.validate().map_err(DaemonError)?;
+    let iox = iceoryx_config(config.prefix.as_deref())?;
+    let node = NodeBuilder::new()
+        .name(&NodeName::new("ppfd").map_err(fail("node name"))?)
+        .config(&iox)
+        .signal_handling_mode(SignalHandlingMode::HandleTerminationRequests)
+        .create::<Ipc>()
+        .map_err(fail("cannot create the iceoryx2 node"))?;
+    let cleaned = node.try_cleanup_dead_nodes();
+    if cleaned.cleanups + cleaned.failed_cleanups > 0 {
+        tracing::info!(
+            removed = cleaned.cleanups,
+            failed = cleaned.failed_cleanups,
+            "removed resources of crashed processes"
+        );
+    }
+
+    let wake_service = services::daemon_wake_builder(&node)
+        .open_or_create()
+        .map_err(fail("cannot open the ppfd/daemon event service"))?;
+    let wake_listener = wake_service
+        .listener_builder()
+        .create()
+        .map_err(fail("cannot listen on ppfd/daemon"))?;
+    let wakeup = Wakeup::new().map_err(fail("cannot create an eventfd"))?;
+
+    let mut daemon = Daemon::new(config, engine, node, wakeup.signaller())?;
+    let waitset = WaitSetBuilder::new()
+        .signal_handling_mode(SignalHandlingMode::HandleTerminationRequests)
+        .create::<Ipc>()
+        .map_err(fail("cannot create the WaitSet"))?;
+    let _wake_guard = waitset
+        .attach_notification(&wake_listener)
+        .map_err(fail("WaitSet"))?;
+    let _done_guard = waitset
+        .attach_notification(&wakeup)
+        .map_err(fail("WaitSet"))?;
+    let _tick_guard = waitset
+        .attach_interval(Duration::from_millis(daemon.config.housekeeping_ms))
+        .map_err(fail("WaitSet"))?;
+
+    daemon.housekeeping();
+    on_ready(&ReadyInfo {
+        models: daemon.registry.len(),
+        pid: std::process::id(),
+    });
+    tracing::info!(
+        models = daemon.registry.len(),
+        engine = daemon.engine.name(),
+        "serving"
+    );
+
+    loop {
+        let outcome = waitset.wait_and_process_once(|_| CallbackProgression::Continue);
+        match outcome {
+            Ok(WaitSetRunResult::TerminationRequest) => break,
+            Ok(WaitSetRunResult::Interrupt) => {
+                // Any signal interrupts the wait; only SIGINT/SIGTERM stop the daemon.
+                if daemon.node.wait(Duration::ZERO).is_err() {
+                    break;
+                }
+            }
+            Ok(_) => {}
+            Err(e) => return Err(DaemonError(format!("WaitSet failed: {e:?}"))),
+        }
+        let mut events = Vec::new();
+        if let Err(e) = wake_listener.try_wait(|a| events.push(a.id)) {
+            tracing::warn!(error = ?e, "reading ppfd/daemon events failed");
+        }
+        wakeup.drain();
+        daemon.step(&events);
+    }
+    tracing::info!("shutting down");
+    daemon.shutdown();
+    Ok(())
+}
+
+/// What a daemon reports when it starts serving.
+#[derive(Debug, Clone)]
+pub struct ReadyInfo {
+    /// Models loaded.
+    pub models: usize,
+    /// Process id.
+    pub pid: u32,
+}
+
+impl Daemon {
+    fn new(
+        config: DaemonConfig,
+        engine: Arc<dyn DetectionEngine>,
+        node: Node<Ipc>,
+        signaller: Signaller,
+    ) -> Result<Daemon, DaemonError> {
+        let detect_service = services::detect_builder(&node)
+            .open_or_create()
+            .map_err(fail("cannot open the ppfd/detect service"))?;
+        let detect_server = detect_service
+            .server_builder()
+            .initial_max_slice_len(limits::MAX_RESPONSE_HYPOTHESES)
+            .max_loaned_responses_per_request(1)
+            .backpressure_strategy(BackpressureStrategy::DiscardData)
+            .create()
+            .map_err(fail("cannot serve ppfd/detect"))?;
+        let servers = detect_service.dynamic_config().number_of_servers();
+        if servers > 1 {
+            return Err(DaemonError(format!(
+                "another ppfd already serves with this prefix ({servers} servers on {}); stop it first",
+                services::DETECT
+            )));
+        }
+        let control_service = services::control_builder(&node)
+            .open_or_create()
+            .map_err(fail("cannot open the ppfd/control service"))?;
+        let control_server = control_service
+            .server_builder()
+            .initial_max_slice_len(limits::MAX_LISTED_MODELS)
+            .max_loaned_responses_per_request(1)
+            .backpressure_strategy(BackpressureStrategy::DiscardData)
+            .create()
+            .map_err(fail("cannot serve ppfd/control"))?;
+        let responses_service = services::responses_builder(&node)
+            .open_or_create()
+            .map_err(fail("cannot open the ppfd/responses event service"))?;
+        let responses = responses_service
+            .notifier_builder()
+            .create()
+            .map_err(fail("cannot notify on ppfd/responses"))?;
+
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(config.worker_threads())
+            .thread_name(|i| format!("ppfd-worker-{i}"))
+            .start_handler(|_| block_termination_signals())
+            .build()
+            .map_err(fail("cannot start the worker pool"))?;
+
+        let mut registry = Registry::default();
+        if let Some(dir) = &config.models {
+            let started = Instant::now();
+            let failures = registry
+                .load_dir(engine.as_ref(), dir, config.model_cache.as_deref())
+                .map_err(DaemonError)?;
+            tracing::info!(
+                loaded = registry.len(),
+                failed = failures.len(),
+                bytes = registry.bytes(),
+                ms = started.elapsed().as_millis() as u64,
+                dir = %dir.display(),
+                "models loaded"
+            );
+        }
+
+        let (done_tx, done_rx) = channel();
+        let (loaded_tx, loaded_rx) = channel();
+        Ok(Daemon {
+            in_flight: HashMap::new(),
+            queue: VecDeque::new(),
+            control_pending: HashMap::new(),
+            cameras: HashMap::new(),
+            detect_server,
+            control_server,
+            responses,
+            reply_keys: HashMap::new(),
+            _detect_service: detect_service,
+            _control_service: control_service,
+            _responses_service: responses_service,
+            registry,
+            engine,
+            pool,
+            done_tx,
+            done_rx,
+            loaded_tx,
+            loaded_rx,
+            signaller,
+            next_job: 1,
+            stats: Stats::default(),
+            config,
+            last_housekeeping: Instant::now(),
+            node,
+        })
+    }
+
+    /// One turn of the loop: everything that can be done now.
+    fn step(&mut self, events: &[EventId]) {
+        if events.contains(&wake::CAMERA_APPEARED) {
+            self.discover_cameras();
+        }
+        while let Ok(c) = self.done_rx.try_recv() {
+            self.finish(c);
+        }
+        while let Ok(m) = self.loaded_rx.try_recv() {
+            self.finish_load(m);
+        }
+        self.take_control_requests();
+        self.take_detect_requests();
+        self.dispatch();
+        if self.last_housekeeping.elapsed() >= Duration::from_millis(self.config.housekeeping_ms) {
+            self.housekeeping();
+        }
+    }
+
+    fn housekeeping(&mut self) {
+        self.last_housekeeping = Instant::now();
+        let cleaned = self.node.try_cleanup_dead_nodes();
+        if cleaned.cleanups > 0 {
+            tracing::info!(
+                removed = cleaned.cleanups,
+                "removed resources of dead processes"
+            );
+        }
+        self.discover_cameras();
+        // Keep only the newest frame of each camera, releasing older ones to their drivers.
+        for (name, camera) in &mut self.cameras {
+            self.stats.frames_received += camera.refresh(name);
+        }
+        if self.reply_keys.len() > 4 * limits::MAX_CLIENTS {
+            self.reply_keys.clear();
+        }
+    }
+
+    // ---------------------------------------------------------------- cameras
+
+    fn discover_cameras(&mut self) {
+        let mut found = Vec::new();
+        let listed = Ipc::list(self.node.config(), |details| {
+            if matches!(details.static_details.messaging_pattern(), iceoryx2::service::static_config::messaging_pattern::MessagingPattern::PublishSubscribe(_)
+            ) {
+                if let Some(camera) = services::camera_of_service(details.static_details.name().as_str()) {
+                    found.push(camera.to_owned());
+                }
+            }
+            CallbackProgression::Continue
+        });
+        if let Err(e) = listed {
+            tracing::warn!(error = ?e, "listing services failed");
+        }
+        for name in found {
+            if !self.cameras.contains_key(&name) {
+                if let Err(e) = self.open_camera(&name) {
+                    tracing::debug!(camera = %name, error = %e.message, "camera not opened");
+                }
+            }
+        }
+    }
+
+    fn open_camera(&mut self, name: &str) -> Result<&mut Camera, EngineError> {
+        if !self.cameras.contains_key(name) {
+            let builder = services::camera_builder(&self.node, name)
+                .map_err(|e| EngineError::new(Status::InvalidRequest, e.to_string()))?;
+            let service = builder.open().map_err(|e| match e {
+                PublishSubscribeOpenError::DoesNotExist => EngineError::new(
+                    Status::UnknownCamera,
+                    format!(
+                        "no camera {name:?} (service {} does not exist)",
+                        services::camera_service_name(name)
+                            .map(|s| s.as_str().to_owned())
+                            .unwrap_or_default()
+                    ),
+                ),
+                e => EngineError::new(
+                    Status::Internal,
+                    format!("camera {name:?} cannot be opened: {e:?}"),
+                ),
+            })?;
+            let subscriber = service.subscriber_builder().create().map_err(|e| {
+                EngineError::new(
+                    Status::Internal,
+                    format!("camera {name:?} cannot be subscribed to: {e:?}"),
+                )
+            })?;
+            tracing::info!(camera = name, "subscribed to camera");
+            self.cameras.insert(
+                name.to_owned(),
+                Camera {
+                    newest: None,
+                    subscriber,
+                    _service: service,
+                },
+            );
+        }
+        Ok(self.cameras.get_mut(name).expect("camera inserted above"))
+    }
+
+    // ---------------------------------------------------------------- detect
+
+    fn take_detect_requests(&mut self) {
+        loop {
+            match self.detect_server.receive() {
+                Ok(Some(active)) => self.accept(active),
+                Ok(None) => break,
+                Err(e) => {
+                    tracing::warn!(error = ?e, "receiving detect requests failed");
+                    break;
+                }
+            }
+        }
+    }
+
+    fn accept(&mut self, active: DetectActive) {
+        let received_ns = monotonic_now_ns();
+        self.stats.requests_received += 1;
+        let header = *active.user_header();
+        let payload_len = active.payload().len();
+        tracing::debug!(request = header.request_id, objects = ?header.objects(), "request received");
+        let source = match header.validate(payload_len) {
+            Ok(source) => source,
+            Err(e) => {
+                let value = match e {
+                    ppfd_protocol::ProtocolError::Version { expected, .. } => expected as u64,
+                    _ => 0,
+                };
+                let error = EngineError {
+                    status: e.status(),
+                    message: e.to_string(),
+                    value,
+                };
+                return self.refuse(active, &header, received_ns, error);
+            }
+        };
+        let models = match self.registry.resolve(header.objects()) {
+            Ok(models) => models,
+            Err(e) => return self.refuse(active, &header, received_ns, e),
+        };
+        if self.queue.len() >= self.config.queue_capacity {
+            let e = EngineError::new(
+                Status::Busy,
+                format!(
+                    "{} requests are already waiting; retry later",
+                    self.queue.len()
+                ),
+            );
+            return self.refuse(active, &header, received_ns, e);
+        }
+        self.queue.push_back(Queued {
+            active,
+            header,
+            source,
+            models,
+            received_ns,
+        });
+    }
+
+    fn dispatch(&mut self) {
+        while self.in_flight.len() < self.config.parallel_detections {
+            let Some(q) = self.queue.pop_front() else {
+                break;
+            };
+            if !self.detect_client_alive(&q.active) {
+                self.abandon(q.active, q.header.request_id);
+                continue;
+            }
+            if !q.active.is_connected() {
+                self.stats.requests_abandoned += 1;
+                tracing::debug!(
+                    request = q.header.request_id,
+                    "client gone before its detection started"
+                );
+                continue;
+            }
+            let now = monotonic_now_ns();
+            if q.header.deadline_ns != 0 && now >= q.header.deadline_ns {
+                self.stats.requests_expired += 1;
+                let late = now - q.header.deadline_ns;
+                let e = EngineError::new(
+                    Status::DeadlineExceeded,
+                    format!(
+                        "deadline passed {:.3} ms before a worker was free",
+                        late as f64 / 1e6
+                    ),
+                );
+                self.refuse(q.active, &q.header, q.received_ns, e);
+                continue;
+            }
+            if let Err(e) = self.start(q) {
+                let (active, header, received_ns, error) = *e;
+                self.refuse(active, &header, received_ns, error);
+            }
+        }
+    }
+
+    /// Resolves the frame and starts the job; gives the request back with the reason it could
+    /// not start.
+    #[allow(clippy::type_complexity)]
+    fn start(
+        &mut self,
+        q: Queued,
+    ) -> Result<(), Box<(DetectActive, DetectRequestHeader, u64, EngineError)>> {
+        let now = monotonic_now_ns();
+        let max_age_ns = if q.header.max_frame_age_ns != 0 {
+            q.header.max_frame_age_ns
+        } else {
+            self.config.max_frame_age_ms * 1_000_000
+        };
+        let (frame_header, depth, hold) = match &q.source {
+            FrameSource::Inline => {
+                let payload = q.active.payload();
+                (
+                    q.header.inline_frame,
+                    SharedDepth {
+                        ptr: payload.as_ptr(),
+                        len: payload.len(),
+                    },
+                    None,
+                )
+            }
+            FrameSource::Camera(name) => {
+                let camera = match self.open_camera(name) {
+                    Ok(c) => c,
+                    Err(e) => return Err(Box::new((q.active, q.header, q.received_ns, e))),
+                };
+                let arrived = camera.refresh(name);
+                let newest = camera.newest.clone();
+                self.stats.frames_received += arrived;
+                let Some(sample) = newest else {
+                    let e = EngineError::new(
+                        Status::NoFrame,
+                        format!("camera {name:?} has published no frame yet"),
+                    );
+                    return Err(Box::new((q.active, q.header, q.received_ns, e)));
+                };
+                let fh = *sample.user_header();
+                if let Err(e) = fh.validate(sample.payload().len()) {
+                    let e = EngineError::new(
+                        e.status(),
+                        format!("camera {name:?} published a bad frame: {e}"),
+                    );
+                    return Err(Box::new((q.active, q.header, q.received_ns, e)));
+                }
+                let age = now.saturating_sub(fh.capture_time_ns);
+                if age > max_age_ns {
+                    let e = EngineError {
+                        status: Status::CameraStale,
+                        message: format!(
+                            "camera {name:?} is stale: its newest frame (sequence {}) is {:.1} ms old, the limit is {:.1} ms",
+                            fh.sequence,
+                            age as f64 / 1e6,
+                            max_age_ns as f64 / 1e6
+                        ),
+                        value: age,
+                    };
+                    return Err(Box::new((q.active, q.header, q.received_ns, e)));
+                }
+                let payload = sample.payload();
+                let depth = SharedDepth {
+                    ptr: payload.as_ptr(),
+                    len: payload.len(),
+                };
+                (fh, depth, Some(sample))
+            }
+        };
+        let frame_age_ns = if frame_header.capture_time_ns != 0 {
+            now.saturating_sub(frame_header.capture_time_ns)
+        } else {
+            0
+        };
+
+        let job = self.next_job;
+        self.next_job += 1;
+        let engine = self.engine.clone();
+        let models = q.models;
+        let options = DetectOptions {
+            hypotheses_per_object: q.header.hypotheses_per_object as usize,
+            deadline: (q.header.deadline_ns != 0).then(|| instant_of(q.header.deadline_ns)),
+        };
+        let done = self.done_tx.clone();
+        let signaller = self.signaller;
+        let request_id = q.header.request_id;
+        self.pool.spawn(move || {
+            let started_ns = monotonic_now_ns();
+            let _span = tracing::debug_span!("detect", request = request_id).entered();
+            // SAFETY: see `SharedDepth`: the I/O thread keeps the memory alive and unchanged
+            // until it has received this job's completion.
+            let depth = unsafe { depth.values() };
+            let frame = FrameView {
+                width: frame_header.width,
+                height: frame_header.height,
+                intrinsics: frame_header.intrinsics,
+                depth_scale_mm: frame_header.depth_scale_mm,
+                depth,
+            };
+            let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                engine.detect(&frame, &models, &options)
+            }))
+            .unwrap_or_else(|_| {
+                Err(EngineError::new(
+                    Status::Internal,
+                    "the detection failed unexpectedly (panic)",
+                ))
+            });
+            let finished_ns = monotonic_now_ns();
+            // The receiver lives as long as the daemon, which waits for every job.
+            let _ = done.send(Completion {
+                job,
+                result,
+                started_ns,
+                finished_ns,
+            });
+            signaller.signal();
+        });
+        self.in_flight.insert(
+            job,
+            InFlight {
+                active: q.active,
+                header: q.header,
+                received_ns: q.received_ns,
+                frame_sequence: frame_header.sequence,
+                frame_age_ns,
+                _frame: hold,
+            },
+        );
+        Ok(())
+    }
+
+    fn finish(&mut self, c: Completion) {
+        let Some(job) = self.in_flight.remove(&c.job) else {
+            return;
+        };
+        let InFlight {
+            active,
+            header,
+            received_ns,
+            frame_sequence,
+            frame_age_ns,
+            _frame,
+        } = job;
+        drop(_frame);
+        let job = Finished {
+            header,
+            received_ns,
+            frame_sequence,
+            frame_age_ns,
+        };
+        if !self.detect_client_alive(&active) {
+            return self.abandon(active, job.header.request_id);
+        }
+        if !active.is_connected() {
+            self.stats.requests_abandoned += 1;
+            tracing::debug!(
+                request = job.header.request_id,
+                "client gone before its answer"
+            );
+            return;
+        }
+        let output = match c.result {
+            Ok(output) => output,
+            Err(e) => return self.refuse(active, &job.header, job.received_ns, e),
+        };
+        let mut response = DetectResponseHeader {
+            request_id: job.header.request_id,
+            frame_sequence: job.frame_sequence,
+            frame_age_ns: job.frame_age_ns,
+            latency: output.stages,
+            counts: output.counts,
+            ..Default::default()
+        };
+        let send_ns = job.header.send_time_ns;
+        response.latency.transport_ns = if send_ns != 0 {
+            job.received_ns.saturating_sub(send_ns)
+        } else {
+            0
+        };
+        response.latency.queue_wait_ns = c.started_ns.saturating_sub(job.received_ns);
+        response.latency.detection_ns = c.finished_ns.saturating_sub(c.started_ns);
+        let hypotheses =
+            &output.hypotheses[..output.hypotheses.len().min(limits::MAX_RESPONSE_HYPOTHESES)];
+        response.counts.returned = hypotheses.len() as u32;
+        response.hypothesis_count = hypotheses.len() as u32;
+        if let Some(total_ns) =
+            self.send_detect(&active, job.header.reply_token, response, hypotheses)
+        {
+            let overhead = response.latency.transport_ns + response.latency.queue_wait_ns;
+            self.stats
+                .record_served(total_ns, overhead, response.latency.detection_ns);
+            tracing::debug!(
+                request = job.header.request_id,
+                hypotheses = hypotheses.len(),
+                detection_us = response.latency.detection_ns / 1000,
+                total_us = total_ns / 1000,
+                "request served"
+            );
+        }
+    }
+
+    fn refuse(
+        &mut self,
+        active: DetectActive,
+        request: &DetectRequestHeader,
+        received_ns: u64,
+        e: EngineError,
+    ) {
+        if !self.detect_client_alive(&active) {
+            return self.abandon(active, request.request_id);
+        }
+        self.stats.requests_refused += 1;
+        tracing::debug!(request = request.request_id, status = %e.status, reason = %e.message, "request refused");
+        let mut response = DetectResponseHeader {
+            request_id: request.request_id,
+            status: e.status.code(),
+            error_value: e.value,
+            message: text::encode_truncated(&e.message),
+            ..Default::default()
+        };
+        if request.send_time_ns != 0 {
+            response.latency.transport_ns = received_ns.saturating_sub(request.send_time_ns);
+        }
+        self.send_detect(&active, request.reply_token, response, &[]);
+    }
+
+    /// Whether the client that sent `active` still exists. A dead client's connection slot may
+    /// already serve a new client (iceoryx2 reuses it once the dead node is cleaned up, which any
+    /// process may do): answering or even dropping the old request would then touch the new
+    /// client's channel.
+    fn detect_client_alive(&self, active: &DetectActive) -> bool {
+        let origin = active.origin();
+        let mut alive = false;
+        self._detect_service.dynamic_config().list_clients(|c| {
+            alive = c.client_id == origin;
+            if alive {
+                CallbackProgression::Stop
+            } else {
+                CallbackProgression::Continue
+            }
+        });
+        alive
+    }
+
+    /// Lets go of a dead client's request without touching its (possibly reused) channel: the
+    /// request's chunk in the dead client's memory is not returned (a few bytes per client that
+    /// died mid-request).
+    fn abandon(&mut self, active: DetectActive, request_id: u64) {
+        self.stats.requests_abandoned += 1;
+        tracing::debug!(request = request_id, "client died before its answer");
+        std::mem::forget(active);
+    }
+
+    /// Sends a response and wakes its client. Returns the total latency (client send → now).
+    fn send_detect(
+        &mut self,
+        active: &DetectActive,
+        reply_token: u64,
+        mut header: DetectResponseHeader,
+        hypotheses: &[PoseHypothesis],
+    ) -> Option<u64> {
+        let loaned = match active.loan_slice_uninit(hypotheses.len()) {
+            Ok(r) => r,
+            Err(e) => {
+                tracing::warn!(request = header.request_id, error = ?e, "cannot loan a response");
+                return None;
+            }
+        };
+        let mut response = loaned.write_from_slice(hypotheses);
+        let now = monotonic_now_ns();
+        let send_time_ns = active.user_header().send_time_ns;
+        header.response_send_ns = now;
+        header.latency.total_ns = if send_time_ns != 0 {
+            now.saturating_sub(send_time_ns)
+        } else {
+            0
+        };
+        *response.user_header_mut() = header;
+        if let Err(e) = response.send() {
+            tracing::debug!(request = header.request_id, error = ?e, "response not delivered");
+            return None;
+        }
+        self.notify_reply(reply_token);
+        Some(header.latency.total_ns)
+    }
+
+    fn notify_reply(&mut self, token: u64) {
+        if token == 0 {
+            return;
+        }
+        if let Some(key) = self.reply_keys.get(&token) {
+            if self.responses.notify_single_listener(key).is_ok() {
+                return;
+            }
+            self.reply_keys.remove(&token);
+        }
+        let Ok(name) = PortName::new(&services::reply_listener_name(token)) else {
+            return;
+        };
+        let mut found = None;
+        self.responses.for_each_listener(|monofier, details| {
+            if details.listener_name == name {
+                let _ = monofier.notify();
+                found = Some(monofier.listener_key());
+                CallbackProgression::Stop
+            } else {
+                CallbackProgression::Continue
+            }
+        });
+        match found {
+            Some(key) => {
+                self.reply_keys.insert(token, key);
+            }
+            None => tracing::debug!(token, "no listener to wake for this reply"),
+        }
+    }
+
+    // ---------------------------------------------------------------- control
+
+    fn take_control_requests(&mut self) {
+        loop {
+            match self.control_server.receive() {
+                Ok(Some(active)) => self.control(active),
+                Ok(None) => break,
+                Err(e) => {
+                    tracing::warn!(error = ?e, "receiving control requests failed");
+                    break;
+                }
+            }
+        }
+    }
+
+    fn control(&mut self, active: ControlActive) {
+        let request = *active.payload();
+        if let Err(e) = ppfd_protocol::check_version(request.protocol_version) {
+            return self.control_answer(active, Status::ProtocolVersion, &e.to_string(), &[]);
+        }
+        let Some(command) = ControlCommand::from_code(request.command) else {
+            let m = format!("unknown control command {}", request.command);
+            return self.control_answer(active, Status::InvalidRequest, &m, &[]);
+        };
+        tracing::info!(?command, object_id = request.object_id, path = %request.path(), "control request");
+        match command {
+            ControlCommand::ListModels => {
+                let infos = self.registry.infos();
+                let shown = &infos[..infos.len().min(limits::MAX_LISTED_MODELS)];
+                self.control_answer(active, Status::Ok, "", shown);
+            }
+            ControlCommand::Statistics => self.control_answer(active, Status::Ok, "", &[]),
+            ControlCommand::DropModel => match self.registry.remove(request.object_id) {
+                Some(model) => {
+                    let m = format!(
+                        "dropped object {} ({})",
+                        request.object_id,
+                        model.info.name()
+                    );
+                    self.control_answer(active, Status::Ok, &m, &[model.info]);
+                }
+                None => {
+                    let m = format!("no model with object id {} is loaded", request.object_id);
+                    self.control_answer(active, Status::UnknownObject, &m, &[]);
+                }
+            },
+            ControlCommand::LoadModel => {
+                let path = PathBuf::from(request.path().into_owned());
+                if request.path().is_empty() {
+                    return self.control_answer(
+                        active,
+                        Status::InvalidRequest,
+                        "LoadModel needs a path",
+                        &[],
+                    );
+                }
+                let object_id = (request.object_id != 0).then_some(request.object_id);
+                let job = self.next_job;
+                self.next_job += 1;
+                self.control_pending.insert(job, active);
+                let engine = self.engine.clone();
+                let cache = self.config.model_cache.clone();
+                let tx = self.loaded_tx.clone();
+                let signaller = self.signaller;
+                // Building a model from a mesh may take seconds: off the I/O thread and off the
+                // detection workers.
+                let spawned =
+                    std::thread::Builder::new()
+                        .name("ppfd-load".into())
+                        .spawn(move || {
+                            block_termination_signals();
+                            let result =
+                                std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                                    engine.load(&path, object_id, cache.as_deref())
+                                }))
+                                .unwrap_or_else(|_| {
+                                    Err(EngineError::new(
+                                        Status::Internal,
+                                        "loading failed unexpectedly (panic)",
+                                    ))
+                                });
+                            let _ = tx.send(ModelLoaded { job, result });
+                            signaller.signal();
+                        });
+                if let Err(e) = spawned {
+                    if let Some(active) = self.control_pending.remove(&job) {
+                        self.control_answer(
+                            active,
+                            Status::Internal,
+                            &format!("cannot start loading: {e}"),
+                            &[],
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    fn finish_load(&mut self, m: ModelLoaded) {
+        let Some(active) = self.control_pending.remove(&m.job) else {
+            return;
+        };
+        match m.result {
+            Ok(model) => {
+                let info = model.info;
+                let replaced = self.registry.insert(model).is_some();
+                let msg = format!(
+                    "{} object {} ({}), {} bytes",
+                    if replaced { "replaced" } else { "loaded" },
+                    info.object_id,
+                    info.name(),
+                    info.byte_size
+                );
+                tracing::info!("{msg}");
+                self.control_answer(active, Status::Ok, &msg, &[info]);
+            }
+            Err(e) => {
+                let status = if e.status == Status::Internal {
+                    Status::Internal
+                } else {
+                    Status::ModelError
+                };
+                self.control_answer(active, status, &e.message, &[]);
+            }
+        }
+    }
+
+    fn control_answer(
+        &mut self,
+        active: ControlActive,
+        status: Status,
+        message: &str,
+        models: &[ModelInfo],
+    ) {
+        let origin = active.origin();
+        let mut alive = false;
+        self._control_service.dynamic_config().list_clients(|c| {
+            alive = c.client_id == origin;
+            if alive {
+                CallbackProgression::Stop
+            } else {
+                CallbackProgression::Continue
+            }
+        });
+        if !alive {
+            // As for detect requests: never touch a dead client's possibly reused channel.
+            std::mem::forget(active);
+            return;
+        }
+        let mut stats = self.stats.snapshot();
+        stats.cameras = self.cameras.len() as u64;
+        stats.models_loaded = self.registry.len() as u64;
+        stats.model_bytes = self.registry.bytes();
+        stats.in_flight = self.in_flight.len() as u64;
+        stats.queued = self.queue.len() as u64;
+        let header = ControlResponseHeader {
+            status: status.code(),
+            request_id: active.payload().request_id,
+            stats,
+            message: text::encode_truncated(message),
+            ..Default::default()
+        };
+        let token = active.payload().reply_token;
+        match active.loan_slice_uninit(models.len()) {
+            Ok(loaned) => {
+                let mut response = loaned.write_from_slice(models);
+                *response.user_header_mut() = header;
+                if let Err(e) = response.send() {
+                    tracing::debug!(error = ?e, "control response not delivered");
+                    return;
+                }
+                self.notify_reply(token);
+            }
+            Err(e) => tracing::warn!(error = ?e, "cannot loan a control response"),
+        }
+    }
+
+    // ---------------------------------------------------------------- shutdown
+
+    fn shutdown(&mut self) {
+        while let Some(q) = self.queue.pop_front() {
+            let e = EngineError::new(Status::ShuttingDown, "the daemon is shutting down");
+            self.refuse(q.active, &q.header, q.received_ns, e);
+        }
+        self.join_in_flight(true);
+        let pending: Vec<ControlActive> = self.control_pending.drain().map(|(_, a)| a).collect();
+        for active in pending {
+            self.control_answer(
+                active,
+                Status::ShuttingDown,
+                "the daemon is shutting down",
+                &[],
+            );
+        }
+    }
+
+    /// Waits until no worker reads shared memory any more.
+    fn join_in_flight(&mut self, answer: bool) {
+        while !self.in_flight.is_empty() {
+            match self.done_rx.recv_timeout(Duration::from_secs(5)) {
+                Ok(c) if answer => self.finish(c),
+                Ok(c) => {
+                    self.in_flight.remove(&c.job);
+                }
+                Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
+                    tracing::warn!(
+                        running = self.in_flight.len(),
+                        "waiting for running detections"
+                    );
+                }
+                Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => break,
+            }
+        }
+    }
+}
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        // Workers read the frames held in `in_flight`: never release them under a worker.
+        self.join_in_flight(false);
+    }
+}

@@ -1,0 +1,25 @@
+//! The ppfd daemon: holds object models in memory and answers detect requests from co-located
+//! processes over iceoryx2 shared memory.
+//!
+//! - [`daemon::run`] owns every iceoryx2 port on one I/O thread that sleeps on a WaitSet, keeps
+//!   the newest frame of each camera as the shared-memory sample itself, queues requests, and
+//!   runs detections on a rayon pool.
+//! - A [`engine::DetectionEngine`] does the matching: [`ppf_engine::PpfEngine`] wraps
+//!   `ppfd_models`; the daemon itself knows nothing of the method.
+//! - [`registry::Registry`] holds the loaded models; [`config::DaemonConfig`] the settings (TOML
+//!   file and flags); [`stats::Stats`] the counters and latency histograms.
+//!
+//! The wire contract is `ppfd_protocol`; clients use `ppfd_client`.
+
+pub mod cli;
+pub mod config;
+pub mod daemon;
+pub mod engine;
+pub mod ppf_engine;
+pub mod registry;
+pub mod stats;
+pub mod wakeup;
+
+pub use config::DaemonConfig;
+pub use daemon::{run, DaemonError};
+pub use engine::DetectionEngine;

@@ -1,0 +1,350 @@
+//! The production engine: `ppfd_models`' detector over memory-mapped model files.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use ppfd_models::camera::{DepthFrame, Intrinsics};
+use ppfd_models::detector::{DetectOptions as ModelOptions, Detector};
+use ppfd_models::mesh::Mesh;
+use ppfd_models::model::{ModelParams, ObjectModel};
+use ppfd_models::store;
+use ppfd_protocol::control::ModelInfo;
+use ppfd_protocol::detect::{DetectCounts, LatencyBreakdown, PoseHypothesis, Status};
+use ppfd_protocol::text;
+
+use crate::engine::{
+    DetectOptions, DetectionEngine, EngineError, EngineOutput, FrameView, LoadedModel,
+};
+
+/// Extension of model files.
+pub const MODEL_EXTENSION: &str = "ppfm";
+
+/// Detection with `ppfd_models::detector::Detector`; models are `.ppfm` files (mapped, not
+/// read) or PLY meshes, built once and saved as `.ppfm` for the next start.
+#[derive(Debug, Default)]
+pub struct PpfEngine {
+    detector: Detector,
+    model_params: ModelParams,
+}
+
+impl PpfEngine {
+    /// An engine with the given parameters.
+    pub fn new(detector: Detector, model_params: ModelParams) -> Self {
+        PpfEngine {
+            detector,
+            model_params,
+        }
+    }
+}
+
+fn ext_is(path: &Path, ext: &str) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case(ext))
+}
+
+/// The object id a file name implies: the digits of its stem (`obj_000005.ply` → 5).
+pub fn object_id_of_file(path: &Path) -> Option<u32> {
+    let stem = path.file_stem()?.to_str()?;
+    let digits: String = stem
+        .chars()
+        .rev()
+        .take_while(|c| c.is_ascii_digit())
+        .collect();
+    digits.chars().rev().collect::<String>().parse().ok()
+}
+
+fn model_error(e: ppfd_models::Error) -> EngineError {
+    use ppfd_models::Error;
+    let status = match &e {
+        Error::InvalidFrame(_) => Status::InvalidFrame,
+        Error::UnknownObject(_) => Status::UnknownObject,
+        Error::DeadlineExceeded { .. } => Status::DeadlineExceeded,
+        Error::InvalidParameter(_) => Status::InvalidRequest,
+        Error::Io { .. } | Error::Ply { .. } | Error::InvalidMesh(_) | Error::ModelStore { .. } => {
+            Status::ModelError
+        }
+        _ => Status::Internal,
+    };
+    let value = if let Error::UnknownObject(id) = e {
+        id as u64
+    } else {
+        0
+    };
+    EngineError {
+        status,
+        message: e.to_string(),
+        value,
+    }
+}
+
+fn info_of(model: &ObjectModel) -> ModelInfo {
+    ModelInfo {
+        object_id: model.object_id(),
+        point_count: model.point_count() as u32,
+        table_entries: model.table_entry_count() as u64,
+        byte_size: model.byte_size() as u64,
+        diameter_mm: model.diameter_mm(),
+        name: text::encode_truncated(model.name()),
+        ..Default::default()
+    }
+}
+
+fn loaded(model: ObjectModel, source: &Path) -> LoadedModel {
+    LoadedModel {
+        info: info_of(&model),
+        source: source.to_path_buf(),
+        data: Box::new(model),
+    }
+}
+
+impl PpfEngine {
+    fn cache_path(ply: &Path, cache_dir: Option<&Path>) -> PathBuf {
+        let name = ply.with_extension(MODEL_EXTENSION);
+        match (cache_dir, name.file_name()) {
+            (Some(dir), Some(file)) => dir.join(file),
+            _ => name,
+        }
+    }
+
+    fn load_ply(
+        &self,
+        path: &Path,
+        object_id: Option<u32>,
+        cache_dir: Option<&Path>,
+    ) -> Result<LoadedModel, EngineError> {
+        let id = object_id
+            .or_else(|| object_id_of_file(path))
+            .ok_or_else(|| {
+                EngineError::new(
+                    Status::ModelError,
+                    format!(
+                        "{}: no object id: name the file obj_<id>.ply or give an id",
+                        path.display()
+                    ),
+                )
+            })?;
+        let cache = Self::cache_path(path, cache_dir);
+        if cache.is_file() {
+            match store::load_expecting(&cache, &self.model_params) {
+                Ok(model) if model.object_id() == id => {
+                    tracing::info!(path = %cache.display(), "using the model built earlier");
+                    return Ok(loaded(model, &cache));
+                }
+                Ok(model) => tracing::info!(
+                    path = %cache.display(),
+                    cached = model.object_id(),
+                    wanted = id,
+                    "cached model has another object id; rebuilding"
+                ),
+                Err(e) => {
+                    tracing::info!(path = %cache.display(), reason = %e, "cached model refused; rebuilding")
+                }
+            }
+        }
+        let started = std::time::Instant::now();
+        let mesh = Mesh::from_ply_file(path).map_err(model_error)?;
+        let name = path
+            .file_stem()
+            .and_then(|s| s.to_str())
+            .unwrap_or("object");
+        let model = ObjectModel::build(&mesh, id, name, &self.model_params).map_err(model_error)?;
+        tracing::info!(
+            path = %path.display(),
+            object_id = id,
+            points = model.point_count(),
+            ms = started.elapsed().as_millis() as u64,
+            "model built from mesh"
+        );
+        if let Some(dir) = cache.parent() {
+            let _ = std::fs::create_dir_all(dir);
+        }
+        match store::save(&model, &cache) {
+            // Map the saved file: its pages are shared and evictable, unlike the built copy.
+            Ok(()) => match store::load(&cache) {
+                Ok(mapped) => Ok(loaded(mapped, &cache)),
+                Err(_) => Ok(loaded(model, path)),
+            },
+            Err(e) => {
+                tracing::warn!(path = %cache.display(), error = %e, "built model not cached");
+                Ok(loaded(model, path))
+            }
+        }
+    }
+}
+
+impl DetectionEngine for PpfEngine {
+    fn name(&self) -> &'static str {
+        "ppf"
+    }
+
+    fn accepts(&self, path: &Path) -> bool {
+        ext_is(path, MODEL_EXTENSION) || ext_is(path, "ply")
+    }
+
+    fn select(&self, files: Vec<PathBuf>) -> Vec<PathBuf> {
+        // A PLY mesh with a model file beside it is served from the model file.
+        let models: Vec<&PathBuf> = files
+            .iter()
+            .filter(|p| ext_is(p, MODEL_EXTENSION))
+            .collect();
+        let mut out: Vec<PathBuf> = models.iter().map(|p| (*p).clone()).collect();
+        for p in &files {
+            if ext_is(p, "ply") && !models.iter().any(|m| m.file_stem() == p.file_stem()) {
+                out.push(p.clone());
+            }
+        }
+        out
+    }
+
+    fn load(
+        &self,
+        path: &Path,
+        object_id: Option<u32>,
+        cache_dir: Option<&Path>,
+    ) -> Result<LoadedModel, EngineError> {
+        if ext_is(path, "ply") {
+            return self.load_ply(path, object_id, cache_dir);
+        }
+        let model = store::load(path).map_err(model_error)?;
+        if let Some(id) = object_id {
+            if id != model.object_id() {
+                return Err(EngineError::new(
+                    Status::ModelError,
+                    format!(
+                        "{} holds object {}, not {id}",
+                        path.display(),
+                        model.object_id()
+                    ),
+                ));
+            }
+        }
+        Ok(loaded(model, path))
+    }
+
+    fn detect(
+        &self,
+        frame: &FrameView<'_>,
+        models: &[Arc<LoadedModel>],
+        options: &DetectOptions,
+    ) -> Result<EngineOutput, EngineError> {
+        let k = frame.intrinsics;
+        let depth_frame = DepthFrame {
+            width: frame.width,
+            height: frame.height,
+            intrinsics: Intrinsics {
+                fx: k.fx,
+                fy: k.fy,
+                cx: k.cx,
+                cy: k.cy,
+            },
+            depth_scale_mm: frame.depth_scale_mm,
+            depth: frame.depth,
+        };
+        let object_models: Vec<&ObjectModel> = models
+            .iter()
+            .map(|m| {
+                m.data.downcast_ref::<ObjectModel>().ok_or_else(|| {
+                    EngineError::new(
+                        Status::Internal,
+                        format!("model {} was not loaded by this engine", m.info.object_id),
+                    )
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        let opts = ModelOptions {
+            hypotheses_per_object: options.hypotheses_per_object,
+            deadline: options.deadline,
+        };
+        let found = self
+            .detector
+            .detect(&depth_frame, &object_models, &opts)
+            .map_err(model_error)?;
+
+        let mut hypotheses = Vec::new();
+        for object in &found.objects {
+            for (rank, h) in object
+                .hypotheses
+                .iter()
+                .take(options.hypotheses_per_object)
+                .enumerate()
+            {
+                let r = h.pose.rotation.to_rotation_matrix();
+                let m = r.matrix();
+                let t = h.pose.translation.vector;
+                hypotheses.push(PoseHypothesis {
+                    object_id: object.object_id,
+                    instance_rank: rank as u32,
+                    rotation: [
+                        m[(0, 0)],
+                        m[(0, 1)],
+                        m[(0, 2)],
+                        m[(1, 0)],
+                        m[(1, 1)],
+                        m[(1, 2)],
+                        m[(2, 0)],
+                        m[(2, 1)],
+                        m[(2, 2)],
+                    ],
+                    translation_mm: [t.x, t.y, t.z],
+                    score: h.score,
+                    votes: h.votes,
+                    checks: h.checks.0,
+                });
+            }
+        }
+        let ns = |d: std::time::Duration| d.as_nanos() as u64;
+        let t = &found.timings;
+        Ok(EngineOutput {
+            hypotheses,
+            stages: LatencyBreakdown {
+                scene_preparation_ns: ns(t.scene_preparation),
+                kd_tree_ns: ns(t.kd_tree),
+                voting_ns: ns(t.voting),
+                clustering_ns: ns(t.clustering),
+                rescoring_ns: ns(t.rescoring),
+                icp_ns: ns(t.icp),
+                filters_ns: ns(t.filters),
+                ..Default::default()
+            },
+            counts: DetectCounts {
+                scene_points: found.counts.scene_points,
+                reference_points: found.counts.reference_points,
+                pairs: found.counts.pairs,
+                hypotheses: found.counts.hypotheses,
+                returned: 0,
+            },
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn object_ids_come_from_trailing_digits() {
+        assert_eq!(object_id_of_file(Path::new("/m/obj_000005.ply")), Some(5));
+        assert_eq!(object_id_of_file(Path::new("part12.ppfm")), Some(12));
+        assert_eq!(object_id_of_file(Path::new("duck.ply")), None);
+    }
+
+    #[test]
+    fn a_mesh_with_a_model_beside_it_is_served_from_the_model() {
+        let e = PpfEngine::default();
+        let files = vec![
+            PathBuf::from("d/obj_000001.ply"),
+            PathBuf::from("d/obj_000001.ppfm"),
+            PathBuf::from("d/obj_000002.ply"),
+            PathBuf::from("d/readme.txt"),
+        ];
+        let chosen = e.select(files);
+        assert_eq!(
+            chosen,
+            vec![
+                PathBuf::from("d/obj_000001.ppfm"),
+                PathBuf::from("d/obj_000002.ply")
+            ]
+        );
+    }
+}

@@ -1,0 +1,108 @@
+//! The loaded models, by object id. Owned by the I/O thread; a running detection holds `Arc`s
+//! of its models, so dropping a model never pulls it from under a worker.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use ppfd_protocol::control::ModelInfo;
+use ppfd_protocol::detect::Status;
+
+use crate::engine::{DetectionEngine, EngineError, LoadedModel};
+
+/// Models by object id.
+#[derive(Default)]
+pub struct Registry {
+    models: BTreeMap<u32, Arc<LoadedModel>>,
+}
+
+impl Registry {
+    /// Loads every file of `dir` that the engine takes. Returns the errors of the files that
+    /// failed (the others stay loaded).
+    pub fn load_dir(
+        &mut self,
+        engine: &dyn DetectionEngine,
+        dir: &Path,
+        cache_dir: Option<&Path>,
+    ) -> Result<Vec<(PathBuf, EngineError)>, String> {
+        let entries = std::fs::read_dir(dir)
+            .map_err(|e| format!("model directory {}: {e}", dir.display()))?;
+        let mut files: Vec<PathBuf> = entries
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.is_file())
+            .collect();
+        files.sort();
+        let mut failures = Vec::new();
+        for path in engine.select(files) {
+            match engine.load(&path, None, cache_dir) {
+                Ok(model) => {
+                    tracing::info!(
+                        object_id = model.info.object_id,
+                        name = %model.info.name(),
+                        bytes = model.info.byte_size,
+                        path = %path.display(),
+                        "model loaded"
+                    );
+                    self.insert(model);
+                }
+                Err(e) => {
+                    tracing::error!(path = %path.display(), error = %e, "model not loaded");
+                    failures.push((path, e));
+                }
+            }
+        }
+        Ok(failures)
+    }
+
+    /// Adds a model, replacing one of the same id.
+    pub fn insert(&mut self, model: LoadedModel) -> Option<Arc<LoadedModel>> {
+        self.models.insert(model.info.object_id, Arc::new(model))
+    }
+
+    /// Drops a model.
+    pub fn remove(&mut self, object_id: u32) -> Option<Arc<LoadedModel>> {
+        self.models.remove(&object_id)
+    }
+
+    /// The models of `ids`, in that order, or the first unknown id.
+    pub fn resolve(&self, ids: &[u32]) -> Result<Vec<Arc<LoadedModel>>, EngineError> {
+        ids.iter()
+            .map(|id| {
+                self.models.get(id).cloned().ok_or_else(|| EngineError {
+                    status: Status::UnknownObject,
+                    message: format!("unknown object id {id}: loaded are {}", self.id_list()),
+                    value: *id as u64,
+                })
+            })
+            .collect()
+    }
+
+    /// What `ListModels` reports, by object id.
+    pub fn infos(&self) -> Vec<ModelInfo> {
+        self.models.values().map(|m| m.info).collect()
+    }
+
+    /// Number of models.
+    pub fn len(&self) -> usize {
+        self.models.len()
+    }
+
+    /// Whether no model is loaded.
+    pub fn is_empty(&self) -> bool {
+        self.models.is_empty()
+    }
+
+    /// Bytes of all models.
+    pub fn bytes(&self) -> u64 {
+        self.models.values().map(|m| m.info.byte_size).sum()
+    }
+
+    fn id_list(&self) -> String {
+        if self.models.is_empty() {
+            return "none".into();
+        }
+        let ids: Vec<String> = self.models.keys().take(16).map(|k| k.to_string()).collect();
+        let more = if self.models.len() > 16 { ", ..." } else { "" };
+        format!("{}{more}", ids.join(", "))
+    }
+}

@@ -1,0 +1,128 @@
+//! Daemon statistics: counters and HDR latency histograms, read by the `Statistics` control
+//! command.
+
+use std::time::Instant;
+
+use hdrhistogram::Histogram;
+use ppfd_protocol::control::{DaemonStats, LatencySummary};
+
+/// Counters and latency histograms since the daemon started.
+pub struct Stats {
+    started: Instant,
+    /// See [`DaemonStats`].
+    pub requests_received: u64,
+    pub requests_served: u64,
+    pub requests_refused: u64,
+    pub requests_expired: u64,
+    pub requests_abandoned: u64,
+    pub frames_received: u64,
+    total: Histogram<u64>,
+    overhead: Histogram<u64>,
+    detection: Histogram<u64>,
+}
+
+fn histogram() -> Histogram<u64> {
+    // 1 µs .. 1 h at 3 significant digits; values are recorded in ns and clamped.
+    Histogram::new_with_bounds(1, 3_600_000_000_000, 3).expect("valid histogram bounds")
+}
+
+fn summary(h: &Histogram<u64>) -> LatencySummary {
+    if h.is_empty() {
+        return LatencySummary::default();
+    }
+    LatencySummary {
+        count: h.len(),
+        p50_ns: h.value_at_quantile(0.50),
+        p90_ns: h.value_at_quantile(0.90),
+        p99_ns: h.value_at_quantile(0.99),
+        max_ns: h.max(),
+    }
+}
+
+impl Default for Stats {
+    fn default() -> Self {
+        Stats {
+            started: Instant::now(),
+            requests_received: 0,
+            requests_served: 0,
+            requests_refused: 0,
+            requests_expired: 0,
+            requests_abandoned: 0,
+            frames_received: 0,
+            total: histogram(),
+            overhead: histogram(),
+            detection: histogram(),
+        }
+    }
+}
+
+impl Stats {
+    /// Records a served request.
+    pub fn record_served(&mut self, total_ns: u64, overhead_ns: u64, detection_ns: u64) {
+        self.requests_served += 1;
+        self.total.saturating_record(total_ns.max(1));
+        self.overhead.saturating_record(overhead_ns.max(1));
+        self.detection.saturating_record(detection_ns.max(1));
+    }
+
+    /// The wire form; the caller fills what the statistics do not know (models, queue).
+    pub fn snapshot(&self) -> DaemonStats {
+        DaemonStats {
+            uptime_ns: self.started.elapsed().as_nanos() as u64,
+            requests_received: self.requests_received,
+            requests_served: self.requests_served,
+            requests_refused: self.requests_refused,
+            requests_expired: self.requests_expired,
+            requests_abandoned: self.requests_abandoned,
+            frames_received: self.frames_received,
+            resident_bytes: resident_bytes(),
+            total: summary(&self.total),
+            overhead: summary(&self.overhead),
+            detection: summary(&self.detection),
+            ..DaemonStats::default()
+        }
+    }
+}
+
+/// Resident set size of this process, bytes (0 where `/proc` is not available).
+pub fn resident_bytes() -> u64 {
+    let Ok(statm) = std::fs::read_to_string("/proc/self/statm") else {
+        return 0;
+    };
+    let pages: u64 = statm
+        .split_whitespace()
+        .nth(1)
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
+    // SAFETY: sysconf has no preconditions.
+    let page = unsafe { libc::sysconf(libc::_SC_PAGESIZE) };
+    pages * page.max(0) as u64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn percentiles_follow_the_recorded_samples() {
+        let mut s = Stats::default();
+        for i in 1..=100u64 {
+            s.record_served(i * 1000, i * 10, i * 990);
+        }
+        let snap = s.snapshot();
+        assert_eq!(snap.requests_served, 100);
+        assert_eq!(snap.total.count, 100);
+        assert!(
+            (49_000..=51_000).contains(&snap.total.p50_ns),
+            "{:?}",
+            snap.total
+        );
+        assert!(
+            (98_000..=100_100).contains(&snap.total.p99_ns),
+            "{:?}",
+            snap.total
+        );
+        assert!(snap.total.max_ns >= 100_000);
+        assert!(snap.resident_bytes > 0);
+    }
+}

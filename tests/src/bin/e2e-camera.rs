@@ -1,0 +1,84 @@
+//! A camera driver for the end-to-end tests: publishes VGA frames of a flat wall, or one frame of
+//! a BOP dataset (`--bop <root> --scene <id> --image <id>`), at `--fps`, `--frames` times (0: until killed), then
+//! stays alive without publishing (a camera that stopped). Prints `camera ready` when its service
+//! exists and `frame <seq>` per frame.
+
+use std::io::Write;
+use std::time::{Duration, Instant};
+
+use ppfd_client::{CameraPublisher, Intrinsics};
+
+fn arg(args: &[String], name: &str) -> Option<String> {
+    args.iter()
+        .position(|a| a == name)
+        .and_then(|i| args.get(i + 1))
+        .cloned()
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let prefix = arg(&args, "--prefix");
+    let camera = arg(&args, "--camera").unwrap_or_else(|| "cam0".into());
+    let fps: f64 = arg(&args, "--fps")
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(30.0);
+    let frames: u64 = arg(&args, "--frames")
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0);
+    let (width, height, intrinsics, scale, depth) = match arg(&args, "--bop") {
+        Some(root) => {
+            let scene: u32 = arg(&args, "--scene")
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(0);
+            let image: u32 = arg(&args, "--image")
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(0);
+            let dataset = ppfd_models::bop::BopDataset::open(&root).expect("BOP dataset");
+            let f = dataset.depth_frame(scene, image).expect("depth frame");
+            let k = f.intrinsics;
+            let k = Intrinsics {
+                fx: k.fx,
+                fy: k.fy,
+                cx: k.cx,
+                cy: k.cy,
+            };
+            (f.width, f.height, k, f.depth_scale_mm, f.depth)
+        }
+        None => (
+            640u32,
+            480u32,
+            Intrinsics::LMO,
+            1.0f32,
+            vec![800u16; 640 * 480],
+        ),
+    };
+    let mut publisher = CameraPublisher::new(
+        prefix.as_deref(),
+        &camera,
+        7,
+        width,
+        height,
+        intrinsics,
+        scale,
+    )
+    .expect("camera publisher");
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "camera ready").unwrap();
+    out.flush().unwrap();
+    let period = Duration::from_secs_f64(1.0 / fps.max(0.1));
+    let mut next = Instant::now();
+    let mut sent = 0;
+    while frames == 0 || sent < frames {
+        let seq = publisher.publish(&depth).expect("publish");
+        sent += 1;
+        writeln!(out, "frame {seq}").unwrap();
+        out.flush().unwrap();
+        next += period;
+        std::thread::sleep(next.saturating_duration_since(Instant::now()));
+    }
+    writeln!(out, "camera stopped").unwrap();
+    out.flush().unwrap();
+    loop {
+        std::thread::sleep(Duration::from_secs(3600));
+    }
+}

@@ -1,0 +1,73 @@
+//! A robot process for the end-to-end tests: `--requests N` detect calls on `--camera` for
+//! `--objects a,b`, `--pause-ms` apart. Prints `client ready`, then per request
+//! `ok <request id> <hypotheses> <frame sequence>` or `err <status code> <value> <message>`, then
+//! `done`.
+
+use std::io::Write;
+use std::time::Duration;
+
+use ppfd_client::{Client, ClientOptions, DetectOptions, Error};
+
+fn arg(args: &[String], name: &str) -> Option<String> {
+    args.iter()
+        .position(|a| a == name)
+        .and_then(|i| args.get(i + 1))
+        .cloned()
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let options = ClientOptions {
+        prefix: arg(&args, "--prefix"),
+        ..Default::default()
+    };
+    let camera = arg(&args, "--camera").unwrap_or_else(|| "cam0".into());
+    let objects: Vec<u32> = arg(&args, "--objects")
+        .unwrap_or_else(|| "1".into())
+        .split(',')
+        .filter_map(|s| s.parse().ok())
+        .collect();
+    let requests: u64 = arg(&args, "--requests")
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1);
+    let pause = Duration::from_millis(
+        arg(&args, "--pause-ms")
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(0),
+    );
+    let timeout = Duration::from_millis(
+        arg(&args, "--timeout-ms")
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(5000),
+    );
+    let client = Client::connect_with(&options).expect("connect");
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "client ready").unwrap();
+    out.flush().unwrap();
+    let detect = DetectOptions {
+        timeout,
+        ..Default::default()
+    };
+    for _ in 0..requests {
+        match client.detect(&camera, &objects, &detect) {
+            Ok(d) => writeln!(
+                out,
+                "ok {} {} {}",
+                d.request_id,
+                d.hypotheses.len(),
+                d.frame_sequence
+            )
+            .unwrap(),
+            Err(Error::Refused {
+                status,
+                value,
+                message,
+            }) => writeln!(out, "err {} {value} {message}", status.code()).unwrap(),
+            Err(e) => writeln!(out, "err transport 0 {e}").unwrap(),
+        }
+        out.flush().unwrap();
+        std::thread::sleep(pause);
+    }
+    writeln!(out, "done").unwrap();
+    out.flush().unwrap();
+}

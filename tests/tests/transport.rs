@@ -1,0 +1,403 @@
+//! End-to-end tests of the transport: the real daemon (with a matching engine that only
+//! answers), a camera process and client processes, each test under its own iceoryx2 prefix.
+
+use std::path::Path;
+use std::time::Duration;
+
+use ppfd_tests::{fake_model_dir, Prefix, Proc};
+
+const DAEMON: &str = env!("CARGO_BIN_EXE_e2e-daemon");
+const CAMERA: &str = env!("CARGO_BIN_EXE_e2e-camera");
+const CLIENT: &str = env!("CARGO_BIN_EXE_e2e-client");
+const STARTUP: Duration = Duration::from_secs(20);
+
+fn daemon(prefix: &Prefix, models: &Path, extra: &[&str], delay_ms: &str) -> Proc {
+    daemon_with(prefix, models, extra, &[("PPFD_FAKE_DELAY_MS", delay_ms)])
+}
+
+fn daemon_with(prefix: &Prefix, models: &Path, extra: &[&str], env: &[(&str, &str)]) -> Proc {
+    let mut args = vec![
+        "--prefix",
+        &prefix.0,
+        "--models",
+        models.to_str().unwrap(),
+        "--housekeeping-ms",
+        "100",
+    ];
+    args.extend_from_slice(extra);
+    let mut envs = vec![("PPFD_TEST_ENGINE", "fake")];
+    envs.extend_from_slice(env);
+    let mut d = Proc::spawn(Path::new(DAEMON), &args, &envs);
+    d.wait_line("ppfd ready", STARTUP);
+    d
+}
+
+fn camera(prefix: &Prefix, name: &str, extra: &[&str]) -> Proc {
+    let mut args = vec!["--prefix", &prefix.0, "--camera", name];
+    args.extend_from_slice(extra);
+    let mut c = Proc::spawn(Path::new(CAMERA), &args, &[]);
+    c.wait_line("camera ready", STARTUP);
+    c
+}
+
+fn client(prefix: &Prefix, args: &[&str]) -> Proc {
+    let mut all = vec!["--prefix", &prefix.0];
+    all.extend_from_slice(args);
+    Proc::spawn(Path::new(CLIENT), &all, &[])
+}
+
+/// Reads a client's result lines up to `done`.
+fn results(c: &mut Proc, timeout: Duration) -> Vec<String> {
+    c.wait_line("client ready", STARTUP);
+    let mut lines = Vec::new();
+    loop {
+        let line = c.wait_line("", timeout);
+        if line == "done" {
+            return lines;
+        }
+        lines.push(line);
+    }
+}
+
+#[test]
+fn two_clients_are_served_from_a_camera_and_the_daemon_stops_cleanly() {
+    let prefix = Prefix::new("serve");
+    let models = fake_model_dir("serve", &[1, 2, 3]);
+    let mut d = daemon(&prefix, &models, &[], "2");
+    let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let mut a = client(
+        &prefix,
+        &["--camera", "cam0", "--objects", "1,2", "--requests", "20"],
+    );
+    let mut b = client(
+        &prefix,
+        &["--camera", "cam0", "--objects", "3", "--requests", "20"],
+    );
+    for (c, hyps) in [(&mut a, "2"), (&mut b, "1")] {
+        let lines = results(c, Duration::from_secs(10));
+        assert_eq!(lines.len(), 20);
+        for l in &lines {
+            let f: Vec<&str> = l.split(' ').collect();
+            assert_eq!(f[0], "ok", "{l}");
+            assert_eq!(f[2], hyps, "{l}");
+            assert!(
+                f[3].parse::<u64>().unwrap() > 0,
+                "a camera frame was used: {l}"
+            );
+        }
+    }
+    d.signal(libc::SIGTERM);
+    let status = d
+        .wait_exit(Duration::from_secs(5))
+        .expect("daemon stops on SIGTERM");
+    assert!(status.success(), "{status:?}");
+}
+
+fn connect(prefix: &Prefix) -> ppfd_client::Client {
+    let options = ppfd_client::ClientOptions {
+        prefix: Some(prefix.0.clone()),
+        inline_frame_capacity: 640 * 480,
+        ..Default::default()
+    };
+    ppfd_client::Client::connect_with(&options).expect("client connects")
+}
+
+fn refusal(r: ppfd_client::Result<ppfd_client::Detections>) -> (ppfd_client::Status, u64, String) {
+    match r {
+        Err(ppfd_client::Error::Refused {
+            status,
+            value,
+            message,
+        }) => (status, value, message),
+        other => panic!("expected a refusal, got {other:?}"),
+    }
+}
+
+#[test]
+fn a_camera_that_stops_is_reported_stale_with_the_age_of_its_last_frame() {
+    use ppfd_client::{DetectOptions, Status};
+    let prefix = Prefix::new("stale");
+    let models = fake_model_dir("stale", &[1]);
+    let _d = daemon(&prefix, &models, &["--max-frame-age-ms", "1000"], "0");
+    let mut cam = camera(&prefix, "cam0", &["--fps", "50", "--frames", "5"]);
+    cam.wait_line("camera stopped", STARTUP);
+    let client = connect(&prefix);
+    let opts = DetectOptions::default();
+    // Fresh enough right after the last frame (the limit is 1 s; generous for a loaded machine).
+    client
+        .detect("cam0", &[1], &opts)
+        .expect("fresh frame served");
+    std::thread::sleep(Duration::from_millis(1500));
+    let (status, age_ns, message) = refusal(client.detect("cam0", &[1], &opts));
+    assert_eq!(status, Status::CameraStale, "{message}");
+    assert!(
+        (1_500_000_000..10_000_000_000).contains(&age_ns),
+        "age {age_ns} ns: {message}"
+    );
+    assert!(message.contains("ms old"), "{message}");
+    // A request may accept older frames.
+    let lenient = DetectOptions {
+        max_frame_age: Some(Duration::from_secs(60)),
+        ..opts
+    };
+    client
+        .detect("cam0", &[1], &lenient)
+        .expect("served with a larger age limit");
+}
+
+#[test]
+fn malformed_requests_are_refused_each_with_its_error_and_the_daemon_keeps_serving() {
+    use ppfd_client::protocol::detect::{flags, DetectRequestHeader};
+    use ppfd_client::protocol::{text, PROTOCOL_VERSION};
+    use ppfd_client::{DetectOptions, FrameHeader, Intrinsics, Status};
+    let prefix = Prefix::new("malformed");
+    let models = fake_model_dir("malformed", &[1, 2]);
+    let _d = daemon(&prefix, &models, &[], "0");
+    let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let client = connect(&prefix);
+    let opts = DetectOptions::default();
+    let t = Duration::from_secs(5);
+
+    let (status, value, message) = refusal(client.detect("cam0", &[1, 99], &opts));
+    assert_eq!((status, value), (Status::UnknownObject, 99), "{message}");
+
+    let (status, _, message) = refusal(client.detect("nocam", &[1], &opts));
+    assert_eq!(status, Status::UnknownCamera, "{message}");
+
+    let good = DetectRequestHeader {
+        camera_name: text::encode_name("camera", "cam0").unwrap(),
+        object_count: 1,
+        object_ids: {
+            let mut ids = [0; 32];
+            ids[0] = 1;
+            ids
+        },
+        ..Default::default()
+    };
+    let mut empty = good;
+    empty.object_count = 0;
+    let (status, _, message) = refusal(client.send_raw(&empty, &[], t));
+    assert_eq!(status, Status::EmptyObjectList, "{message}");
+
+    let mut version = good;
+    version.protocol_version = PROTOCOL_VERSION + 1;
+    let (status, value, message) = refusal(client.send_raw(&version, &[], t));
+    assert_eq!(
+        (status, value),
+        (Status::ProtocolVersion, PROTOCOL_VERSION as u64),
+        "{message}"
+    );
+
+    let frame = FrameHeader {
+        width: 640,
+        height: 480,
+        intrinsics: Intrinsics::LMO,
+        ..Default::default()
+    };
+    let mut inline = good;
+    inline.flags = flags::INLINE_FRAME;
+    inline.inline_frame = frame;
+    let depth = vec![800u16; 640 * 480];
+    let (status, _, message) = refusal(client.send_raw(&inline, &depth[..1000], t));
+    assert_eq!(status, Status::InvalidFrame, "{message}");
+    assert!(
+        message.contains("307200") && message.contains("1000"),
+        "{message}"
+    );
+
+    for bad in [0.0, f32::NAN] {
+        let mut k = inline;
+        k.inline_frame.intrinsics.fx = bad;
+        let (status, _, message) = refusal(client.send_raw(&k, &depth, t));
+        assert_eq!(status, Status::InvalidIntrinsics, "{message}");
+    }
+
+    // Still serving, from the camera and inline.
+    let found = client
+        .detect("cam0", &[1, 2], &opts)
+        .expect("camera request served");
+    assert_eq!(found.hypotheses.len(), 2);
+    let found = client
+        .detect_inline(&frame, &depth, &[2], &opts)
+        .expect("inline request served");
+    assert_eq!(found.hypotheses[0].object_id, 2);
+    assert!(
+        (found.hypotheses[0].translation_mm[2] - 800.0).abs() < 1e-3,
+        "the daemon read the inline depth"
+    );
+    let stats = client.stats().unwrap();
+    assert!(
+        stats.requests_refused >= 7 && stats.requests_served >= 2,
+        "{stats:?}"
+    );
+}
+
+#[test]
+fn a_client_killed_mid_request_does_not_stall_the_next_one() {
+    let prefix = Prefix::new("killed");
+    let models = fake_model_dir("killed", &[1]);
+    let _d = daemon(&prefix, &models, &[], "300");
+    let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let mut victim = client(
+        &prefix,
+        &["--camera", "cam0", "--objects", "1", "--requests", "3"],
+    );
+    victim.wait_line("client ready", STARTUP);
+    std::thread::sleep(Duration::from_millis(100));
+    victim.signal(libc::SIGKILL);
+    victim
+        .wait_exit(Duration::from_secs(5))
+        .expect("victim died");
+
+    let client = connect(&prefix);
+    let started = std::time::Instant::now();
+    let found = client
+        .detect("cam0", &[1], &ppfd_client::DetectOptions::default())
+        .expect("next client served");
+    assert_eq!(found.hypotheses.len(), 1);
+    // At most the victim's running detection (300 ms) stands before ours.
+    assert!(
+        started.elapsed() < Duration::from_millis(3000),
+        "{:?}",
+        started.elapsed()
+    );
+    let mut other = client_proc_served(&prefix);
+    assert!(other.iter_mut().all(|l| l.starts_with("ok")), "{other:?}");
+}
+
+fn client_proc_served(prefix: &Prefix) -> Vec<String> {
+    let mut c = client(
+        prefix,
+        &["--camera", "cam0", "--objects", "1", "--requests", "2"],
+    );
+    results(&mut c, Duration::from_secs(10))
+}
+
+#[test]
+fn clients_reconnect_to_a_restarted_daemon() {
+    let prefix = Prefix::new("restart");
+    let models = fake_model_dir("restart", &[1]);
+    let mut d = daemon(&prefix, &models, &[], "0");
+    let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let client = connect(&prefix);
+    let opts = ppfd_client::DetectOptions {
+        timeout: Duration::from_millis(2000),
+        ..Default::default()
+    };
+    client
+        .detect("cam0", &[1], &opts)
+        .expect("served before the crash");
+
+    d.signal(libc::SIGKILL);
+    d.wait_exit(Duration::from_secs(5)).expect("daemon killed");
+    assert!(
+        client.detect("cam0", &[1], &opts).is_err(),
+        "no daemon, no answer"
+    );
+
+    // The new daemon removes what the dead one left and serves the same client again.
+    let _d2 = daemon(&prefix, &models, &[], "0");
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    loop {
+        match client.detect("cam0", &[1], &opts) {
+            Ok(found) => {
+                assert_eq!(found.hypotheses.len(), 1);
+                break;
+            }
+            Err(e) if std::time::Instant::now() < deadline => {
+                eprintln!("not yet: {e}");
+                std::thread::sleep(Duration::from_millis(100));
+            }
+            Err(e) => panic!("the client never got through to the restarted daemon: {e}"),
+        }
+    }
+}
+
+#[test]
+fn the_engine_reads_depth_in_place_in_shared_memory() {
+    // The engine refuses any frame whose values do not lie in one /dev/shm mapping of the
+    // daemon: a copy anywhere between the camera's (or client's) write and the engine's read
+    // would put them on the heap.
+    let prefix = Prefix::new("inplace");
+    let models = fake_model_dir("inplace", &[1]);
+    let _d = daemon_with(&prefix, &models, &[], &[("PPFD_FAKE_CHECK_SHM", "1")]);
+    let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let client = connect(&prefix);
+    let opts = ppfd_client::DetectOptions::default();
+    let found = client
+        .detect("cam0", &[1], &opts)
+        .expect("camera frame read in place");
+    assert!((found.hypotheses[0].translation_mm[2] - 800.0).abs() < 1e-3);
+    let frame = ppfd_client::FrameHeader {
+        width: 640,
+        height: 480,
+        intrinsics: ppfd_client::Intrinsics::LMO,
+        ..Default::default()
+    };
+    let depth = vec![650u16; 640 * 480];
+    let found = client
+        .detect_inline(&frame, &depth, &[1], &opts)
+        .expect("inline frame read in place");
+    assert!((found.hypotheses[0].translation_mm[2] - 650.0).abs() < 1e-3);
+}
+
+#[test]
+fn models_are_listed_loaded_and_dropped_at_run_time() {
+    use ppfd_client::Status;
+    let prefix = Prefix::new("control");
+    let models = fake_model_dir("control", &[1, 2]);
+    let _d = daemon(&prefix, &models, &[], "0");
+    let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let client = connect(&prefix);
+    let ids = |c: &ppfd_client::Client| {
+        c.models()
+            .unwrap()
+            .iter()
+            .map(|m| m.object_id)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(ids(&client), vec![1, 2]);
+
+    let extra = models.join("extra.fake");
+    std::fs::write(&extra, "7 bolt\n").unwrap();
+    let loaded = client
+        .load_model(extra.to_str().unwrap(), 0)
+        .expect("model loaded");
+    assert_eq!((loaded.object_id, loaded.name().as_ref()), (7, "bolt"));
+    assert_eq!(ids(&client), vec![1, 2, 7]);
+    let opts = ppfd_client::DetectOptions::default();
+    client
+        .detect("cam0", &[7], &opts)
+        .expect("the new model is served");
+
+    client.drop_model(2).expect("model dropped");
+    assert_eq!(ids(&client), vec![1, 7]);
+    let (status, value, _) = refusal(client.detect("cam0", &[2], &opts));
+    assert_eq!((status, value), (Status::UnknownObject, 2));
+
+    match client.load_model("/nonexistent/x.fake", 0) {
+        Err(ppfd_client::Error::Refused {
+            status, message, ..
+        }) => {
+            assert_eq!(status, Status::ModelError);
+            assert!(message.contains("/nonexistent/x.fake"), "{message}");
+        }
+        other => panic!("{other:?}"),
+    }
+    assert!(matches!(
+        client.drop_model(99),
+        Err(ppfd_client::Error::Refused {
+            status: Status::UnknownObject,
+            ..
+        })
+    ));
+    let stats = client.stats().unwrap();
+    assert_eq!(stats.models_loaded, 2);
+    assert!(stats.cameras >= 1 && stats.frames_received > 0, "{stats:?}");
+}
