@@ -1,0 +1,169 @@
+//! Detection on the real LM-O frame (scene 2, image 3: eight objects on a cluttered table, a
+//! Kinect v1 depth image) read from `../shared/data/lmo`. Runs whenever the data is there, and
+//! must run in CI (`CI=true`); elsewhere it is skipped, with a message, when the data is absent.
+//!
+//! A pose counts as correct within 0.1 D and 15° of the ground truth, the smaller error over
+//! the object's discrete symmetries (the eggbox and the glue have one each).
+
+use std::path::PathBuf;
+
+use ppfd_models::bop::BopDataset;
+use ppfd_models::detector::{DetectOptions, DetectParams, Detections, Detector};
+use ppfd_models::mesh::Mesh;
+use ppfd_models::model::{ModelParams, ObjectModel};
+use ppfd_models::Pose;
+
+const SCENE: u32 = 2;
+const IMAGE: u32 = 3;
+
+/// The dataset folder, `None` (after saying why) when it is absent outside CI.
+fn dataset_dir() -> Option<PathBuf> {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/lmo");
+    if dir.join("test").is_dir() {
+        return Some(dir);
+    }
+    if std::env::var("CI").is_ok_and(|v| v == "true") {
+        panic!("CI=true but the LM-O data is missing at {}", dir.display());
+    }
+    eprintln!(
+        "skipped: no LM-O data at {} (the test runs when it is there)",
+        dir.display()
+    );
+    None
+}
+
+/// Translation (mm) and rotation (degrees) errors of `est`, the smallest over `symmetries`
+/// (identity included).
+fn errors(est: &Pose, truth: &Pose, symmetries: &[Pose]) -> (f32, f32) {
+    std::iter::once(Pose::identity())
+        .chain(symmetries.iter().copied())
+        .map(|s| {
+            let t = truth * s;
+            (
+                (est.translation.vector - t.translation.vector).norm(),
+                est.rotation.angle_to(&t.rotation).to_degrees(),
+            )
+        })
+        .min_by(|a, b| (a.0 + a.1).total_cmp(&(b.0 + b.1)))
+        .unwrap()
+}
+
+/// How many of the frame's objects have a correct pose among their 10 best clusters, and how
+/// many a correct best pose.
+struct Outcome {
+    clusters_ok: usize,
+    final_ok: usize,
+    objects: usize,
+}
+
+/// Detects the frame's objects with the default parameters and prints the error table.
+fn detect_frame(dir: &PathBuf) -> Outcome {
+    let dataset = BopDataset::open(dir).unwrap();
+    let truth = dataset.ground_truth(SCENE, IMAGE).unwrap().to_vec();
+    let visible = dataset.ground_truth_info(SCENE, IMAGE).unwrap().to_vec();
+    let models: Vec<ObjectModel> = truth
+        .iter()
+        .map(|g| {
+            let mesh = Mesh::from_ply_file(dataset.model_path(g.obj_id).unwrap()).unwrap();
+            ObjectModel::build(&mesh, g.obj_id, "lmo", &ModelParams::default()).unwrap()
+        })
+        .collect();
+    let frame = dataset.depth_frame(SCENE, IMAGE).unwrap();
+    let params = DetectParams::new();
+    let clusters_kept = params.clusters_kept;
+    let refs: Vec<&ObjectModel> = models.iter().collect();
+    let det: Detections = Detector::new(params)
+        .detect(
+            &frame.view(),
+            &refs,
+            &DetectOptions {
+                hypotheses_per_object: 1,
+                deadline: None,
+            },
+        )
+        .unwrap();
+    assert!(clusters_kept >= 10);
+
+    println!(
+        "| object | D (mm) | visible | correct cluster rank (of 10) | best pose t err (mm) | R err (°) | correct |"
+    );
+    println!("|---:|---:|---:|---:|---:|---:|---|");
+    let mut outcome = Outcome {
+        clusters_ok: 0,
+        final_ok: 0,
+        objects: truth.len(),
+    };
+    for ((g, info), (o, model)) in truth
+        .iter()
+        .zip(&visible)
+        .zip(det.objects.iter().zip(&models))
+    {
+        assert_eq!(o.object_id, g.obj_id);
+        let d = model.diameter_mm();
+        let symmetries = dataset
+            .model_info(g.obj_id)
+            .map(|i| i.symmetries_discrete.clone())
+            .unwrap_or_default();
+        let correct = |p: &Pose| {
+            let (dt, dr) = errors(p, &g.pose, &symmetries);
+            dt < 0.1 * d && dr < 15.0
+        };
+        let cluster_rank = o.clusters.iter().take(10).position(|(p, _)| correct(p));
+        let best = o.hypotheses.first().map(|h| h.pose);
+        let (dt, dr) = best.map_or((f32::NAN, f32::NAN), |p| errors(&p, &g.pose, &symmetries));
+        let final_ok = best.is_some_and(|p| correct(&p));
+        outcome.clusters_ok += cluster_rank.is_some() as usize;
+        outcome.final_ok += final_ok as usize;
+        println!(
+            "| {} | {d:.0} | {:.2} | {} | {dt:.1} | {dr:.1} | {} |",
+            g.obj_id,
+            info.visib_fract,
+            cluster_rank.map_or("-".to_string(), |r| (r + 1).to_string()),
+            if final_ok { "yes" } else { "no" },
+        );
+    }
+    let t = &det.timings;
+    println!(
+        "{} of {} with a correct pose among the 10 best clusters; best pose correct for {}; \
+         voting {:.0} ms, clustering {:.0} ms, total {:.0} ms",
+        outcome.clusters_ok,
+        outcome.objects,
+        outcome.final_ok,
+        t.voting.as_secs_f64() * 1e3,
+        t.clustering.as_secs_f64() * 1e3,
+        t.total().as_secs_f64() * 1e3,
+    );
+    outcome
+}
+
+/// What the detector reaches on this frame today: five objects found by voting alone, six after
+/// re-scoring, ICP and the filters (the ape, 20 % visible, and the eggbox, half hidden, are
+/// missed).
+#[test]
+fn lmo_frame_objects_are_found() {
+    let Some(dir) = dataset_dir() else { return };
+    let o = detect_frame(&dir);
+    assert_eq!(o.objects, 8);
+    assert!(
+        o.clusters_ok >= 5,
+        "{} of 8 in the best clusters",
+        o.clusters_ok
+    );
+    assert!(o.final_ok >= 6, "{} of 8 best poses correct", o.final_ok);
+}
+
+/// The detection issues' targets on this frame: a correct pose among the 10 best clusters for
+/// at least 6 of the 8 objects, and (as a proxy for the VSD criterion) the best pose correct for
+/// at least 7.
+#[test]
+#[ignore = "targets not reached: 5 of 8 among the 10 best clusters (the glue ranks about 400th by votes), 6 of 8 best poses"]
+fn lmo_frame_reaches_the_issue_targets() {
+    let Some(dir) = dataset_dir() else { return };
+    let o = detect_frame(&dir);
+    assert!(
+        o.clusters_ok >= 6,
+        "{} of 8 in the best clusters",
+        o.clusters_ok
+    );
+    assert!(o.final_ok >= 7, "{} of 8 best poses correct", o.final_ok);
+}
