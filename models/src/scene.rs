@@ -292,9 +292,7 @@ impl PreparedScene {
             .query(&q)
             .within::<SquaredEuclidean<f32>>(radius_mm * radius_mm)
             .unsorted()
-            .execute()
-            .iter()
-            .for_each(|r| visit(r.item as usize));
+            .visit(|r| visit(r.item as usize));
     }
 }
 

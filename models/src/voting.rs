@@ -74,6 +74,11 @@ pub struct VotingCounts {
     pub votes: u64,
 }
 
+/// Accumulator cells per model point: α bins (at most 32, as the vote-once flags need) padded
+/// to a power of two, so that a cell's index is a shift and an or.
+const ROW_SHIFT: usize = 5;
+const ROW: usize = 1 << ROW_SHIFT;
+
 /// Per-thread scratch: the accumulator and vote-once flags, reused across reference points.
 struct Scratch {
     /// Votes per (model point, α bin); 16 bits: one reference point pairs with a few thousand
@@ -128,7 +133,7 @@ pub fn vote_from(
         .par_chunks(block)
         .map(|chunk| {
             let mut scratch = Scratch {
-                accumulator: vec![0; n_model * nb],
+                accumulator: vec![0; n_model * ROW],
                 flags: vec![0; key_count],
                 touched_keys: Vec::new(),
                 neighbours: Vec::new(),
@@ -191,7 +196,7 @@ pub fn vote_from(
                             let m = entry_model_point(e) as usize;
                             let a =
                                 fixed_difference_bin(e as u16, alpha_s_fixed, alpha_bins) as usize;
-                            let cell = &mut acc[m * nb + a];
+                            let cell = &mut acc[(m << ROW_SHIFT) | a];
                             *cell = cell.saturating_add(1);
                         }
                     }
@@ -201,10 +206,10 @@ pub fn vote_from(
                 }
                 s.touched_keys.clear();
                 peaks(&s.accumulator, nb, params, |cell, votes| {
-                    let (m, a) = (cell / nb, (cell % nb) as u32);
+                    let (m, a) = (cell >> ROW_SHIFT, (cell & (ROW - 1)) as u32);
                     let mut alpha = alpha_of_bin(a, alpha_bins);
                     if params.interpolate_alpha {
-                        let row = &s.accumulator[m * nb..(m + 1) * nb];
+                        let row = &s.accumulator[m * ROW..m * ROW + nb];
                         let below = row[(a as usize + nb - 1) % nb];
                         let above = row[(a as usize + 1) % nb];
                         alpha += sub_bin_offset(below as u32, votes, above as u32)
@@ -250,23 +255,27 @@ pub fn sub_bin_offset(below: u32, centre: u32, above: u32) -> f32 {
 /// `peak_ratio` of the maximum (and at least one vote), highest first.
 fn peaks(acc: &[u16], _nb: usize, params: &VotingParams, mut emit: impl FnMut(usize, u32)) {
     let k = params.peaks_per_reference.max(1);
+    // Two passes that vectorise: the maximum, then the few cells near it.
+    let max = acc.iter().copied().max().unwrap_or(0) as u32;
+    if max == 0 {
+        return;
+    }
+    let threshold = ((params.peak_ratio * max as f32).ceil() as u32).clamp(1, max) as u16;
     let mut best: Vec<(u32, usize)> = Vec::with_capacity(k + 1);
     for (cell, &v) in acc.iter().enumerate() {
+        if v < threshold {
+            continue;
+        }
         let v = v as u32;
-        if v == 0 || (best.len() == k && v <= best[k - 1].0) {
+        if best.len() == k && v <= best[k - 1].0 {
             continue;
         }
         let pos = best.partition_point(|&(bv, _)| bv >= v);
         best.insert(pos, (v, cell));
         best.truncate(k);
     }
-    let Some(&(max, _)) = best.first() else {
-        return;
-    };
     for (v, cell) in best {
-        if v as f32 >= params.peak_ratio * max as f32 {
-            emit(cell, v);
-        }
+        emit(cell, v);
     }
 }
 
