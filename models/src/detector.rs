@@ -15,17 +15,20 @@ use crate::clustering::{cluster_poses, ClusteringParams};
 use crate::filters::{is_consistent, silhouette_fraction, simplified_mesh, EdgeMap, FilterParams};
 use crate::icp::{refine, IcpParams};
 use crate::model::ObjectModel;
+use crate::plane::{PlaneParams, SupportingPlane};
 use crate::render::{bounding_sphere, Renderer};
 use crate::rescoring::{rescore, with_silhouettes, RescoringParams};
 use crate::scene::{prepare, PreparedScene, SceneImage, SceneParams};
 use crate::subsample::SubsampleParams;
-use crate::voting::{vote, VotingParams};
+use crate::voting::{reference_points, vote_from, VotingParams};
 use crate::{Error, Pose, Result};
 
 /// Parameters of the whole detection pipeline, one struct per stage.
 #[derive(Clone, Debug, Default)]
 pub struct DetectParams {
     pub scene: SceneParams,
+    /// The supporting plane, on which no reference points are taken.
+    pub plane: PlaneParams,
     pub voting: VotingParams,
     pub clustering: ClusteringParams,
     pub rescoring: RescoringParams,
@@ -227,6 +230,7 @@ impl Detector {
         let t = Instant::now();
         let scene_image = prepare(frame, &self.params.scene)?;
         let points = scene_image.oriented_points();
+        let plane = SupportingPlane::find(&points, &self.params.plane);
         out.timings.scene_preparation = t.elapsed();
         out.counts.scene_points = points.len() as u32;
 
@@ -262,7 +266,9 @@ impl Detector {
             let scene = &clouds[cloud_of[i]];
             let mut timings = StageTimings::default();
             let t = Instant::now();
-            let (raw, counts) = vote(model, scene, &self.params.voting);
+            let references =
+                reference_points(scene, self.params.voting.reference_step, plane.as_ref());
+            let (raw, counts) = vote_from(model, scene, &references, &self.params.voting);
             timings.voting = t.elapsed();
             let t = Instant::now();
             let clusters = cluster_poses(&raw, model.diameter_mm(), &self.params.clustering);

@@ -48,6 +48,7 @@ pub mod icp;
 pub mod mesh;
 pub mod model;
 pub mod parts;
+pub mod plane;
 pub mod render;
 pub mod rescoring;
 pub mod rng;

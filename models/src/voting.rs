@@ -14,6 +14,7 @@ use crate::feature::{
     MAX_KEYS,
 };
 use crate::model::ObjectModel;
+use crate::plane::SupportingPlane;
 use crate::scene::PreparedScene;
 use crate::table::{alpha_to_fixed, entry_model_point, fixed_difference_bin};
 use crate::Pose;
@@ -96,9 +97,21 @@ pub fn vote(
     scene: &PreparedScene,
     params: &VotingParams,
 ) -> (Vec<Hypothesis>, VotingCounts) {
-    let step = params.reference_step.max(1);
-    let references: Vec<usize> = (0..scene.points.len()).step_by(step).collect();
+    let references = reference_points(scene, params.reference_step, None);
     vote_from(model, scene, &references, params)
+}
+
+/// The reference points: every `step`-th scene point, counting only points off the supporting
+/// plane when one is given (see [`crate::plane`]).
+pub fn reference_points(
+    scene: &PreparedScene,
+    step: usize,
+    plane: Option<&SupportingPlane>,
+) -> Vec<usize> {
+    let points = &scene.points;
+    let candidates = (0..points.len())
+        .filter(|&i| plane.is_none_or(|pl| !pl.holds(&points.positions[i], &points.normals[i])));
+    candidates.step_by(step.max(1)).collect()
 }
 
 /// Votes with the given reference points (indices into the scene's points) only; what

@@ -159,6 +159,11 @@ pub fn set_param(p: &mut ppfd_models::detector::DetectParams, kv: &str) -> Resul
                 _ => return Err(format!("{key}: plane or differences, got {value:?}")),
             }
         }
+        "plane.enabled" => p.plane.enabled = b()?,
+        "plane.tolerance_mm" => p.plane.tolerance_mm = f()?,
+        "plane.tolerance_fraction" => p.plane.tolerance_fraction = f()?,
+        "plane.max_normal_angle_deg" => p.plane.max_normal_angle_deg = f()?,
+        "plane.min_inlier_fraction" => p.plane.min_inlier_fraction = f()?,
         "voting.reference_step" => p.voting.reference_step = u()?,
         "voting.peaks_per_reference" => p.voting.peaks_per_reference = u()?,
         "voting.peak_ratio" => p.voting.peak_ratio = f()?,

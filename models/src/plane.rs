@@ -1,0 +1,244 @@
+//! The supporting plane of a scene: the table or bin floor the objects rest on.
+//!
+//! Choosing the reference points is left open by the method (METHOD.md §2.3: "a fraction of the
+//! subsampled scene points"). A reference point on the supporting plane pairs with hundreds of
+//! coplanar partners whose features all fall under the few keys of the model's flat patches: it
+//! casts most of a frame's votes and proposes only planar impostors, which the filters then have
+//! to reject. [`SupportingPlane::find`] fits the dominant plane of the scene by RANSAC on a
+//! sample of its oriented points; points on it (close to it, normal along its normal) are not
+//! taken as reference points. They stay in the scene as partners, so a reference point on an
+//! object votes exactly as before.
+
+use nalgebra::{Matrix3, Point3, SymmetricEigen, Vector3};
+
+use crate::rng::Rng;
+use crate::subsample::OrientedPoints;
+
+/// Parameters of the supporting plane search.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlaneParams {
+    /// Look for a supporting plane and take no reference points on it.
+    pub enabled: bool,
+    /// A point lies on the plane within `tolerance_mm + tolerance_fraction × depth` (the
+    /// sensor's noise grows with depth).
+    pub tolerance_mm: f32,
+    pub tolerance_fraction: f32,
+    /// ... and with its normal within this angle of the plane's.
+    pub max_normal_angle_deg: f32,
+    /// The plane counts only when at least this fraction of the scene lies on it.
+    pub min_inlier_fraction: f32,
+    /// RANSAC: planes tried, and scene points sampled to judge them.
+    pub iterations: u32,
+    pub samples: u32,
+    /// Seed of the sampling (the result is deterministic for a frame).
+    pub seed: u64,
+}
+
+impl Default for PlaneParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            tolerance_mm: 4.0,
+            tolerance_fraction: 0.004,
+            max_normal_angle_deg: 20.0,
+            min_inlier_fraction: 0.15,
+            iterations: 300,
+            samples: 3000,
+            seed: 0x5EED_F1A7,
+        }
+    }
+}
+
+/// A plane `normal · p + offset = 0` with a unit normal, and how it judges points.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SupportingPlane {
+    pub normal: Vector3<f32>,
+    pub offset: f32,
+    /// Fraction of the sampled scene points on it.
+    pub inlier_fraction: f32,
+    tolerance_mm: f32,
+    tolerance_fraction: f32,
+    cos_normal: f32,
+}
+
+impl SupportingPlane {
+    /// Signed distance of `p` from the plane, millimetres.
+    #[inline]
+    pub fn distance(&self, p: &Point3<f32>) -> f32 {
+        self.normal.dot(&p.coords) + self.offset
+    }
+
+    /// Whether the oriented point `(p, n)` lies on the plane.
+    #[inline]
+    pub fn holds(&self, p: &Point3<f32>, n: &Vector3<f32>) -> bool {
+        self.distance(p).abs() <= self.tolerance_mm + self.tolerance_fraction * p.z.abs()
+            && self.normal.dot(n).abs() >= self.cos_normal
+    }
+
+    /// The dominant plane of `points`, or `None` when no plane holds `min_inlier_fraction` of
+    /// them (or the search is disabled, or there are fewer than three points).
+    pub fn find(points: &OrientedPoints, params: &PlaneParams) -> Option<SupportingPlane> {
+        if !params.enabled || points.len() < 3 || params.iterations == 0 {
+            return None;
+        }
+        let mut rng = Rng::new(params.seed);
+        let n = points.len();
+        let sample: Vec<usize> = if n <= params.samples as usize {
+            (0..n).collect()
+        } else {
+            (0..params.samples).map(|_| rng.below(n)).collect()
+        };
+        let shape = |normal: Vector3<f32>, offset: f32| SupportingPlane {
+            normal,
+            offset,
+            inlier_fraction: 0.0,
+            tolerance_mm: params.tolerance_mm,
+            tolerance_fraction: params.tolerance_fraction,
+            cos_normal: params.max_normal_angle_deg.to_radians().cos(),
+        };
+        let inliers_of = |plane: &SupportingPlane| -> Vec<usize> {
+            sample
+                .iter()
+                .copied()
+                .filter(|&i| plane.holds(&points.positions[i], &points.normals[i]))
+                .collect()
+        };
+
+        let mut best: Option<(usize, SupportingPlane)> = None;
+        for _ in 0..params.iterations {
+            let (a, b, c) = (
+                sample[rng.below(sample.len())],
+                sample[rng.below(sample.len())],
+                sample[rng.below(sample.len())],
+            );
+            let (pa, pb, pc) = (
+                points.positions[a],
+                points.positions[b],
+                points.positions[c],
+            );
+            let cross = (pb - pa).cross(&(pc - pa));
+            let norm = cross.norm();
+            if norm < 1e-3 {
+                continue; // repeated or collinear points
+            }
+            let normal = cross / norm;
+            let candidate = shape(normal, -normal.dot(&pa.coords));
+            // The three points must agree with their own normals, or the plane is one through
+            // three unrelated surfaces.
+            if [a, b, c]
+                .iter()
+                .any(|&i| !candidate.holds(&points.positions[i], &points.normals[i]))
+            {
+                continue;
+            }
+            let count = inliers_of(&candidate).len();
+            if best.as_ref().is_none_or(|(c, _)| count > *c) {
+                best = Some((count, candidate));
+            }
+        }
+        let (_, rough) = best?;
+
+        // Least squares through the inliers: the smallest principal axis of their scatter.
+        let inliers = inliers_of(&rough);
+        if inliers.len() < 3 {
+            return None;
+        }
+        let centroid = inliers
+            .iter()
+            .fold(Vector3::zeros(), |s, &i| s + points.positions[i].coords)
+            / inliers.len() as f32;
+        let mut scatter = Matrix3::zeros();
+        for &i in &inliers {
+            let d = points.positions[i].coords - centroid;
+            scatter += d * d.transpose();
+        }
+        let eigen = SymmetricEigen::new(scatter);
+        let smallest = eigen.eigenvalues.imin();
+        let mut normal = eigen.eigenvectors.column(smallest).into_owned();
+        // Orient it towards the camera, as the scene normals are.
+        if normal.dot(&centroid) > 0.0 {
+            normal = -normal;
+        }
+        let mut plane = shape(normal, -normal.dot(&centroid));
+        plane.inlier_fraction = inliers_of(&plane).len() as f32 / sample.len() as f32;
+        (plane.inlier_fraction >= params.min_inlier_fraction).then_some(plane)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 600 × 600 mm table tilted towards the camera at about 800 mm, with a box on it.
+    fn table_with_box(noise_mm: f32) -> (OrientedPoints, Vector3<f32>, Vec<bool>) {
+        let mut rng = Rng::new(7);
+        let tilt = nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), 0.6);
+        let up = tilt * -Vector3::z(); // the table's normal, facing the camera
+        let origin = Point3::new(0.0, 0.0, 800.0);
+        let (ex, ey) = (tilt * Vector3::x(), tilt * Vector3::y());
+        let mut points = OrientedPoints::default();
+        let mut on_table = Vec::new();
+        for i in 0..60 {
+            for j in 0..60 {
+                let p = origin
+                    + ex * (i as f32 * 10.0 - 300.0)
+                    + ey * (j as f32 * 10.0 - 300.0)
+                    + up * (rng.normal() as f32 * noise_mm);
+                points.push(p, up);
+                on_table.push(true);
+            }
+        }
+        // The box: a 100 mm cube standing on the table; its top and one side face the camera.
+        for i in 0..20 {
+            for j in 0..20 {
+                let (a, b) = (i as f32 * 5.0 - 50.0, j as f32 * 5.0 - 50.0);
+                points.push(origin + ex * a + ey * b + up * 100.0, up);
+                on_table.push(false);
+                points.push(origin + ex * a - ey * 50.0 + up * (b + 50.0), -ey);
+                on_table.push(false);
+            }
+        }
+        (points, up, on_table)
+    }
+
+    #[test]
+    fn finds_the_table_under_a_box() {
+        let (points, up, on_table) = table_with_box(1.0);
+        let plane = SupportingPlane::find(&points, &PlaneParams::default()).expect("a plane");
+        assert!(plane.normal.dot(&up) > 0.999, "normal {:?}", plane.normal);
+        for (i, &truth) in on_table.iter().enumerate() {
+            let p = &points.positions[i];
+            assert_eq!(
+                plane.holds(p, &points.normals[i]),
+                truth,
+                "point {i} at {:?}, {:.1} mm from the plane",
+                p,
+                plane.distance(p)
+            );
+        }
+        assert!(plane.inlier_fraction > 0.7);
+    }
+
+    #[test]
+    fn no_plane_in_a_scene_without_one() {
+        // Points on a sphere: no plane holds 15 % of them.
+        let mut rng = Rng::new(3);
+        let mut points = OrientedPoints::default();
+        for _ in 0..4000 {
+            let v = Vector3::new(
+                rng.normal() as f32,
+                rng.normal() as f32,
+                rng.normal() as f32,
+            )
+            .normalize();
+            points.push(Point3::new(0.0, 0.0, 800.0) + v * 200.0, v);
+        }
+        assert!(SupportingPlane::find(&points, &PlaneParams::default()).is_none());
+        let disabled = PlaneParams {
+            enabled: false,
+            ..Default::default()
+        };
+        let (table, _, _) = table_with_box(0.0);
+        assert!(SupportingPlane::find(&table, &disabled).is_none());
+    }
+}
