@@ -189,8 +189,14 @@ pub fn vote_from(
                     let alpha_s_fixed = alpha_to_fixed(alpha_s);
                     let bit = 1u32 << alpha_bin(wrap_angle(alpha_s), alpha_bins);
                     for &key in &keys[..n_keys] {
+                        let k = key as usize;
+                        let (start, end) =
+                            (offsets[k].to_native() as usize, offsets[k + 1].to_native() as usize);
+                        if start == end {
+                            continue; // no model pair under this key: nothing to flag
+                        }
                         if params.vote_once {
-                            let flag = &mut s.flags[key as usize];
+                            let flag = &mut s.flags[k];
                             if *flag & bit != 0 {
                                 continue;
                             }
@@ -199,9 +205,7 @@ pub fn vote_from(
                             }
                             *flag |= bit;
                         }
-                        let k = key as usize;
-                        let entries = &entries_all
-                            [offsets[k].to_native() as usize..offsets[k + 1].to_native() as usize];
+                        let entries = &entries_all[start..end];
                         votes += entries.len() as u64;
                         let acc = &mut s.accumulator[..];
                         for e in entries {

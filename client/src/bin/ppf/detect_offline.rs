@@ -330,7 +330,8 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
     use ppfd_models::render::bounding_sphere;
     use ppfd_models::rescoring::{rescore, with_silhouettes};
     use ppfd_models::scene::{prepare, PreparedScene};
-    use ppfd_models::voting::vote;
+    use ppfd_models::plane::SupportingPlane;
+    use ppfd_models::voting::{reference_points, vote_from};
     let dataset = BopDataset::open(&args.dataset)?;
     let gt = dataset.ground_truth(args.scene, args.image)?.to_vec();
     let ids = if args.objects.is_empty() {
@@ -343,6 +344,17 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
     let p = args.params()?;
     let scene = prepare(&frame.view(), &p.scene)?;
     let points = scene.oriented_points();
+    let plane = SupportingPlane::find(&points, &p.plane);
+    if let Some(pl) = &plane {
+        println!(
+            "supporting plane: normal ({:.3}, {:.3}, {:.3}), {:.0} mm from the camera, {:.0} % of the scene on it",
+            pl.normal.x,
+            pl.normal.y,
+            pl.normal.z,
+            pl.offset.abs(),
+            100.0 * pl.inlier_fraction
+        );
+    }
     let edges = EdgeMap::new(&scene, &p.filters);
     println!("| object | cloud points | on object | normal error (median °) | clusters | rank by votes | after re-scoring | after ICP + re-scoring | best cluster t err (mm) | R err (°) | voting + clustering (ms) |");
     println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
@@ -394,7 +406,8 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             )
         };
         let t = std::time::Instant::now();
-        let (raw, _) = vote(model, &cloud, &p.voting);
+        let references = reference_points(&cloud, p.voting.reference_step, plane.as_ref());
+        let (raw, _) = vote_from(model, &cloud, &references, &p.voting);
         let clusters = cluster_poses(&raw, d, &p.clustering);
         let vote_ms = t.elapsed().as_secs_f64() * 1e3;
         let first_correct = |poses: &[ppfd_models::Pose]| poses.iter().position(|q| ok(q));

@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use clap::Args;
 use ppfd_models::bop::BopDataset;
-use ppfd_models::detector::{DetectOptions, Detector, StageTimings};
+use ppfd_models::detector::{DetectOptions, DetectParams, Detector, StageTimings};
 
 use crate::offline::dataset_models;
 
@@ -25,6 +25,9 @@ pub struct ProfileArgs {
     /// Runs; the table shows medians.
     #[arg(long, default_value_t = 5)]
     pub repeat: usize,
+    /// Override a detector parameter, `stage.field=value` (as `ppf detect --set`); repeatable.
+    #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
+    pub set: Vec<String>,
 }
 
 fn ms(d: Duration) -> f64 {
@@ -52,7 +55,11 @@ pub fn run(args: ProfileArgs) -> Result<(), Box<dyn std::error::Error>> {
     let models = dataset_models(&dataset, &ids)?;
     let refs: Vec<_> = models.iter().collect();
     let frame = dataset.depth_frame(args.scene, args.image)?;
-    let detector = Detector::default();
+    let mut params = DetectParams::new();
+    for kv in &args.set {
+        crate::detect_offline::set_param(&mut params, kv)?;
+    }
+    let detector = Detector::new(params);
     let opts = DetectOptions {
         hypotheses_per_object: 1,
         deadline: None,
