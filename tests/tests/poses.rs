@@ -2,9 +2,9 @@
 //! → daemon → detect responses) against the ground truth, each test under its own iceoryx2 prefix.
 //!
 //! - The generated scene (no data files): the daemon maps the models of the generated parts, a
-//!   camera process publishes the scene `ppf demo` shows (all four parts on a table, Kinect-like
-//!   noise), and two client processes ask for overlapping sets of parts; every best pose must be
-//!   near the truth.
+//!   camera process publishes the scene `ppf demo --seed <seed>` shows (all four parts on a
+//!   table, Kinect-like noise), and two client processes ask for overlapping sets of parts; every
+//!   best pose must be near the truth.
 //! - An LM-O object (`../shared/data/synth-lmo-dev`, runs when `CI=true`): the daemon builds the
 //!   model from the object's PLY mesh itself (its mesh → model → cache path, which the generated
 //!   test skips by handing it model files) and finds it in a frame rendered by another tool.
