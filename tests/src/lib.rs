@@ -1,5 +1,6 @@
-//! Shared helpers for the end-to-end tests: a transport-only engine, process handling, and
-//! isolation of each test under its own iceoryx2 prefix.
+//! Shared helpers for the end-to-end tests: a transport-only engine, the generated scene and part
+//! models of the pose tests, process handling, and isolation of each test under its own iceoryx2
+//! prefix.
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -10,6 +11,9 @@ use std::time::{Duration, Instant};
 use ppfd::engine::{
     DetectOptions, DetectionEngine, EngineError, EngineOutput, FrameView, LoadedModel,
 };
+use ppfd_models::model::{ModelParams, ObjectModel};
+use ppfd_models::parts::Part;
+use ppfd_models::synthetic::{NoiseModel, SceneSpec, SyntheticScene};
 use ppfd_protocol::control::ModelInfo;
 use ppfd_protocol::detect::{checks, DetectCounts, LatencyBreakdown, PoseHypothesis, Status};
 use ppfd_protocol::text;
@@ -286,11 +290,37 @@ impl Drop for Proc {
     }
 }
 
-/// Writes `*.fake` model files for `ids` into a fresh directory under the target directory.
-pub fn fake_model_dir(test: &str, ids: &[u32]) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("ppfd-e2e-{test}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
+/// A scratch directory in the system's temporary directory, named after the test and this
+/// process, emptied when made and removed when dropped.
+pub struct WorkDir(PathBuf);
+
+impl WorkDir {
+    /// A fresh, existing directory for `test`.
+    pub fn new(test: &str) -> WorkDir {
+        let dir = std::env::temp_dir().join(format!("ppfd-e2e-{test}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        WorkDir(dir)
+    }
+}
+
+impl std::ops::Deref for WorkDir {
+    type Target = Path;
+
+    fn deref(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for WorkDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// Writes `*.fake` model files for `ids` into a fresh directory.
+pub fn fake_model_dir(test: &str, ids: &[u32]) -> WorkDir {
+    let dir = WorkDir::new(test);
     for id in ids {
         std::fs::write(
             dir.join(format!("obj_{id:06}.fake")),
@@ -299,4 +329,48 @@ pub fn fake_model_dir(test: &str, ids: &[u32]) -> PathBuf {
         .unwrap();
     }
     dir
+}
+
+/// The generated scene of the pose tests, the recipe `ppf demo` shows: every generated part
+/// ([`Part::ALL`], object ids 1..=4) resting on a table, seen from a viewpoint drawn from `seed`,
+/// with Kinect-like noise when `noisy`. Deterministic: the camera process and the test that
+/// holds the truth build the same frame from the same seed.
+pub fn parts_scene(seed: u64, noisy: bool) -> SyntheticScene {
+    let meshes: Vec<_> = Part::ALL.iter().map(Part::mesh).collect();
+    let mut spec = SceneSpec::new(seed).noise(noisy.then(NoiseModel::kinect));
+    for (part, mesh) in Part::ALL.iter().zip(&meshes) {
+        spec = spec.object(part.object_id(), mesh);
+    }
+    spec.build()
+        .expect("the generated parts make a valid scene")
+}
+
+/// Builds the model of every generated part with the default parameters and saves it in `dir`
+/// as `<name>_<id>.ppfm`, the file the daemon maps; returns the models' diameters (mm) in
+/// [`Part::ALL`] order.
+pub fn write_part_models(dir: &Path) -> Vec<f32> {
+    std::fs::create_dir_all(dir).unwrap();
+    Part::ALL
+        .iter()
+        .map(|part| {
+            let model = ObjectModel::build(
+                &part.mesh(),
+                part.object_id(),
+                part.name(),
+                &ModelParams::default(),
+            )
+            .unwrap();
+            let path = dir.join(format!("{}_{:06}.ppfm", part.name(), part.object_id()));
+            ppfd_models::store::save(&model, &path).unwrap();
+            model.diameter_mm()
+        })
+        .collect()
+}
+
+/// FNV-1a hash of depth values, to check that two processes hold the same frame.
+pub fn depth_checksum(depth: &[u16]) -> u64 {
+    depth.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &d| {
+        let h = (h ^ (d & 0xff) as u64).wrapping_mul(0x0100_0000_01b3);
+        (h ^ (d >> 8) as u64).wrapping_mul(0x0100_0000_01b3)
+    })
 }

@@ -1,7 +1,9 @@
-//! A camera driver for the end-to-end tests: publishes VGA frames of a flat wall, or one frame of
-//! a BOP dataset (`--bop <root> --scene <id> --image <id>`), at `--fps`, `--frames` times (0: until killed), then
-//! stays alive without publishing (a camera that stopped). Prints `camera ready` when its service
-//! exists and `frame <seq>` per frame.
+//! A camera driver for the end-to-end tests: publishes VGA frames of a flat wall, one frame of a
+//! BOP dataset (`--bop <root> --scene <id> --image <id>`), or the generated scene of the generated
+//! parts (`--parts-seed <seed>`, Kinect-like noise unless `--noise none`), at `--fps`, `--frames`
+//! times (0: until killed), then stays alive without publishing (a camera that stopped). Prints
+//! `scene <checksum>` for a generated scene (`ppfd_tests::depth_checksum`, hex), `camera ready`
+//! when its service exists and `frame <seq>` per frame.
 
 use std::io::Write;
 use std::time::{Duration, Instant};
@@ -25,8 +27,31 @@ fn main() {
     let frames: u64 = arg(&args, "--frames")
         .and_then(|v| v.parse().ok())
         .unwrap_or(0);
-    let (width, height, intrinsics, scale, depth) = match arg(&args, "--bop") {
-        Some(root) => {
+    let mut out = std::io::stdout().lock();
+    let generated = arg(&args, "--parts-seed").map(|seed| {
+        let seed: u64 = seed.parse().expect("--parts-seed takes a number");
+        let noisy = arg(&args, "--noise").as_deref() != Some("none");
+        let scene = ppfd_tests::parts_scene(seed, noisy);
+        writeln!(
+            out,
+            "scene {:016x}",
+            ppfd_tests::depth_checksum(&scene.frame.depth)
+        )
+        .unwrap();
+        scene.frame
+    });
+    let (width, height, intrinsics, scale, depth) = match (generated, arg(&args, "--bop")) {
+        (Some(f), _) => {
+            let k = f.intrinsics;
+            let k = Intrinsics {
+                fx: k.fx,
+                fy: k.fy,
+                cx: k.cx,
+                cy: k.cy,
+            };
+            (f.width, f.height, k, f.depth_scale_mm, f.depth)
+        }
+        (None, Some(root)) => {
             let scene: u32 = arg(&args, "--scene")
                 .and_then(|v| v.parse().ok())
                 .unwrap_or(0);
@@ -44,7 +69,7 @@ fn main() {
             };
             (f.width, f.height, k, f.depth_scale_mm, f.depth)
         }
-        None => (
+        (None, None) => (
             640u32,
             480u32,
             Intrinsics::LMO,
@@ -62,7 +87,6 @@ fn main() {
         scale,
     )
     .expect("camera publisher");
-    let mut out = std::io::stdout().lock();
     writeln!(out, "camera ready").unwrap();
     out.flush().unwrap();
     let period = Duration::from_secs_f64(1.0 / fps.max(0.1));
