@@ -27,7 +27,7 @@ use crate::{Error, Pose, Result};
 #[derive(Clone, Debug, Default)]
 pub struct DetectParams {
     pub scene: SceneParams,
-    /// The supporting plane, on which no reference points are taken.
+    /// The supporting plane and other large planes, on which no reference points are taken.
     pub plane: PlaneParams,
     pub voting: VotingParams,
     pub clustering: ClusteringParams,
@@ -230,7 +230,7 @@ impl Detector {
         let t = Instant::now();
         let scene_image = prepare(frame, &self.params.scene)?;
         let points = scene_image.oriented_points();
-        let plane = SupportingPlane::find(&points, &self.params.plane);
+        let planes = SupportingPlane::find_all(&points, &self.params.plane);
         out.timings.scene_preparation = t.elapsed();
         out.counts.scene_points = points.len() as u32;
 
@@ -266,8 +266,12 @@ impl Detector {
             let scene = &clouds[cloud_of[i]];
             let mut timings = StageTimings::default();
             let t = Instant::now();
-            let references =
-                reference_points(scene, self.params.voting.reference_step, plane.as_ref());
+            let references = reference_points(
+                scene,
+                self.params.voting.reference_step,
+                &planes,
+                model.diameter_mm(),
+            );
             let (raw, counts) = vote_from(model, scene, &references, &self.params.voting);
             timings.voting = t.elapsed();
             let t = Instant::now();

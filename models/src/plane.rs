@@ -5,9 +5,15 @@
 //! coplanar partners whose features all fall under the few keys of the model's flat patches: it
 //! casts most of a frame's votes and proposes only planar impostors, which the filters then have
 //! to reject. [`SupportingPlane::find`] fits the dominant plane of the scene by RANSAC on a
-//! sample of its oriented points; points on it (close to it, normal along its normal) are not
-//! taken as reference points. They stay in the scene as partners, so a reference point on an
-//! object votes exactly as before.
+//! sample of its oriented points, and [`SupportingPlane::find_all`] the next few large planes
+//! (a floor below the table, a wall behind it); points on them (close to one, normal along its
+//! normal) are not taken as reference points. They stay in the scene as partners, so a reference
+//! point on an object votes exactly as before.
+//!
+//! A plane narrower than an object's diameter may be one of that object's own faces (a box's
+//! top): for that object its points stay reference points. Objects whose coplanar faces together
+//! span more than their diameter (boxes side by side, tops at one height) would still count as a
+//! plane: such cells should disable this ([`PlaneParams::enabled`]).
 
 use nalgebra::{Matrix3, Point3, SymmetricEigen, Vector3};
 
@@ -25,8 +31,12 @@ pub struct PlaneParams {
     pub tolerance_fraction: f32,
     /// ... and with its normal within this angle of the plane's.
     pub max_normal_angle_deg: f32,
-    /// The plane counts only when at least this fraction of the scene lies on it.
+    /// The dominant plane counts only when at least this fraction of the scene lies on it.
     pub min_inlier_fraction: f32,
+    /// Further planes (up to `max_planes` in all) count when at least this fraction of the
+    /// scene lies on them.
+    pub min_secondary_fraction: f32,
+    pub max_planes: usize,
     /// RANSAC: planes tried, and scene points sampled to judge them.
     pub iterations: u32,
     pub samples: u32,
@@ -40,8 +50,10 @@ impl Default for PlaneParams {
             enabled: true,
             tolerance_mm: 4.0,
             tolerance_fraction: 0.004,
-            max_normal_angle_deg: 20.0,
+            max_normal_angle_deg: 30.0,
             min_inlier_fraction: 0.15,
+            min_secondary_fraction: 0.05,
+            max_planes: 3,
             iterations: 300,
             samples: 3000,
             seed: 0x5EED_F1A7,
@@ -56,6 +68,10 @@ pub struct SupportingPlane {
     pub offset: f32,
     /// Fraction of the sampled scene points on it.
     pub inlier_fraction: f32,
+    /// Its narrower size, mm: the 5–95 % range of its points along the shorter of its two
+    /// principal directions. A plane narrower than an object's diameter may be that object's
+    /// own face, and is not excluded for it (see [`SupportingPlane::excludes_for`]).
+    pub extent_mm: f32,
     tolerance_mm: f32,
     tolerance_fraction: f32,
     cos_normal: f32,
@@ -68,6 +84,13 @@ impl SupportingPlane {
         self.normal.dot(&p.coords) + self.offset
     }
 
+    /// Whether this plane is too large to be a face of an object of diameter `diameter_mm`, so
+    /// that its points are not taken as that object's reference points.
+    #[inline]
+    pub fn excludes_for(&self, diameter_mm: f32) -> bool {
+        self.extent_mm > diameter_mm
+    }
+
     /// Whether the oriented point `(p, n)` lies on the plane.
     #[inline]
     pub fn holds(&self, p: &Point3<f32>, n: &Vector3<f32>) -> bool {
@@ -78,20 +101,64 @@ impl SupportingPlane {
     /// The dominant plane of `points`, or `None` when no plane holds `min_inlier_fraction` of
     /// them (or the search is disabled, or there are fewer than three points).
     pub fn find(points: &OrientedPoints, params: &PlaneParams) -> Option<SupportingPlane> {
+        Self::find_all(points, params).into_iter().next()
+    }
+
+    /// The dominant plane (as [`find`](Self::find)) and then, among the points on neither, up to
+    /// `max_planes − 1` more planes holding at least `min_secondary_fraction` of the scene each;
+    /// largest first. Empty when there is no dominant plane.
+    pub fn find_all(points: &OrientedPoints, params: &PlaneParams) -> Vec<SupportingPlane> {
         if !params.enabled || points.len() < 3 || params.iterations == 0 {
-            return None;
+            return Vec::new();
         }
         let mut rng = Rng::new(params.seed);
         let n = points.len();
-        let sample: Vec<usize> = if n <= params.samples as usize {
+        let all: Vec<usize> = if n <= params.samples as usize {
             (0..n).collect()
         } else {
             (0..params.samples).map(|_| rng.below(n)).collect()
         };
+        let mut planes: Vec<SupportingPlane> = Vec::new();
+        let mut sample = all.clone();
+        while planes.len() < params.max_planes {
+            let min_fraction = if planes.is_empty() {
+                params.min_inlier_fraction
+            } else {
+                params.min_secondary_fraction
+            };
+            let Some(mut plane) = Self::fit(points, &sample, &mut rng, params) else {
+                break;
+            };
+            // The fraction counts against the whole sample, not what is left of it.
+            let on_it = sample
+                .iter()
+                .filter(|&&i| plane.holds(&points.positions[i], &points.normals[i]))
+                .count();
+            plane.inlier_fraction = on_it as f32 / all.len() as f32;
+            if plane.inlier_fraction < min_fraction {
+                break;
+            }
+            sample.retain(|&i| !plane.holds(&points.positions[i], &points.normals[i]));
+            planes.push(plane);
+            if sample.len() < 3 {
+                break;
+            }
+        }
+        planes
+    }
+
+    /// The best plane by RANSAC over `sample` (indices into `points`), refined by least squares.
+    fn fit(
+        points: &OrientedPoints,
+        sample: &[usize],
+        rng: &mut Rng,
+        params: &PlaneParams,
+    ) -> Option<SupportingPlane> {
         let shape = |normal: Vector3<f32>, offset: f32| SupportingPlane {
             normal,
             offset,
             inlier_fraction: 0.0,
+            extent_mm: 0.0,
             tolerance_mm: params.tolerance_mm,
             tolerance_fraction: params.tolerance_fraction,
             cos_normal: params.max_normal_angle_deg.to_radians().cos(),
@@ -159,9 +226,22 @@ impl SupportingPlane {
         if normal.dot(&centroid) > 0.0 {
             normal = -normal;
         }
+        // Its size: the 5–95 % range of the inliers along each in-plane principal axis.
         let mut plane = shape(normal, -normal.dot(&centroid));
-        plane.inlier_fraction = inliers_of(&plane).len() as f32 / sample.len() as f32;
-        (plane.inlier_fraction >= params.min_inlier_fraction).then_some(plane)
+        let range_along = |axis: Vector3<f32>| {
+            let mut t: Vec<f32> = inliers
+                .iter()
+                .map(|&i| (points.positions[i].coords - centroid).dot(&axis))
+                .collect();
+            t.sort_by(f32::total_cmp);
+            let at = |q: f32| t[((t.len() - 1) as f32 * q).round() as usize];
+            at(0.95) - at(0.05)
+        };
+        plane.extent_mm = (0..3)
+            .filter(|&k| k != smallest)
+            .map(|k| range_along(eigen.eigenvectors.column(k).into_owned()))
+            .fold(f32::INFINITY, f32::min);
+        Some(plane)
     }
 }
 
@@ -217,6 +297,53 @@ mod tests {
             );
         }
         assert!(plane.inlier_fraction > 0.7);
+    }
+
+    #[test]
+    fn finds_a_floor_below_the_table_too() {
+        let (mut points, up, on_table) = table_with_box(1.0);
+        let table_points = on_table.iter().filter(|&&t| t).count();
+        // A floor 750 mm below the table, seen beside it: 40 x 40 points, 20 mm apart.
+        let tilt = nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), 0.6);
+        let (ex, ey) = (tilt * Vector3::x(), tilt * Vector3::y());
+        let floor_origin = Point3::new(0.0, 0.0, 800.0) - up * 750.0 + ex * 900.0;
+        for i in 0..40 {
+            for j in 0..40 {
+                let p = floor_origin + ex * (i as f32 * 20.0) + ey * (j as f32 * 20.0 - 400.0);
+                points.push(p, up);
+            }
+        }
+        let planes = SupportingPlane::find_all(&points, &PlaneParams::default());
+        // Table, floor, and the box's top (7 % of the scene): a plane, but narrower than the
+        // box's diameter (173 mm), so it stays the box's for reference points.
+        assert_eq!(planes.len(), 3, "{planes:?}");
+        assert!(planes[0].excludes_for(173.0) && planes[1].excludes_for(173.0));
+        assert!(!planes[2].excludes_for(173.0), "{:?}", planes[2]);
+        assert!((planes[2].extent_mm - 90.0).abs() < 10.0, "{:?}", planes[2]);
+        assert!(planes[0].inlier_fraction > planes[1].inlier_fraction);
+        let table_on_first = (0..on_table.len())
+            .filter(|&i| on_table[i] && planes[0].holds(&points.positions[i], &points.normals[i]))
+            .count();
+        assert_eq!(table_on_first, table_points);
+        let floor_on_second = (on_table.len()..points.len())
+            .filter(|&i| planes[1].holds(&points.positions[i], &points.normals[i]))
+            .count();
+        assert_eq!(floor_on_second, 1600);
+        assert!((planes[1].distance(&floor_origin)).abs() < 1.0);
+        // The box is on neither table nor floor.
+        for i in 0..on_table.len() {
+            if !on_table[i] {
+                assert!(planes[..2]
+                    .iter()
+                    .all(|pl| !pl.holds(&points.positions[i], &points.normals[i])));
+            }
+        }
+        // With one plane allowed, only the table.
+        let one = PlaneParams {
+            max_planes: 1,
+            ..Default::default()
+        };
+        assert_eq!(SupportingPlane::find_all(&points, &one).len(), 1);
     }
 
     #[test]

@@ -97,20 +97,29 @@ pub fn vote(
     scene: &PreparedScene,
     params: &VotingParams,
 ) -> (Vec<Hypothesis>, VotingCounts) {
-    let references = reference_points(scene, params.reference_step, None);
+    let references = reference_points(scene, params.reference_step, &[], model.diameter_mm());
     vote_from(model, scene, &references, params)
 }
 
-/// The reference points: every `step`-th scene point, counting only points off the supporting
-/// plane when one is given (see [`crate::plane`]).
+/// The reference points for an object of diameter `diameter_mm`: every `step`-th scene point,
+/// counting only points on none of the given planes that are too large to be the object's own
+/// faces (see [`crate::plane`]).
 pub fn reference_points(
     scene: &PreparedScene,
     step: usize,
-    plane: Option<&SupportingPlane>,
+    planes: &[SupportingPlane],
+    diameter_mm: f32,
 ) -> Vec<usize> {
     let points = &scene.points;
-    let candidates = (0..points.len())
-        .filter(|&i| plane.is_none_or(|pl| !pl.holds(&points.positions[i], &points.normals[i])));
+    let planes: Vec<&SupportingPlane> = planes
+        .iter()
+        .filter(|pl| pl.excludes_for(diameter_mm))
+        .collect();
+    let candidates = (0..points.len()).filter(|&i| {
+        planes
+            .iter()
+            .all(|pl| !pl.holds(&points.positions[i], &points.normals[i]))
+    });
     candidates.step_by(step.max(1)).collect()
 }
 
@@ -190,8 +199,10 @@ pub fn vote_from(
                     let bit = 1u32 << alpha_bin(wrap_angle(alpha_s), alpha_bins);
                     for &key in &keys[..n_keys] {
                         let k = key as usize;
-                        let (start, end) =
-                            (offsets[k].to_native() as usize, offsets[k + 1].to_native() as usize);
+                        let (start, end) = (
+                            offsets[k].to_native() as usize,
+                            offsets[k + 1].to_native() as usize,
+                        );
                         if start == end {
                             continue; // no model pair under this key: nothing to flag
                         }

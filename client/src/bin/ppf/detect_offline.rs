@@ -164,6 +164,8 @@ pub fn set_param(p: &mut ppfd_models::detector::DetectParams, kv: &str) -> Resul
         "plane.tolerance_fraction" => p.plane.tolerance_fraction = f()?,
         "plane.max_normal_angle_deg" => p.plane.max_normal_angle_deg = f()?,
         "plane.min_inlier_fraction" => p.plane.min_inlier_fraction = f()?,
+        "plane.min_secondary_fraction" => p.plane.min_secondary_fraction = f()?,
+        "plane.max_planes" => p.plane.max_planes = u()?,
         "voting.reference_step" => p.voting.reference_step = u()?,
         "voting.peaks_per_reference" => p.voting.peaks_per_reference = u()?,
         "voting.peak_ratio" => p.voting.peak_ratio = f()?,
@@ -327,10 +329,10 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
     use ppfd_models::clustering::cluster_poses;
     use ppfd_models::filters::{simplified_mesh, EdgeMap};
     use ppfd_models::icp::refine;
+    use ppfd_models::plane::SupportingPlane;
     use ppfd_models::render::bounding_sphere;
     use ppfd_models::rescoring::{rescore, with_silhouettes};
     use ppfd_models::scene::{prepare, PreparedScene};
-    use ppfd_models::plane::SupportingPlane;
     use ppfd_models::voting::{reference_points, vote_from};
     let dataset = BopDataset::open(&args.dataset)?;
     let gt = dataset.ground_truth(args.scene, args.image)?.to_vec();
@@ -344,14 +346,15 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
     let p = args.params()?;
     let scene = prepare(&frame.view(), &p.scene)?;
     let points = scene.oriented_points();
-    let plane = SupportingPlane::find(&points, &p.plane);
-    if let Some(pl) = &plane {
+    let planes = SupportingPlane::find_all(&points, &p.plane);
+    for pl in &planes {
         println!(
-            "supporting plane: normal ({:.3}, {:.3}, {:.3}), {:.0} mm from the camera, {:.0} % of the scene on it",
+            "large plane: normal ({:.3}, {:.3}, {:.3}), {:.0} mm from the camera, {:.0} mm wide, {:.0} % of the scene on it",
             pl.normal.x,
             pl.normal.y,
             pl.normal.z,
             pl.offset.abs(),
+            pl.extent_mm,
             100.0 * pl.inlier_fraction
         );
     }
@@ -406,7 +409,7 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             )
         };
         let t = std::time::Instant::now();
-        let references = reference_points(&cloud, p.voting.reference_step, plane.as_ref());
+        let references = reference_points(&cloud, p.voting.reference_step, &planes, d);
         let (raw, _) = vote_from(model, &cloud, &references, &p.voting);
         let clusters = cluster_poses(&raw, d, &p.clustering);
         let vote_ms = t.elapsed().as_secs_f64() * 1e3;
