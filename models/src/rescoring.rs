@@ -13,8 +13,11 @@
 //! - no depth there: unknown.
 //!
 //! The fit of a pose is its number of inliers divided by the model's surface point count: the
-//! fraction of the whole model surface that the scene confirms. Its score is the fit times the
-//! agreement of its outline with the scene's depth edges ([`with_silhouettes`]) raised to
+//! fraction of the whole model surface that the scene confirms. Its support is the fraction of
+//! the points that should be seen (measured and not occluded) that the scene confirms: a pose
+//! placed partly behind other surfaces can collect as many inliers as the true one, but leaves
+//! more of what it shows unconfirmed. Its score is the fit times the support (to the power
+//! `support_weight`) times the agreement of its outline with the scene's depth edges ([`with_silhouettes`]) raised to
 //! `silhouette_weight`: a model laid flat on a table or a wall fits that plane as well as the
 //! true pose fits the object, but only the true pose has its outline on depth edges. On the
 //! LM-O frame this lifts the glue's true pose from rank 264 to 5 among the 500 re-scored
@@ -49,6 +52,9 @@ pub struct RescoringParams {
     /// `min_conflict_mm`: small misalignments at the outline must not read as contradictions.
     pub conflict_fraction: f32,
     pub min_conflict_mm: f32,
+    /// Exponent of the support (inliers over the visible points, see [`Fit::support`]) in the
+    /// score; 0 scores by the fit alone.
+    pub support_weight: f32,
     /// Exponent of the silhouette agreement in the score; 0 scores by the fit alone.
     pub silhouette_weight: f32,
     /// The silhouette agreement divides by at least this fraction of the whole outline, hidden
@@ -87,6 +93,7 @@ impl Default for RescoringParams {
             max_normal_angle_deg: 45.0,
             conflict_fraction: 0.1,
             min_conflict_mm: 15.0,
+            support_weight: 1.0,
             silhouette_weight: 1.5,
             min_visible_outline: 0.5,
             silhouette_mesh_cell_fraction: 0.025,
@@ -114,6 +121,20 @@ impl Fit {
     pub fn visible(&self) -> u32 {
         self.measured - self.occluded
     }
+
+    /// The fraction of the visible points that the scene confirms (0 when none is visible).
+    pub fn support(&self) -> f32 {
+        match self.visible() {
+            0 => 0.0,
+            v => self.inliers as f32 / v as f32,
+        }
+    }
+}
+
+/// The score of a fit before the silhouette: the fraction of the model surface confirmed, times
+/// the support to the power `support_weight`.
+fn fit_and_support(fit: &Fit, surface_points: usize, params: &RescoringParams) -> f32 {
+    fit.inliers as f32 / surface_points.max(1) as f32 * fit.support().powf(params.support_weight)
 }
 
 /// A model point moved into the camera by `pose`, if its normal faces the camera: its camera
@@ -180,9 +201,11 @@ pub struct Scored {
     pub fit: Fit,
     /// `fit.inliers / surface point count`.
     pub fit_score: f32,
+    /// `fit_score` times the support to the power `support_weight`.
+    pub support_score: f32,
     /// Fraction of the unoccluded outline on scene depth edges, once measured.
     pub silhouette: Option<f32>,
-    /// What poses are ranked by: `fit_score`, times the silhouette agreement (to the power
+    /// What poses are ranked by: `support_score`, times the silhouette agreement (to the power
     /// `silhouette_weight`) once that is measured.
     pub score: f32,
 }
@@ -210,13 +233,15 @@ pub fn rescore(
                 params.max_normal_angle_deg,
             );
             let fit_score = fit.inliers as f32 / total;
+            let score = fit_and_support(&fit, surface.len(), params);
             Scored {
                 pose,
                 votes,
                 fit,
                 fit_score,
+                support_score: score,
                 silhouette: None,
-                score: fit_score,
+                score,
             }
         })
         .collect();
@@ -253,7 +278,7 @@ pub fn with_silhouettes(
             .and_then(|c| c.fraction_of_at_least(params.min_visible_outline))
             .unwrap_or(0.0);
             s.silhouette = Some(f);
-            s.score = s.fit_score * f.powf(weight);
+            s.score = s.support_score * f.powf(weight);
         });
     scored.sort_by(|a, b| b.score.total_cmp(&a.score).then(b.votes.cmp(&a.votes)));
 }

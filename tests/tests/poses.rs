@@ -29,11 +29,9 @@ const MAX_TRANSLATION_OF_DIAMETER: f32 = 0.1;
 /// …and rotation within this angle (the generated parts have no symmetry to allow for).
 const MAX_ROTATION_DEG: f32 = 15.0;
 
-/// Seed of the generated scene. Seeds 1–12 were measured in-process with this detector: 45 of 48
-/// parts found; the three misses (L-bracket in seed 1, toothed disc in seeds 2 and 6) are poses
-/// on the floor beyond the table, over a metre off. This seed is one of the nine where all four
-/// are found; seed 1 is kept below as an ignored test.
-const SEED: u64 = 7;
+/// Seed of the generated scene: `ppf demo`'s default, so that the test and the README's main
+/// command show the same scene.
+const SEED: u64 = 1;
 
 /// A daemon with the PPF engine over `models`, models built from meshes cached in `cache`.
 fn start_daemon(prefix: &Prefix, models: &Path, cache: &Path) -> Proc {
@@ -245,13 +243,6 @@ fn generated_scene_through_the_whole_path(test: &str, seed: u64, noisy: bool) {
 #[test]
 fn generated_scene_poses_through_the_whole_path_match_the_ground_truth() {
     generated_scene_through_the_whole_path("gen_poses", SEED, true);
-}
-
-#[test]
-#[ignore = "the detector's target, not reached: in `ppf demo`'s default scene (seed 1) the \
-            L-bracket is found upside down on the floor beyond the table, 1.2 m off"]
-fn demo_scene_poses_through_the_whole_path_match_the_ground_truth() {
-    generated_scene_through_the_whole_path("demo_poses", 1, true);
 }
 
 fn dataset_root() -> Option<PathBuf> {

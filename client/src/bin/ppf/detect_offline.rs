@@ -188,6 +188,7 @@ pub fn set_param(p: &mut ppfd_models::detector::DetectParams, kv: &str) -> Resul
         "rescoring.conflict_fraction" => p.rescoring.conflict_fraction = f()?,
         "rescoring.min_conflict_mm" => p.rescoring.min_conflict_mm = f()?,
         "rescoring.silhouette_weight" => p.rescoring.silhouette_weight = f()?,
+        "rescoring.support_weight" => p.rescoring.support_weight = f()?,
         "rescoring.min_visible_outline" => p.rescoring.min_visible_outline = f()?,
         "rescoring.silhouette_mesh_cell_fraction" => {
             p.rescoring.silhouette_mesh_cell_fraction = f()?
