@@ -210,6 +210,40 @@ impl Mesh {
             faces: self.faces.clone(),
         }
     }
+
+    /// A fingerprint of the geometry a model is built from, to tell whether a model still
+    /// belongs to this mesh: the CRC-32 of the vertex count, every position and normal, the
+    /// triangle count and every triangle, in that order, as little-endian `u32`/`f32` bytes
+    /// (`-0.0` counted as `0.0`). It depends only on these numbers, so a mesh read from an ASCII
+    /// or a binary PLY file with the same values gets the same fingerprint; normals count because
+    /// the model's oriented points interpolate them.
+    pub fn fingerprint(&self) -> u32 {
+        let mut crc = crc32fast::Hasher::new();
+        let mut buf = Vec::with_capacity(24 * 1024);
+        let mut flush = |buf: &mut Vec<u8>, force: bool| {
+            if force || buf.len() >= 24 * 1023 {
+                crc.update(buf);
+                buf.clear();
+            }
+        };
+        // Adding 0.0 turns -0.0 into 0.0 and leaves every other value as it is.
+        let put_f32 = |buf: &mut Vec<u8>, x: f32| buf.extend_from_slice(&(x + 0.0).to_le_bytes());
+        buf.extend_from_slice(&(self.positions.len() as u64).to_le_bytes());
+        for (i, p) in self.positions.iter().enumerate() {
+            p.coords.iter().for_each(|&x| put_f32(&mut buf, x));
+            let n = self.normals.get(i).copied().unwrap_or_else(Vector3::zeros);
+            n.iter().for_each(|&x| put_f32(&mut buf, x));
+            flush(&mut buf, false);
+        }
+        buf.extend_from_slice(&(self.faces.len() as u64).to_le_bytes());
+        for face in &self.faces {
+            face.iter()
+                .for_each(|i| buf.extend_from_slice(&i.to_le_bytes()));
+            flush(&mut buf, false);
+        }
+        flush(&mut buf, true);
+        crc.finalize()
+    }
 }
 
 /// True when a triangle has a repeated index or (numerically) zero area.
@@ -439,5 +473,30 @@ mod tests {
         nan.positions[2].x = f32::NAN;
         assert!(nan.validate().unwrap_err().to_string().contains("vertex 2"));
         assert!(Mesh::default().validate().is_err());
+    }
+
+    #[test]
+    fn fingerprint_follows_positions_normals_and_faces() {
+        let good = cube();
+        let reference = good.fingerprint();
+        assert_eq!(cube().fingerprint(), reference, "deterministic");
+        let mut moved = good.clone();
+        moved.positions[4].z += 0.001;
+        let mut turned = good.clone();
+        turned.normals[4] = -turned.normals[4];
+        let mut rewound = good.clone();
+        rewound.faces[7].swap(1, 2);
+        let mut fewer = good.clone();
+        fewer.faces.pop();
+        let others = [&moved, &turned, &rewound, &fewer].map(Mesh::fingerprint);
+        for (i, f) in others.iter().enumerate() {
+            assert_ne!(*f, reference, "change {i}");
+        }
+        // -0.0 and 0.0 are one number.
+        let mut flat = good.clone();
+        flat.positions[0].x = 0.0;
+        let mut negative_zero = good;
+        negative_zero.positions[0].x = -0.0;
+        assert_eq!(flat.fingerprint(), negative_zero.fingerprint());
     }
 }

@@ -142,6 +142,9 @@ pub struct ModelData {
     pub diameter_mm: f32,
     /// The parameters it was built with.
     pub params: ModelParams,
+    /// [`Mesh::fingerprint`] of the mesh it was built from: a cached model is reused only for
+    /// the same mesh ([`crate::store::load_expecting`]).
+    pub mesh_fingerprint: u32,
     /// Subsampled oriented points (mm, unit normals): the model points of the lookup table.
     pub points: Vec<[f32; 3]>,
     pub normals: Vec<[f32; 3]>,
@@ -173,6 +176,10 @@ impl std::fmt::Debug for ObjectModel {
             .field("object_id", &self.object_id())
             .field("name", &self.name())
             .field("diameter_mm", &self.diameter_mm())
+            .field(
+                "mesh_fingerprint",
+                &format_args!("{:08x}", self.mesh_fingerprint()),
+            )
             .field("points", &self.point_count())
             .field("table_entries", &self.table_entry_count())
             .finish()
@@ -236,6 +243,7 @@ impl ObjectModel {
             name: name.to_string(),
             diameter_mm,
             params: *params,
+            mesh_fingerprint: mesh.fingerprint(),
             points: points.positions.iter().map(|p| [p.x, p.y, p.z]).collect(),
             normals: points.normals.iter().map(|n| [n.x, n.y, n.z]).collect(),
             surface_points: surface.positions.iter().map(|p| [p.x, p.y, p.z]).collect(),
@@ -293,6 +301,11 @@ impl ObjectModel {
     pub fn params(&self) -> ModelParams {
         rkyv::deserialize::<ModelParams, rkyv::rancor::Error>(&self.data().params)
             .expect("plain data deserialises")
+    }
+
+    /// [`Mesh::fingerprint`] of the mesh the model was built from.
+    pub fn mesh_fingerprint(&self) -> u32 {
+        self.data().mesh_fingerprint.to_native()
     }
 
     /// Number of subsampled model points.
@@ -499,6 +512,7 @@ pub(crate) mod tests {
         assert_eq!(model.object_id(), 7);
         assert_eq!(model.name(), "box");
         assert_eq!(model.params(), ModelParams::default());
+        assert_eq!(model.mesh_fingerprint(), mesh.fingerprint());
         assert!(!model.is_mapped());
         // Corners keep three points (one per face), so the box keeps its edges densely.
         let pts = model.oriented_points();

@@ -5,6 +5,9 @@
 //! payload), then the rkyv archive of [`crate::model::ModelData`]. Loading checks all of it and validates the
 //! archive and the table's internal consistency before handing out an [`ObjectModel`]: a
 //! truncated, corrupted, wrong-version or wrong-parameter file is refused, never trusted.
+//!
+//! A model file used as a cache of a mesh is checked with [`load_expecting`]: it is reused only
+//! when built with the same parameters from the same mesh ([`crate::mesh::Mesh::fingerprint`]).
 
 use std::fs::File;
 use std::io::Write;
@@ -18,8 +21,9 @@ use crate::{Error, Result};
 
 /// The file name extension of model files.
 pub const EXTENSION: &str = "ppfm";
-/// Bumped whenever [`crate::model::ModelData`] or the table encoding changes.
-pub const FORMAT_VERSION: u32 = 1;
+/// Bumped whenever [`crate::model::ModelData`] or the table encoding changes. Version 2 added
+/// the mesh fingerprint.
+pub const FORMAT_VERSION: u32 = 2;
 const MAGIC: &[u8; 8] = b"PPFDMODL";
 const HEADER_LEN: usize = 32;
 
@@ -103,14 +107,32 @@ pub fn load(path: &Path) -> Result<ObjectModel> {
     Ok(ObjectModel::from_validated_map(map, HEADER_LEN))
 }
 
-/// Like [`load`], and refuses a model built with other parameters than `expected`.
-pub fn load_expecting(path: &Path, expected: &ModelParams) -> Result<ObjectModel> {
+/// The cache check: like [`load`], and refuses a model built with other parameters than
+/// `expected` or from another mesh than the one whose [`Mesh::fingerprint`] is
+/// `mesh_fingerprint`. A refusal means "rebuild": the caller has the mesh at hand.
+///
+/// [`Mesh::fingerprint`]: crate::mesh::Mesh::fingerprint
+pub fn load_expecting(
+    path: &Path,
+    expected: &ModelParams,
+    mesh_fingerprint: u32,
+) -> Result<ObjectModel> {
     let model = load(path)?;
     let params = model.params();
     if params != *expected {
         return Err(refuse(
             path,
             format!("built with {params:?}, expected {expected:?}: rebuild the model"),
+        ));
+    }
+    let built_from = model.mesh_fingerprint();
+    if built_from != mesh_fingerprint {
+        return Err(refuse(
+            path,
+            format!(
+                "built from another mesh (fingerprint {built_from:08x}, the mesh now gives \
+                 {mesh_fingerprint:08x}): rebuild the model"
+            ),
         ));
     }
     Ok(model)
@@ -228,7 +250,9 @@ mod tests {
         assert_eq!(loaded.name(), "box");
         assert_eq!(loaded.diameter_mm(), model.diameter_mm());
         assert_eq!(loaded.render_mesh().faces, model.render_mesh().faces);
-        assert!(load_expecting(&path, &ModelParams::default()).is_ok());
+        let fingerprint = box_mesh(50.0, 30.0, 20.0).fingerprint();
+        assert_eq!(loaded.mesh_fingerprint(), fingerprint);
+        assert!(load_expecting(&path, &ModelParams::default(), fingerprint).is_ok());
         std::fs::remove_dir_all(dir).unwrap();
     }
 
@@ -260,6 +284,14 @@ mod tests {
         let mut version = good.clone();
         version[8] = 99;
         assert!(refused(&version, &dir, "version.ppfm").contains("format version 99"));
+        // A file of the previous format (before the mesh fingerprint) asks to be rebuilt.
+        version[8..12].copy_from_slice(&(FORMAT_VERSION - 1).to_le_bytes());
+        let old = refused(&version, &dir, "old.ppfm");
+        assert!(
+            old.contains(&format!("format version {}", FORMAT_VERSION - 1))
+                && old.contains("rebuild the model"),
+            "{old}"
+        );
 
         let mut magic = good.clone();
         magic[0] = b'X';
@@ -277,7 +309,8 @@ mod tests {
             angle_bins: 12,
             ..Default::default()
         };
-        match load_expecting(&path, &other) {
+        let fingerprint = box_mesh(50.0, 30.0, 20.0).fingerprint();
+        match load_expecting(&path, &other, fingerprint) {
             Err(Error::ModelStore { reason, .. }) => assert!(reason.contains("expected")),
             r => panic!("{r:?}"),
         }
@@ -285,6 +318,32 @@ mod tests {
             load(&dir.join("missing.ppfm")),
             Err(Error::Io { .. })
         ));
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn a_model_of_another_mesh_is_refused() {
+        let dir = temp_dir("mesh");
+        let path = dir.join("box.ppfm");
+        save(&built(), &path).unwrap();
+        let a = box_mesh(50.0, 30.0, 20.0).fingerprint();
+        // One millimetre longer: same topology, same vertex count.
+        let b = box_mesh(50.0, 30.0, 21.0).fingerprint();
+        assert_ne!(a, b);
+        assert!(load_expecting(&path, &ModelParams::default(), a).is_ok());
+        match load_expecting(&path, &ModelParams::default(), b) {
+            Err(Error::ModelStore { path: p, reason }) => {
+                assert_eq!(p, path);
+                assert_eq!(
+                    reason,
+                    format!(
+                        "built from another mesh (fingerprint {a:08x}, the mesh now gives \
+                         {b:08x}): rebuild the model"
+                    )
+                );
+            }
+            r => panic!("expected a refusal, got {r:?}"),
+        }
         std::fs::remove_dir_all(dir).unwrap();
     }
 }

@@ -20,7 +20,8 @@ pub struct Args {
     /// TOML configuration file; flags override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Where models built from PLY meshes are saved (default: beside the mesh).
+    /// Where models built from PLY meshes are saved (default: beside the mesh); one is reused
+    /// while its mesh is unchanged.
     #[arg(long)]
     pub model_cache: Option<PathBuf>,
     /// iceoryx2 resource prefix: daemons (and their clients) with different prefixes never

@@ -20,10 +20,12 @@ use serde::Deserialize;
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DaemonConfig {
-    /// Directory of models to load at start (`*.ppfm`; PLY meshes without a model are built).
+    /// Directory of models to load at start (`*.ppfm`, and PLY meshes: a mesh's model is built
+    /// once and reused while the mesh is unchanged).
     pub models: Option<PathBuf>,
     /// Where models built from PLY files are saved (default: beside the PLY file when
-    /// writable). A built model is loaded from here on the next start.
+    /// writable). A built model is loaded from here on the next start if the mesh has not
+    /// changed since.
     pub model_cache: Option<PathBuf>,
     /// iceoryx2 resource prefix; daemons with different prefixes never see each other.
     pub prefix: Option<String>,

@@ -21,6 +21,11 @@ pub const MODEL_EXTENSION: &str = "ppfm";
 
 /// Detection with `ppfd_models::detector::Detector`; models are `.ppfm` files (mapped, not
 /// read) or PLY meshes, built once and saved as `.ppfm` for the next start.
+///
+/// A model file beside a PLY mesh of the same name, or in the model cache, is that mesh's
+/// cache: it is used only while it was built from the same mesh (the fingerprint of the mesh as
+/// read, so an ASCII file re-saved as binary keeps its model) with the same parameters and
+/// object id; otherwise the model is rebuilt. Hence every PLY mesh is read at each load.
 #[derive(Debug, Default)]
 pub struct PpfEngine {
     detector: Detector,
@@ -124,26 +129,32 @@ impl PpfEngine {
                     ),
                 )
             })?;
+        let mesh = Mesh::from_ply_file(path).map_err(model_error)?;
+        let fingerprint = mesh.fingerprint();
         let cache = Self::cache_path(path, cache_dir);
-        if cache.is_file() {
-            match store::load_expecting(&cache, &self.model_params) {
+        let beside = path.with_extension(MODEL_EXTENSION);
+        let mut candidates = vec![beside];
+        if cache != candidates[0] {
+            candidates.push(cache.clone());
+        }
+        for candidate in candidates.iter().filter(|p| p.is_file()) {
+            match store::load_expecting(candidate, &self.model_params, fingerprint) {
                 Ok(model) if model.object_id() == id => {
-                    tracing::info!(path = %cache.display(), "using the model built earlier");
-                    return Ok(loaded(model, &cache));
+                    tracing::info!(path = %candidate.display(), "using the model built earlier");
+                    return Ok(loaded(model, candidate));
                 }
                 Ok(model) => tracing::info!(
-                    path = %cache.display(),
+                    path = %candidate.display(),
                     cached = model.object_id(),
                     wanted = id,
-                    "cached model has another object id; rebuilding"
+                    "model built earlier has another object id; not used"
                 ),
                 Err(e) => {
-                    tracing::info!(path = %cache.display(), reason = %e, "cached model refused; rebuilding")
+                    tracing::info!(path = %candidate.display(), reason = %e, "model built earlier refused")
                 }
             }
         }
         let started = std::time::Instant::now();
-        let mesh = Mesh::from_ply_file(path).map_err(model_error)?;
         let name = path
             .file_stem()
             .and_then(|s| s.to_str())
@@ -183,17 +194,19 @@ impl DetectionEngine for PpfEngine {
     }
 
     fn select(&self, files: Vec<PathBuf>) -> Vec<PathBuf> {
-        // A PLY mesh with a model file beside it is served from the model file.
-        let models: Vec<&PathBuf> = files
+        // A model file beside a PLY mesh is reached through the mesh, which says whether the
+        // model still belongs to it.
+        let has_mesh = |model: &PathBuf| {
+            files
+                .iter()
+                .any(|p| ext_is(p, "ply") && p.with_extension(MODEL_EXTENSION) == *model)
+        };
+        let mut out: Vec<PathBuf> = files
             .iter()
-            .filter(|p| ext_is(p, MODEL_EXTENSION))
+            .filter(|p| ext_is(p, MODEL_EXTENSION) && !has_mesh(p))
+            .cloned()
             .collect();
-        let mut out: Vec<PathBuf> = models.iter().map(|p| (*p).clone()).collect();
-        for p in &files {
-            if ext_is(p, "ply") && !models.iter().any(|m| m.file_stem() == p.file_stem()) {
-                out.push(p.clone());
-            }
-        }
+        out.extend(files.iter().filter(|p| ext_is(p, "ply")).cloned());
         out
     }
 
@@ -205,6 +218,13 @@ impl DetectionEngine for PpfEngine {
     ) -> Result<LoadedModel, EngineError> {
         if ext_is(path, "ply") {
             return self.load_ply(path, object_id, cache_dir);
+        }
+        if let Some(mesh) = ["ply", "PLY"]
+            .map(|e| path.with_extension(e))
+            .into_iter()
+            .find(|p| p.is_file())
+        {
+            return self.load_ply(&mesh, object_id, cache_dir);
         }
         let model = store::load(path).map_err(model_error)?;
         if let Some(id) = object_id {
@@ -330,21 +350,128 @@ mod tests {
     }
 
     #[test]
-    fn a_mesh_with_a_model_beside_it_is_served_from_the_model() {
+    fn a_model_file_beside_its_mesh_is_reached_through_the_mesh() {
         let e = PpfEngine::default();
         let files = vec![
             PathBuf::from("d/obj_000001.ply"),
             PathBuf::from("d/obj_000001.ppfm"),
             PathBuf::from("d/obj_000002.ply"),
+            PathBuf::from("d/obj_000003.ppfm"),
             PathBuf::from("d/readme.txt"),
         ];
         let chosen = e.select(files);
         assert_eq!(
             chosen,
             vec![
-                PathBuf::from("d/obj_000001.ppfm"),
+                PathBuf::from("d/obj_000003.ppfm"),
+                PathBuf::from("d/obj_000001.ply"),
                 PathBuf::from("d/obj_000002.ply")
             ]
         );
+    }
+
+    fn scratch(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("ppfd-engine-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    /// An ASCII PLY file of a closed box of `size` mm (normals come from the faces).
+    fn write_box_ply(path: &Path, [sx, sy, sz]: [f32; 3]) {
+        let mut text = String::from(
+            "ply\nformat ascii 1.0\nelement vertex 8\nproperty float x\nproperty float y\n\
+             property float z\nelement face 6\nproperty list uchar int vertex_indices\nend_header\n",
+        );
+        for i in 0..8 {
+            let s = |bit: i32, half: f32| if i & bit != 0 { half } else { -half };
+            text += &format!("{} {} {}\n", s(1, sx / 2.0), s(2, sy / 2.0), s(4, sz / 2.0));
+        }
+        for q in [
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+        ] {
+            text += &format!("4 {} {} {} {}\n", q[0], q[1], q[2], q[3]);
+        }
+        std::fs::write(path, text).unwrap();
+    }
+
+    fn diagonal([x, y, z]: [f32; 3]) -> f32 {
+        (x * x + y * y + z * z).sqrt()
+    }
+
+    /// Loads the directory as the daemon does at start: the selected files, by object id.
+    fn load_dir(e: &PpfEngine, dir: &Path, cache: Option<&Path>) -> Vec<LoadedModel> {
+        let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|f| f.unwrap().path())
+            .collect();
+        files.sort();
+        e.select(files)
+            .iter()
+            .map(|p| e.load(p, None, cache).unwrap_or_else(|err| panic!("{err}")))
+            .collect()
+    }
+
+    /// A picking cell whose mesh is replaced gets a model of the new mesh, whether the model
+    /// of the old one lies beside the mesh or in the model cache.
+    #[test]
+    fn a_replaced_mesh_is_rebuilt_not_matched_with_its_old_model() {
+        let (a, b) = ([60.0, 40.0, 20.0], [90.0, 40.0, 20.0]);
+        for with_cache in [false, true] {
+            let root = scratch(if with_cache { "cache" } else { "beside" });
+            let (models, cache) = (root.join("models"), root.join("cache"));
+            std::fs::create_dir_all(&models).unwrap();
+            let cache = with_cache.then_some(cache.as_path());
+            let ply = models.join("obj_000001.ply");
+            let e = PpfEngine::default();
+
+            write_box_ply(&ply, a);
+            let first = load_dir(&e, &models, cache);
+            assert_eq!(first.len(), 1);
+            assert!((first[0].info.diameter_mm - diagonal(a)).abs() < 0.01);
+            let saved = PpfEngine::cache_path(&ply, cache);
+            assert_eq!(
+                first[0].source, saved,
+                "the built model is saved and mapped"
+            );
+            drop(first);
+
+            // Unchanged mesh: the model built earlier is used, not rebuilt. A copy renamed
+            // "earlier" tells the two apart.
+            let mesh = Mesh::from_ply_file(&ply).unwrap();
+            let earlier = ObjectModel::build(&mesh, 1, "earlier", &ModelParams::default()).unwrap();
+            store::save(&earlier, &saved).unwrap();
+            let again = load_dir(&e, &models, cache);
+            assert_eq!(again[0].info.name(), "earlier");
+            drop(again);
+
+            // Another mesh under the same name: rebuilt, and the saved model replaced.
+            write_box_ply(&ply, b);
+            let replaced = load_dir(&e, &models, cache);
+            assert_eq!(replaced.len(), 1, "one model for one mesh");
+            assert!(
+                (replaced[0].info.diameter_mm - diagonal(b)).abs() < 0.01,
+                "diameter {} mm is the old mesh's",
+                replaced[0].info.diameter_mm
+            );
+            assert_eq!(replaced[0].info.name(), "obj_000001");
+            let fingerprint = Mesh::from_ply_file(&ply).unwrap().fingerprint();
+            let on_disk = store::load(&saved).unwrap();
+            assert_eq!(on_disk.mesh_fingerprint(), fingerprint);
+            drop((replaced, on_disk));
+
+            // Asking for the model file beside the mesh by name goes through the mesh too.
+            if !with_cache {
+                write_box_ply(&ply, a);
+                let by_name = e.load(&saved, None, None).unwrap();
+                assert!((by_name.info.diameter_mm - diagonal(a)).abs() < 0.01);
+            }
+            std::fs::remove_dir_all(&root).unwrap();
+        }
     }
 }

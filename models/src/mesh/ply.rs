@@ -1029,4 +1029,138 @@ mod tests {
             );
         }
     }
+
+    /// A fixture with irregular coordinates and normals (values exact in `f32`, so that every
+    /// encoding holds the same numbers), a `-0.0` among them, and two triangles.
+    fn irregular_fixture(ty: &'static str) -> Fixture<'static> {
+        let props: &'static [(&'static str, &'static str)] = match ty {
+            "float" => XYZ_N,
+            _ => &[
+                ("x", "double"),
+                ("y", "double"),
+                ("z", "double"),
+                ("nx", "double"),
+                ("ny", "double"),
+                ("nz", "double"),
+            ],
+        };
+        let f = |v: f64| v as f32 as f64;
+        Fixture {
+            vertex_props: props,
+            vertices: vec![
+                vec![f(10.1), f(-3.25e-2), f(1234.567), 0.0, 0.0, 1.0],
+                vec![f(57.3), -0.0, f(1234.567), f(0.6), f(0.8), 0.0],
+                vec![f(10.1), f(41.7), f(1190.02), f(-0.28), f(0.96), 0.0],
+                vec![f(-7.77), f(13.3), f(1201.5), 0.0, -1.0, 0.0],
+            ],
+            face_list: Some(("uchar", "int", "vertex_indices")),
+            faces: vec![vec![0, 1, 2], vec![0, 2, 3]],
+        }
+    }
+
+    #[test]
+    fn fingerprint_does_not_depend_on_the_encoding() {
+        let reference = read(&irregular_fixture("float").bytes(Format::Ascii))
+            .unwrap()
+            .fingerprint();
+        for ty in ["float", "double"] {
+            for format in [Format::Ascii, Format::Le, Format::Be] {
+                let mesh = read(&irregular_fixture(ty).bytes(format)).unwrap();
+                assert_eq!(mesh.fingerprint(), reference, "{ty} {format:?}");
+            }
+        }
+        // The same file with one coordinate one step of f32 away is another mesh.
+        let mut moved = irregular_fixture("float");
+        moved.vertices[2][1] = f64::from(f32::from_bits((41.7f32).to_bits() + 1));
+        let moved = read(&moved.bytes(Format::Le)).unwrap();
+        assert_ne!(moved.fingerprint(), reference);
+        // And so is the same vertex list with a triangle's winding reversed.
+        let mut flipped = irregular_fixture("float");
+        flipped.faces[1] = vec![0, 3, 2];
+        let flipped = read(&flipped.bytes(Format::Ascii)).unwrap();
+        assert_ne!(flipped.fingerprint(), reference);
+    }
+
+    /// Rewrites an ASCII PLY file holding only `vertex` and `face` elements as binary little
+    /// endian with the same numbers: each token is parsed as its declared type.
+    fn ascii_to_binary(text: &str) -> Vec<u8> {
+        let (header, body) = text.split_once("end_header\n").expect("a PLY header");
+        let mut vertex_types = Vec::new();
+        let mut list_types = None;
+        let mut vertex_count = 0;
+        let mut element = "";
+        for line in header.lines() {
+            let words: Vec<&str> = line.split_whitespace().collect();
+            match words.as_slice() {
+                ["element", name, count] => {
+                    element = name;
+                    if *name == "vertex" {
+                        vertex_count = count.parse().unwrap();
+                    } else {
+                        assert_eq!(*name, "face", "only vertex and face elements");
+                    }
+                }
+                ["property", "list", count_ty, index_ty, _] => {
+                    assert_eq!(element, "face");
+                    list_types = Some((count_ty.to_string(), index_ty.to_string()));
+                }
+                ["property", ty, _] => {
+                    assert_eq!(element, "vertex", "face properties other than the list");
+                    vertex_types.push(ty.to_string());
+                }
+                _ => {}
+            }
+        }
+        let mut out = header
+            .replace("format ascii 1.0", "format binary_little_endian 1.0")
+            .into_bytes();
+        out.extend_from_slice(b"end_header\n");
+        let value = |ty: &str, token: &str| -> f64 {
+            match ty {
+                "float" => f64::from(token.parse::<f32>().unwrap()),
+                _ => token.parse::<f64>().unwrap(),
+            }
+        };
+        let (count_ty, index_ty) = list_types.expect("a face list");
+        for (row, line) in body.lines().filter(|l| !l.trim().is_empty()).enumerate() {
+            let tokens: Vec<&str> = line.split_whitespace().collect();
+            if row < vertex_count {
+                assert_eq!(tokens.len(), vertex_types.len());
+                for (ty, token) in vertex_types.iter().zip(&tokens) {
+                    put(&mut out, ty, value(ty, token), Format::Le);
+                }
+            } else {
+                put(&mut out, &count_ty, value(&count_ty, tokens[0]), Format::Le);
+                for token in &tokens[1..] {
+                    put(&mut out, &index_ty, value(&index_ty, token), Format::Le);
+                }
+            }
+        }
+        out
+    }
+
+    /// A real object model (an ASCII file) and its binary little-endian copy give one
+    /// fingerprint.
+    #[test]
+    fn fingerprint_of_a_real_mesh_survives_conversion_to_binary() {
+        let Some(root) = crate::mesh::shared_test_data() else {
+            return;
+        };
+        let path = root.join("lmo/models/obj_000001.ply");
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(
+            text.contains("format ascii 1.0"),
+            "{} is ASCII",
+            path.display()
+        );
+        let binary = ascii_to_binary(&text);
+        assert!(binary.len() < text.len(), "the copy is binary");
+        let from_ascii = Mesh::from_ply_file(&path).unwrap();
+        let from_binary = read(&binary).unwrap();
+        assert_eq!(from_ascii.positions.len(), from_binary.positions.len());
+        assert_eq!(from_ascii.fingerprint(), from_binary.fingerprint());
+        // Another object's mesh gives another fingerprint.
+        let other = Mesh::from_ply_file(root.join("lmo/models/obj_000005.ply")).unwrap();
+        assert_ne!(other.fingerprint(), from_ascii.fingerprint());
+    }
 }

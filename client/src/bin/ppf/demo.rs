@@ -14,6 +14,7 @@ use ppfd_client::{
 };
 use ppfd_models::bop::BopDataset;
 use ppfd_models::camera::OwnedDepthFrame;
+use ppfd_models::mesh::Mesh;
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_models::parts::Part;
 use ppfd_models::store;
@@ -58,8 +59,7 @@ struct DemoScene {
 
 /// The embedded default: the generated parts resting on a table, seen by a Kinect-like camera.
 fn generated_scene(args: &DemoArgs, cache: &Path) -> Result<DemoScene, String> {
-    let meshes: Vec<(Part, ppfd_models::mesh::Mesh)> =
-        Part::ALL.iter().map(|p| (*p, p.mesh())).collect();
+    let meshes: Vec<(Part, Mesh)> = Part::ALL.iter().map(|p| (*p, p.mesh())).collect();
     let noise = if args.no_noise {
         None
     } else {
@@ -75,11 +75,8 @@ fn generated_scene(args: &DemoArgs, cache: &Path) -> Result<DemoScene, String> {
     let mut model_files = Vec::new();
     for (part, mesh) in &meshes {
         let path = cache.join(format!("{}_{:06}.ppfm", part.name(), part.object_id()));
-        if store::load_expecting(&path, &params).is_err() {
-            let started = Instant::now();
-            let model = ObjectModel::build(mesh, part.object_id(), part.name(), &params)
-                .map_err(|e| e.to_string())?;
-            store::save(&model, &path).map_err(|e| e.to_string())?;
+        let started = Instant::now();
+        if ensure_model_file(&path, mesh, part.object_id(), part.name(), &params)? {
             println!(
                 "built the model of {} in {:.1} s",
                 part.name(),
@@ -99,6 +96,32 @@ fn generated_scene(args: &DemoArgs, cache: &Path) -> Result<DemoScene, String> {
         model_files,
         label: format!("generated parts on a table, seed {}{noise}", args.seed),
     })
+}
+
+/// Makes `path` hold the model of `mesh`: keeps the file if it was built from this mesh (its
+/// fingerprint) with `params` and `object_id`, else builds the model and saves it there (saying
+/// why the file was not kept). Returns whether it built.
+fn ensure_model_file(
+    path: &Path,
+    mesh: &Mesh,
+    object_id: u32,
+    name: &str,
+    params: &ModelParams,
+) -> Result<bool, String> {
+    if path.is_file() {
+        match store::load_expecting(path, params, mesh.fingerprint()) {
+            Ok(model) if model.object_id() == object_id => return Ok(false),
+            Ok(model) => println!(
+                "{}: object {}, not {object_id}: rebuilding",
+                path.display(),
+                model.object_id()
+            ),
+            Err(e) => println!("{e}"),
+        }
+    }
+    let model = ObjectModel::build(mesh, object_id, name, params).map_err(|e| e.to_string())?;
+    store::save(&model, path).map_err(|e| e.to_string())?;
+    Ok(true)
 }
 
 fn bop_scene(args: &DemoArgs, root: &Path) -> Result<DemoScene, String> {
@@ -344,4 +367,59 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
     let _ = std::fs::remove_dir_all(&work);
     println!("\ndaemon stopped");
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Point3;
+
+    /// A closed box of `size` mm.
+    fn box_mesh([sx, sy, sz]: [f32; 3]) -> Mesh {
+        let corners = (0..8)
+            .map(|i| {
+                let s = |bit: i32, half: f32| if i & bit != 0 { half } else { -half };
+                Point3::new(s(1, sx / 2.0), s(2, sy / 2.0), s(4, sz / 2.0))
+            })
+            .collect();
+        let faces: Vec<[u32; 3]> = [
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+        ]
+        .iter()
+        .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+        .collect();
+        Mesh::from_triangles(corners, &faces).unwrap()
+    }
+
+    #[test]
+    fn a_model_file_of_an_older_part_mesh_is_rebuilt() {
+        let dir = std::env::temp_dir().join(format!("ppf-demo-cache-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("part_000002.ppfm");
+        let params = ModelParams::default();
+        let (older, newer) = (box_mesh([40.0, 40.0, 10.0]), box_mesh([40.0, 30.0, 10.0]));
+        assert!(ensure_model_file(&path, &older, 2, "part", &params).unwrap());
+        assert!(
+            !ensure_model_file(&path, &older, 2, "part", &params).unwrap(),
+            "the same mesh keeps its model"
+        );
+        assert!(
+            ensure_model_file(&path, &newer, 2, "part", &params).unwrap(),
+            "another mesh gets a new model"
+        );
+        let model = store::load(&path).unwrap();
+        assert_eq!(model.mesh_fingerprint(), newer.fingerprint());
+        assert!((model.diameter_mm() - (40f32 * 40.0 + 30.0 * 30.0 + 100.0).sqrt()).abs() < 0.01);
+        assert!(
+            ensure_model_file(&path, &newer, 5, "part", &params).unwrap(),
+            "another object id gets a new model"
+        );
+        assert_eq!(store::load(&path).unwrap().object_id(), 5);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

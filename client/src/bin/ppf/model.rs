@@ -146,9 +146,10 @@ fn info(file: &Path) -> Result<(), Box<dyn std::error::Error>> {
     );
     let mesh = model.render_mesh();
     println!(
-        "mesh            {} vertices, {} triangles",
+        "mesh            {} vertices, {} triangles, fingerprint {:08x}",
         mesh.positions.len(),
-        mesh.faces.len()
+        mesh.faces.len(),
+        model.mesh_fingerprint()
     );
     println!("size            {:.2} MB", model.byte_size() as f64 / 1e6);
     println!("parameters      {p:?}");

@@ -23,32 +23,45 @@ pub fn cache_dir() -> PathBuf {
     std::env::temp_dir().join("ppfd-cache")
 }
 
-/// A cache file name that changes whenever the mesh file does (path, size, modification time).
-fn cache_path(mesh: &Path) -> std::io::Result<PathBuf> {
-    let meta = std::fs::metadata(mesh)?;
-    let modified = meta
-        .modified()
-        .ok()
-        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
-        .map(|d| d.as_nanos())
-        .unwrap_or(0);
+/// The cache file of the mesh at `mesh`: one per mesh file (its canonical path), whose content
+/// says which mesh it was built from.
+fn cache_path(cache_dir: &Path, mesh: &Path) -> std::io::Result<PathBuf> {
     let canonical = std::fs::canonicalize(mesh)?;
-    let key = format!("{}|{}|{}", canonical.display(), meta.len(), modified);
-    let hash = crc32fast::hash(key.as_bytes());
+    let hash = crc32fast::hash(canonical.as_os_str().as_encoded_bytes());
     let stem = mesh.file_stem().unwrap_or_default().to_string_lossy();
-    Ok(cache_dir().join(format!("{stem}-{hash:08x}.{}", store::EXTENSION)))
+    Ok(cache_dir.join(format!("{stem}-{hash:08x}.{}", store::EXTENSION)))
 }
 
-/// Loads the model of `mesh` from the cache, or builds it and caches it.
+/// Loads the model of `mesh_path` from the cache ([`cache_dir`]), or builds it and caches it.
 pub fn load_or_build(
     mesh_path: &Path,
     object_id: u32,
     params: &ModelParams,
 ) -> Result<ObjectModel, String> {
-    let cached = cache_path(mesh_path).map_err(|e| format!("{}: {e}", mesh_path.display()))?;
-    if let Ok(model) = store::load_expecting(&cached, params) {
-        if model.object_id() == object_id {
-            return Ok(model);
+    load_or_build_in(&cache_dir(), mesh_path, object_id, params)
+}
+
+/// [`load_or_build`] with the cache in `cache_dir`. The mesh is read every time: the cached
+/// model is used only if built from the same mesh (its fingerprint), with the same parameters
+/// and object id; otherwise it is rebuilt and replaced.
+fn load_or_build_in(
+    cache_dir: &Path,
+    mesh_path: &Path,
+    object_id: u32,
+    params: &ModelParams,
+) -> Result<ObjectModel, String> {
+    let cached =
+        cache_path(cache_dir, mesh_path).map_err(|e| format!("{}: {e}", mesh_path.display()))?;
+    let mesh = Mesh::from_ply_file(mesh_path).map_err(|e| e.to_string())?;
+    if cached.is_file() {
+        match store::load_expecting(&cached, params, mesh.fingerprint()) {
+            Ok(model) if model.object_id() == object_id => return Ok(model),
+            Ok(model) => tracing::info!(
+                "{}: object {}, not {object_id}: rebuilding",
+                cached.display(),
+                model.object_id()
+            ),
+            Err(e) => tracing::info!("{e}"),
         }
     }
     let name = mesh_path
@@ -56,9 +69,8 @@ pub fn load_or_build(
         .unwrap_or_default()
         .to_string_lossy()
         .into_owned();
-    let mesh = Mesh::from_ply_file(mesh_path).map_err(|e| e.to_string())?;
     let model = ObjectModel::build(&mesh, object_id, &name, params).map_err(|e| e.to_string())?;
-    if std::fs::create_dir_all(cache_dir()).is_ok() {
+    if std::fs::create_dir_all(cache_dir).is_ok() {
         if let Err(e) = store::save(&model, &cached) {
             tracing::warn!("could not cache {}: {e}", cached.display());
         }
@@ -100,4 +112,94 @@ pub fn symmetric_pose_errors(est: &Pose, gt: &Pose, symmetries: &[Pose]) -> (f32
         }
     }
     best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scratch(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("ppf-offline-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&d);
+        std::fs::create_dir_all(&d).unwrap();
+        d
+    }
+
+    /// An ASCII PLY file of a closed box of `size` mm.
+    fn write_box_ply(path: &Path, [sx, sy, sz]: [f32; 3]) {
+        let mut text = String::from(
+            "ply\nformat ascii 1.0\nelement vertex 8\nproperty float x\nproperty float y\n\
+             property float z\nelement face 6\nproperty list uchar int vertex_indices\nend_header\n",
+        );
+        for i in 0..8 {
+            let s = |bit: i32, half: f32| if i & bit != 0 { half } else { -half };
+            text += &format!("{} {} {}\n", s(1, sx / 2.0), s(2, sy / 2.0), s(4, sz / 2.0));
+        }
+        for q in [
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+        ] {
+            text += &format!("4 {} {} {} {}\n", q[0], q[1], q[2], q[3]);
+        }
+        std::fs::write(path, text).unwrap();
+    }
+
+    fn diagonal([x, y, z]: [f32; 3]) -> f32 {
+        (x * x + y * y + z * z).sqrt()
+    }
+
+    #[test]
+    fn a_cached_model_is_rebuilt_when_its_mesh_changes() {
+        let root = scratch("rebuild");
+        let cache = root.join("cache");
+        let ply = root.join("obj_000003.ply");
+        let params = ModelParams::default();
+        let (a, b) = ([50.0, 30.0, 20.0], [50.0, 30.0, 45.0]);
+        write_box_ply(&ply, a);
+        let first = load_or_build_in(&cache, &ply, 3, &params).unwrap();
+        assert!((first.diameter_mm() - diagonal(a)).abs() < 0.01);
+        let cached = cache_path(&cache, &ply).unwrap();
+        assert!(cached.is_file(), "the built model is cached");
+
+        // Unchanged mesh: the cached model is used. A copy renamed "earlier" tells it apart
+        // from a rebuilt one.
+        let mesh = Mesh::from_ply_file(&ply).unwrap();
+        store::save(
+            &ObjectModel::build(&mesh, 3, "earlier", &params).unwrap(),
+            &cached,
+        )
+        .unwrap();
+        assert_eq!(
+            load_or_build_in(&cache, &ply, 3, &params).unwrap().name(),
+            "earlier"
+        );
+
+        // The mesh file replaced by another mesh (its modification time kept or not): rebuilt.
+        write_box_ply(&ply, b);
+        let second = load_or_build_in(&cache, &ply, 3, &params).unwrap();
+        assert!(
+            (second.diameter_mm() - diagonal(b)).abs() < 0.01,
+            "diameter {} mm is the old mesh's",
+            second.diameter_mm()
+        );
+        assert_eq!(second.name(), "obj_000003");
+        let fingerprint = Mesh::from_ply_file(&ply).unwrap().fingerprint();
+        assert_eq!(
+            store::load(&cached).unwrap().mesh_fingerprint(),
+            fingerprint
+        );
+
+        // A model file of an older format is rebuilt, not an error.
+        let mut old = std::fs::read(&cached).unwrap();
+        old[8..12].copy_from_slice(&(store::FORMAT_VERSION - 1).to_le_bytes());
+        std::fs::write(&cached, old).unwrap();
+        let third = load_or_build_in(&cache, &ply, 3, &params).unwrap();
+        assert!((third.diameter_mm() - diagonal(b)).abs() < 0.01);
+        assert!(store::load(&cached).is_ok(), "the old file is replaced");
+        std::fs::remove_dir_all(&root).unwrap();
+    }
 }
