@@ -37,6 +37,9 @@ pub struct EvalArgs {
     /// Print the score report as JSON.
     #[arg(long)]
     pub json: bool,
+    /// Override a detector parameter, `stage.field=value` (as `ppf detect --set`); repeatable.
+    #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
+    pub set: Vec<String>,
 }
 
 pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
@@ -65,7 +68,11 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
         args.objects.clone()
     };
     let models = dataset_models(&dataset, &ids)?;
-    let detector = Detector::default();
+    let mut params = ppfd_models::detector::DetectParams::new();
+    for kv in &args.set {
+        crate::detect_offline::set_param(&mut params, kv)?;
+    }
+    let detector = Detector::new(params);
     let opts = DetectOptions {
         hypotheses_per_object: args.hypotheses.max(1),
         deadline: None,
