@@ -335,6 +335,7 @@ impl Detector {
             &p.rescoring,
         );
         if use_silhouettes {
+            // Only the best `top_poses` go on to ICP.
             with_silhouettes(
                 &mut scored,
                 &mesh,
@@ -343,6 +344,7 @@ impl Detector {
                 edges,
                 conflict,
                 &p.rescoring,
+                p.icp.top_poses,
             );
         }
         timings.rescoring += t.elapsed();
@@ -364,6 +366,7 @@ impl Detector {
             &p.rescoring,
         );
         if use_silhouettes {
+            // Only the best `max_candidates` go through the filters.
             with_silhouettes(
                 &mut rescored,
                 &mesh,
@@ -372,6 +375,7 @@ impl Detector {
                 edges,
                 conflict,
                 &p.rescoring,
+                p.filters.max_candidates,
             );
         }
         timings.rescoring += t.elapsed();

@@ -249,36 +249,183 @@ pub fn rescore(
     scored
 }
 
-/// Measures the silhouette agreement of every pose in `scored` (rendering `mesh`, whose
-/// bounding sphere is `sphere`, against the scene's `edges`), folds it into the score with
-/// exponent `params.silhouette_weight` and sorts best first (ties: more votes first). A pose whose outline is
-/// nowhere visible gets agreement 0.
+/// Measures the silhouette agreement of the poses in `scored` (rendering `mesh`, whose bounding
+/// sphere is `sphere`, against the scene's `edges`), folds it into the score with exponent
+/// `params.silhouette_weight`, sorts best first (ties: more votes first) and keeps the `keep`
+/// best. A pose whose outline is nowhere visible gets agreement 0.
+///
+/// The agreement is at most 1, so a pose's score can only fall from its `support_score`.
+/// Poses are measured in order of `support_score`, a batch at a time, and measuring stops once
+/// the next pose's `support_score` is below the `keep`-th best score found: the poses left
+/// could not enter the best `keep`, which are exactly those measuring every pose would give.
 pub fn with_silhouettes(
-    scored: &mut [Scored],
+    scored: &mut Vec<Scored>,
     mesh: &crate::mesh::Mesh,
     sphere: &(Point3<f32>, f32),
     scene: &SceneImage,
     edges: &crate::filters::EdgeMap,
     occlusion_tolerance_mm: f32,
     params: &RescoringParams,
+    keep: usize,
 ) {
     let weight = params.silhouette_weight;
-    scored
-        .par_iter_mut()
-        .for_each_init(crate::render::Renderer::new, |renderer, s| {
-            let f = crate::filters::outline_counts(
-                renderer,
-                mesh,
-                sphere,
-                &s.pose,
-                scene,
-                edges,
-                occlusion_tolerance_mm,
-            )
-            .and_then(|c| c.fraction_of_at_least(params.min_visible_outline))
-            .unwrap_or(0.0);
-            s.silhouette = Some(f);
-            s.score = s.support_score * f.powf(weight);
-        });
+    scored.sort_by(|a, b| {
+        b.support_score
+            .total_cmp(&a.support_score)
+            .then(b.votes.cmp(&a.votes))
+    });
+    let batch = 4 * rayon::current_num_threads().max(1);
+    let mut measured = 0;
+    let mut best: Vec<f32> = Vec::new(); // scores found so far, best first, at most `keep`
+    while measured < scored.len() {
+        if best.len() >= keep && keep > 0 && scored[measured].support_score < best[keep - 1] {
+            break;
+        }
+        let end = (measured + batch).min(scored.len());
+        scored[measured..end].par_iter_mut().for_each_init(
+            crate::render::Renderer::new,
+            |renderer, s| {
+                let f = crate::filters::outline_counts(
+                    renderer,
+                    mesh,
+                    sphere,
+                    &s.pose,
+                    scene,
+                    edges,
+                    occlusion_tolerance_mm,
+                )
+                .and_then(|c| c.fraction_of_at_least(params.min_visible_outline))
+                .unwrap_or(0.0);
+                s.silhouette = Some(f);
+                s.score = s.support_score * f.powf(weight);
+            },
+        );
+        for s in &scored[measured..end] {
+            let at = best.partition_point(|&b| b >= s.score);
+            best.insert(at, s.score);
+        }
+        best.truncate(keep.max(1));
+        measured = end;
+    }
+    scored.truncate(measured);
     scored.sort_by(|a, b| b.score.total_cmp(&a.score).then(b.votes.cmp(&a.votes)));
+    scored.truncate(keep);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::filters::{simplified_mesh, EdgeMap, FilterParams};
+    use crate::model::{ModelParams, ObjectModel};
+    use crate::parts::Part;
+    use crate::render::bounding_sphere;
+    use crate::rng::Rng;
+    use crate::scene::{prepare, SceneParams};
+    use crate::synthetic::SceneSpec;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    #[test]
+    fn support_is_confirmed_over_visible() {
+        let f = Fit {
+            facing: 100,
+            measured: 90,
+            inliers: 40,
+            occluded: 10,
+            see_through: 5,
+        };
+        assert_eq!(f.visible(), 80);
+        assert!((f.support() - 0.5).abs() < 1e-6);
+        assert_eq!(Fit::default().support(), 0.0);
+        // The same inliers with more of the pose left unconfirmed score lower.
+        let params = RescoringParams::default();
+        let looser = Fit { measured: 130, ..f };
+        assert!(fit_and_support(&looser, 1000, &params) < fit_and_support(&f, 1000, &params));
+        let fit_only = RescoringParams {
+            support_weight: 0.0,
+            ..params
+        };
+        assert_eq!(
+            fit_and_support(&looser, 1000, &fit_only),
+            fit_and_support(&f, 1000, &fit_only)
+        );
+    }
+
+    #[test]
+    fn bounded_silhouettes_keep_the_same_best_poses() {
+        let mesh = Part::LBracket.mesh();
+        let id = Part::LBracket.object_id();
+        let model = ObjectModel::build(&mesh, id, "l", &ModelParams::default()).unwrap();
+        let generated = SceneSpec::new(3).object(id, &mesh).build().unwrap();
+        let truth = generated.ground_truth[0].1;
+        let scene = prepare(&generated.frame.view(), &SceneParams::default()).unwrap();
+        let d = model.diameter_mm();
+        // Poses around the truth, from close to far off.
+        let mut rng = Rng::new(11);
+        let poses: Vec<(Pose, u32)> = (0..300)
+            .map(|i| {
+                let spread = (i % 30) as f32 / 30.0;
+                let axis = nalgebra::Unit::new_normalize(nalgebra::Vector3::new(
+                    rng.normal() as f32,
+                    rng.normal() as f32,
+                    rng.normal() as f32,
+                ));
+                let turn = UnitQuaternion::from_axis_angle(&axis, spread * 0.6);
+                let shift = Translation3::new(
+                    rng.range(-1.0, 1.0) * spread * 0.2 * d,
+                    rng.range(-1.0, 1.0) * spread * 0.2 * d,
+                    rng.range(-1.0, 1.0) * spread * 0.2 * d,
+                );
+                (shift * truth * turn, 300 - i as u32)
+            })
+            .collect();
+        let params = RescoringParams::default();
+        let surface = model.surface_points();
+        let edges = EdgeMap::new(&scene, &FilterParams::default());
+        let silhouettes = simplified_mesh(&model.render_mesh(), 0.025 * d);
+        let sphere = bounding_sphere(&silhouettes);
+        let conflict = params.conflict_mm(d);
+        let scored = rescore(
+            &poses,
+            &surface,
+            &scene,
+            params.tolerance_mm(d),
+            conflict,
+            &params,
+        );
+        let mut every = scored.clone();
+        let all = every.len();
+        with_silhouettes(
+            &mut every,
+            &silhouettes,
+            &sphere,
+            &scene,
+            &edges,
+            conflict,
+            &params,
+            all,
+        );
+        assert_eq!(every.len(), all);
+        assert!(every.iter().all(|s| s.silhouette.is_some()));
+        for keep in [1, 10, 50] {
+            let mut bounded = scored.clone();
+            with_silhouettes(
+                &mut bounded,
+                &silhouettes,
+                &sphere,
+                &scene,
+                &edges,
+                conflict,
+                &params,
+                keep,
+            );
+            assert_eq!(bounded.len(), keep);
+            let a: Vec<f32> = bounded.iter().map(|s| s.score).collect();
+            let b: Vec<f32> = every[..keep].iter().map(|s| s.score).collect();
+            assert_eq!(a, b, "best {keep}");
+        }
+        // The best pose is near the truth, and with silhouettes folded in it scores at most
+        // its support score.
+        assert!((every[0].pose.translation.vector - truth.translation.vector).norm() < 0.05 * d);
+        assert!(every.iter().all(|s| s.score <= s.support_score));
+    }
 }

@@ -443,6 +443,8 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
         );
         let sphere = bounding_sphere(&mesh);
         if p.rescoring.silhouette_weight > 0.0 {
+            // Every pose measured: the table ranks them all.
+            let all = scored.len();
             with_silhouettes(
                 &mut scored,
                 &mesh,
@@ -451,6 +453,7 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
                 &edges,
                 p.rescoring.conflict_mm(d),
                 &p.rescoring,
+                all,
             );
         }
         let refined: Vec<_> = scored
@@ -467,6 +470,8 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             &p.rescoring,
         );
         if p.rescoring.silhouette_weight > 0.0 {
+            // Every pose measured: the table ranks them all.
+            let all = rescored.len();
             with_silhouettes(
                 &mut rescored,
                 &mesh,
@@ -475,6 +480,7 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
                 &edges,
                 p.rescoring.conflict_mm(d),
                 &p.rescoring,
+                all,
             );
         }
         let final_poses: Vec<_> = rescored.iter().map(|s| s.pose).collect();
