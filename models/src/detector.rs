@@ -410,6 +410,7 @@ impl Detector {
                     scene,
                     edges,
                     conflict,
+                    p.rescoring.min_visible_outline,
                 )
             });
             if silhouette.is_some_and(|f| f >= p.filters.min_silhouette_fraction) {

@@ -120,6 +120,7 @@ fn filters_reject_a_planar_impostor_and_keep_the_true_pose() {
             &image,
             &edges,
             params.rescoring.conflict_mm(d),
+            params.rescoring.min_visible_outline,
         );
         (f, is_consistent(&f, &params.filters), s)
     };
