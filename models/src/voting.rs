@@ -22,8 +22,9 @@ use crate::Pose;
 /// Parameters of voting.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct VotingParams {
-    /// Every `reference_step`-th subsampled scene point is a reference point. Drost et al. use
-    /// every 5th.
+    /// Every `reference_step`-th subsampled scene point (off large planes, see
+    /// [`reference_points`]) is a reference point. Drost et al. use every 5th; 2 here: on the
+    /// real LM-O frame every 5th loses the driller (synth-lmo-dev's recall is the same for both).
     pub reference_step: usize,
     /// Use the paper's neighbouring keys (≤ 15 extra) against quantisation noise.
     pub neighbour_keys: bool,
