@@ -377,27 +377,10 @@ mod tests {
         d
     }
 
-    /// An ASCII PLY file of a closed box of `size` mm (normals come from the faces).
+    /// An ASCII PLY file of a closed box of `size` mm.
     fn write_box_ply(path: &Path, [sx, sy, sz]: [f32; 3]) {
-        let mut text = String::from(
-            "ply\nformat ascii 1.0\nelement vertex 8\nproperty float x\nproperty float y\n\
-             property float z\nelement face 6\nproperty list uchar int vertex_indices\nend_header\n",
-        );
-        for i in 0..8 {
-            let s = |bit: i32, half: f32| if i & bit != 0 { half } else { -half };
-            text += &format!("{} {} {}\n", s(1, sx / 2.0), s(2, sy / 2.0), s(4, sz / 2.0));
-        }
-        for q in [
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-        ] {
-            text += &format!("4 {} {} {} {}\n", q[0], q[1], q[2], q[3]);
-        }
-        std::fs::write(path, text).unwrap();
+        let mesh = ppfd_models::parts::box_mesh(nalgebra::Vector3::new(sx, sy, sz));
+        std::fs::write(path, mesh.to_ply_ascii()).unwrap();
     }
 
     fn diagonal([x, y, z]: [f32; 3]) -> f32 {

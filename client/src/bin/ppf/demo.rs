@@ -376,24 +376,7 @@ mod tests {
 
     /// A closed box of `size` mm.
     fn box_mesh([sx, sy, sz]: [f32; 3]) -> Mesh {
-        let corners = (0..8)
-            .map(|i| {
-                let s = |bit: i32, half: f32| if i & bit != 0 { half } else { -half };
-                Point3::new(s(1, sx / 2.0), s(2, sy / 2.0), s(4, sz / 2.0))
-            })
-            .collect();
-        let faces: Vec<[u32; 3]> = [
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-        ]
-        .iter()
-        .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
-        .collect();
-        Mesh::from_triangles(corners, &faces).unwrap()
+        ppfd_models::parts::box_mesh(nalgebra::Vector3::new(sx, sy, sz))
     }
 
     #[test]
