@@ -331,12 +331,10 @@ mod tests {
         assert_eq!(floor_on_second, 1600);
         assert!((planes[1].distance(&floor_origin)).abs() < 1.0);
         // The box is on neither table nor floor.
-        for i in 0..on_table.len() {
-            if !on_table[i] {
-                assert!(planes[..2]
-                    .iter()
-                    .all(|pl| !pl.holds(&points.positions[i], &points.normals[i])));
-            }
+        for (i, _) in on_table.iter().enumerate().filter(|(_, &t)| !t) {
+            assert!(planes[..2]
+                .iter()
+                .all(|pl| !pl.holds(&points.positions[i], &points.normals[i])));
         }
         // With one plane allowed, only the table.
         let one = PlaneParams {

@@ -258,6 +258,7 @@ pub fn rescore(
 /// Poses are measured in order of `support_score`, a batch at a time, and measuring stops once
 /// the next pose's `support_score` is below the `keep`-th best score found: the poses left
 /// could not enter the best `keep`, which are exactly those measuring every pose would give.
+#[allow(clippy::too_many_arguments)]
 pub fn with_silhouettes(
     scored: &mut Vec<Scored>,
     mesh: &crate::mesh::Mesh,

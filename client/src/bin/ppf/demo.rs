@@ -372,7 +372,6 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::Point3;
 
     /// A closed box of `size` mm.
     fn box_mesh([sx, sy, sz]: [f32; 3]) -> Mesh {
