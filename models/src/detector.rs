@@ -238,27 +238,31 @@ impl Detector {
         let mut order: Vec<usize> = (0..models.len()).collect();
         order.sort_by(|&a, &b| models[a].diameter_mm().total_cmp(&models[b].diameter_mm()));
         let mut cloud_of = vec![0usize; models.len()];
-        let mut clouds: Vec<PreparedScene> = Vec::new();
+        let mut groups: Vec<SubsampleParams> = Vec::new();
         let mut group_start_diameter = f32::NAN;
         for &i in &order {
             let d = models[i].diameter_mm();
-            if clouds.is_empty()
+            if groups.is_empty()
                 || d > group_start_diameter * self.params.shared_cloud_diameter_ratio
             {
-                check_deadline(start)?;
                 group_start_diameter = d;
                 let p = models[i].params();
-                let sub = SubsampleParams {
+                groups.push(SubsampleParams {
                     leaf_mm: p.leaf_fraction * d,
                     cluster_angle: p.cluster_angle_deg.to_radians(),
                     neighbour_filtering: p.neighbour_filtering,
-                };
-                let t = Instant::now();
-                clouds.push(PreparedScene::new(&points, &sub)?);
-                out.timings.kd_tree += t.elapsed();
+                });
             }
-            cloud_of[i] = clouds.len() - 1;
+            cloud_of[i] = groups.len() - 1;
         }
+        // The groups' clouds are independent: build them side by side.
+        check_deadline(start)?;
+        let t = Instant::now();
+        let clouds: Vec<PreparedScene> = groups
+            .par_iter()
+            .map(|sub| PreparedScene::new(&points, sub))
+            .collect::<Result<_>>()?;
+        out.timings.kd_tree += t.elapsed();
 
         let edges = OnceLock::new();
         for (i, model) in models.iter().enumerate() {
