@@ -17,7 +17,7 @@ use crate::icp::{refine, IcpParams};
 use crate::model::ObjectModel;
 use crate::plane::{PlaneParams, SupportingPlane};
 use crate::render::{bounding_sphere, Renderer};
-use crate::rescoring::{rescore, with_silhouettes, RescoringParams};
+use crate::rescoring::{score_poses, Outline, RescoringParams};
 use crate::scene::{prepare, PreparedScene, SceneImage, SceneParams};
 use crate::subsample::SubsampleParams;
 use crate::voting::{reference_points, vote_from, VotingParams};
@@ -318,7 +318,6 @@ impl Detector {
         let d = model.diameter_mm();
         let surface = model.surface_points();
         let conflict = p.rescoring.conflict_mm(d);
-        let use_silhouettes = p.rescoring.silhouette_weight > 0.0;
         let t = Instant::now();
         let mesh = simplified_mesh(
             &model.render_mesh(),
@@ -328,29 +327,24 @@ impl Detector {
         let edges = edges.get_or_init(|| EdgeMap::new(scene, &p.filters));
         timings.filters += t.elapsed();
 
+        let outline = Outline {
+            mesh: &mesh,
+            sphere: &sphere,
+            edges,
+        };
         let t = Instant::now();
         let top = &clusters[..clusters.len().min(p.rescoring.top_clusters)];
-        let mut scored = rescore(
+        // Only the best `top_poses` go on to ICP.
+        let scored = score_poses(
             top,
             &surface,
             scene,
             p.rescoring.tolerance_mm(d),
             conflict,
             &p.rescoring,
+            &outline,
+            p.icp.top_poses,
         );
-        if use_silhouettes {
-            // Only the best `top_poses` go on to ICP.
-            with_silhouettes(
-                &mut scored,
-                &mesh,
-                &sphere,
-                scene,
-                edges,
-                conflict,
-                &p.rescoring,
-                p.icp.top_poses,
-            );
-        }
         timings.rescoring += t.elapsed();
 
         let t = Instant::now();
@@ -361,27 +355,17 @@ impl Detector {
         timings.icp += t.elapsed();
 
         let t = Instant::now();
-        let mut rescored = rescore(
+        // Only the best `max_candidates` go through the filters.
+        let rescored = score_poses(
             &refined,
             &surface,
             scene,
             p.rescoring.refined_tolerance_mm(d),
             conflict,
             &p.rescoring,
+            &outline,
+            p.filters.max_candidates,
         );
-        if use_silhouettes {
-            // Only the best `max_candidates` go through the filters.
-            with_silhouettes(
-                &mut rescored,
-                &mesh,
-                &sphere,
-                scene,
-                edges,
-                conflict,
-                &p.rescoring,
-                p.filters.max_candidates,
-            );
-        }
         timings.rescoring += t.elapsed();
 
         let t = Instant::now();

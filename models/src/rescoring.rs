@@ -249,8 +249,38 @@ pub fn rescore(
     scored
 }
 
-/// Measures the silhouette agreement of the poses in `scored` (rendering `mesh`, whose bounding
-/// sphere is `sphere`, against the scene's `edges`), folds it into the score with exponent
+/// What a silhouette is measured with: the model's mesh (a simplified copy, see
+/// [`RescoringParams::silhouette_mesh_cell_fraction`]), its bounding sphere in model
+/// coordinates, and the scene's depth edges.
+pub struct Outline<'a> {
+    pub mesh: &'a crate::mesh::Mesh,
+    pub sphere: &'a (Point3<f32>, f32),
+    pub edges: &'a crate::filters::EdgeMap,
+}
+
+/// The whole re-scoring of `poses`: [`rescore`] with inlier tolerance `tolerance` (mm), then,
+/// when `params.silhouette_weight` is positive, [`with_silhouettes`] keeping the best `keep`.
+/// Best first.
+#[allow(clippy::too_many_arguments)]
+pub fn score_poses(
+    poses: &[(Pose, u32)],
+    surface: &OrientedPoints,
+    scene: &SceneImage,
+    tolerance: f32,
+    conflict_mm: f32,
+    params: &RescoringParams,
+    outline: &Outline,
+    keep: usize,
+) -> Vec<Scored> {
+    let mut scored = rescore(poses, surface, scene, tolerance, conflict_mm, params);
+    if params.silhouette_weight > 0.0 {
+        with_silhouettes(&mut scored, outline, scene, conflict_mm, params, keep);
+    }
+    scored
+}
+
+/// Measures the silhouette agreement of the poses in `scored` (rendering the outline's mesh
+/// against the scene's depth edges), folds it into the score with exponent
 /// `params.silhouette_weight`, sorts best first (ties: more votes first) and keeps the `keep`
 /// best. A pose whose outline is nowhere visible gets agreement 0.
 ///
@@ -258,13 +288,10 @@ pub fn rescore(
 /// Poses are measured in order of `support_score`, a batch at a time, and measuring stops once
 /// the next pose's `support_score` is below the `keep`-th best score found: the poses left
 /// could not enter the best `keep`, which are exactly those measuring every pose would give.
-#[allow(clippy::too_many_arguments)]
 pub fn with_silhouettes(
     scored: &mut Vec<Scored>,
-    mesh: &crate::mesh::Mesh,
-    sphere: &(Point3<f32>, f32),
+    outline: &Outline,
     scene: &SceneImage,
-    edges: &crate::filters::EdgeMap,
     occlusion_tolerance_mm: f32,
     params: &RescoringParams,
     keep: usize,
@@ -288,11 +315,11 @@ pub fn with_silhouettes(
             |renderer, s| {
                 let f = crate::filters::outline_counts(
                     renderer,
-                    mesh,
-                    sphere,
+                    outline.mesh,
+                    outline.sphere,
                     &s.pose,
                     scene,
-                    edges,
+                    outline.edges,
                     occlusion_tolerance_mm,
                 )
                 .and_then(|c| c.fraction_of_at_least(params.min_visible_outline))
@@ -393,32 +420,19 @@ mod tests {
             conflict,
             &params,
         );
+        let outline = Outline {
+            mesh: &silhouettes,
+            sphere: &sphere,
+            edges: &edges,
+        };
         let mut every = scored.clone();
         let all = every.len();
-        with_silhouettes(
-            &mut every,
-            &silhouettes,
-            &sphere,
-            &scene,
-            &edges,
-            conflict,
-            &params,
-            all,
-        );
+        with_silhouettes(&mut every, &outline, &scene, conflict, &params, all);
         assert_eq!(every.len(), all);
         assert!(every.iter().all(|s| s.silhouette.is_some()));
         for keep in [1, 10, 50] {
             let mut bounded = scored.clone();
-            with_silhouettes(
-                &mut bounded,
-                &silhouettes,
-                &sphere,
-                &scene,
-                &edges,
-                conflict,
-                &params,
-                keep,
-            );
+            with_silhouettes(&mut bounded, &outline, &scene, conflict, &params, keep);
             assert_eq!(bounded.len(), keep);
             let a: Vec<f32> = bounded.iter().map(|s| s.score).collect();
             let b: Vec<f32> = every[..keep].iter().map(|s| s.score).collect();

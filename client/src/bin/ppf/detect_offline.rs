@@ -332,7 +332,7 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
     use ppfd_models::icp::refine;
     use ppfd_models::plane::SupportingPlane;
     use ppfd_models::render::bounding_sphere;
-    use ppfd_models::rescoring::{rescore, with_silhouettes};
+    use ppfd_models::rescoring::{score_poses, Outline};
     use ppfd_models::scene::{prepare, PreparedScene};
     use ppfd_models::voting::{reference_points, vote_from};
     let dataset = BopDataset::open(&args.dataset)?;
@@ -429,60 +429,42 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             .take(p.rescoring.top_clusters)
             .map(|c| (c.pose, c.votes))
             .collect();
-        let mut scored = rescore(
+        let mesh = simplified_mesh(
+            &model.render_mesh(),
+            p.rescoring.silhouette_mesh_cell_fraction * d,
+        );
+        let sphere = bounding_sphere(&mesh);
+        let outline = Outline {
+            mesh: &mesh,
+            sphere: &sphere,
+            edges: &edges,
+        };
+        // Every pose kept: the table ranks them all.
+        let scored = score_poses(
             &top,
             &surface,
             &scene,
             p.rescoring.tolerance_mm(d),
             p.rescoring.conflict_mm(d),
             &p.rescoring,
+            &outline,
+            top.len(),
         );
-        let mesh = simplified_mesh(
-            &model.render_mesh(),
-            p.rescoring.silhouette_mesh_cell_fraction * d,
-        );
-        let sphere = bounding_sphere(&mesh);
-        if p.rescoring.silhouette_weight > 0.0 {
-            // Every pose measured: the table ranks them all.
-            let all = scored.len();
-            with_silhouettes(
-                &mut scored,
-                &mesh,
-                &sphere,
-                &scene,
-                &edges,
-                p.rescoring.conflict_mm(d),
-                &p.rescoring,
-                all,
-            );
-        }
         let refined: Vec<_> = scored
             .par_iter()
             .take(p.icp.top_poses)
             .map(|s| (refine(&surface, &s.pose, &scene, d, &p.icp).pose, s.votes))
             .collect();
-        let mut rescored = rescore(
+        let rescored = score_poses(
             &refined,
             &surface,
             &scene,
             p.rescoring.refined_tolerance_mm(d),
             p.rescoring.conflict_mm(d),
             &p.rescoring,
+            &outline,
+            refined.len(),
         );
-        if p.rescoring.silhouette_weight > 0.0 {
-            // Every pose measured: the table ranks them all.
-            let all = rescored.len();
-            with_silhouettes(
-                &mut rescored,
-                &mesh,
-                &sphere,
-                &scene,
-                &edges,
-                p.rescoring.conflict_mm(d),
-                &p.rescoring,
-                all,
-            );
-        }
         let final_poses: Vec<_> = rescored.iter().map(|s| s.pose).collect();
         if first_correct(&final_poses) == Some(0) {
             first_after_icp += 1;
