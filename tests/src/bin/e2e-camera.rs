@@ -40,18 +40,8 @@ fn main() {
         .unwrap();
         scene.frame
     });
-    let (width, height, intrinsics, scale, depth) = match (generated, arg(&args, "--bop")) {
-        (Some(f), _) => {
-            let k = f.intrinsics;
-            let k = Intrinsics {
-                fx: k.fx,
-                fy: k.fy,
-                cx: k.cx,
-                cy: k.cy,
-            };
-            (f.width, f.height, k, f.depth_scale_mm, f.depth)
-        }
-        (None, Some(root)) => {
+    let loaded = generated.or_else(|| {
+        arg(&args, "--bop").map(|root| {
             let scene: u32 = arg(&args, "--scene")
                 .and_then(|v| v.parse().ok())
                 .unwrap_or(0);
@@ -59,7 +49,11 @@ fn main() {
                 .and_then(|v| v.parse().ok())
                 .unwrap_or(0);
             let dataset = ppfd_models::bop::BopDataset::open(&root).expect("BOP dataset");
-            let f = dataset.depth_frame(scene, image).expect("depth frame");
+            dataset.depth_frame(scene, image).expect("depth frame")
+        })
+    });
+    let (width, height, intrinsics, scale, depth) = match loaded {
+        Some(f) => {
             let k = f.intrinsics;
             let k = Intrinsics {
                 fx: k.fx,
@@ -69,7 +63,7 @@ fn main() {
             };
             (f.width, f.height, k, f.depth_scale_mm, f.depth)
         }
-        (None, None) => (
+        None => (
             640u32,
             480u32,
             Intrinsics::LMO,
