@@ -42,6 +42,7 @@ use ppfd_protocol::services::{self, limits, wake, CameraService, ControlService,
 use ppfd_protocol::text;
 
 use crate::config::DaemonConfig;
+use crate::housekeeper::Housekeeper;
 use crate::engine::{
     DetectOptions, DetectionEngine, EngineError, EngineOutput, FrameView, LoadedModel,
 };
@@ -207,6 +208,7 @@ pub struct Daemon {
     stats: Stats,
     config: DaemonConfig,
     last_housekeeping: Instant,
+    housekeeper: Housekeeper,
     node: Node<Ipc>,
 }
 
@@ -350,6 +352,12 @@ impl Daemon {
             .start_handler(|_| block_termination_signals())
             .build()
             .map_err(fail("cannot start the worker pool"))?;
+        let housekeeper = Housekeeper::start(
+            node.config(),
+            Duration::from_millis(config.housekeeping_ms),
+            signaller,
+            block_termination_signals,
+        )?;
 
         let mut registry = Registry::default();
         if let Some(dir) = &config.models {
@@ -393,6 +401,7 @@ impl Daemon {
             stats: Stats::default(),
             config,
             last_housekeeping: Instant::now(),
+            housekeeper,
             node,
         })
     }
@@ -400,8 +409,9 @@ impl Daemon {
     /// One turn of the loop: everything that can be done now.
     fn step(&mut self, events: &[EventId]) {
         if events.contains(&wake::CAMERA_APPEARED) {
-            self.discover_cameras();
+            self.housekeeper.scan_now();
         }
+        self.open_found_cameras();
         while let Ok(c) = self.done_rx.try_recv() {
             self.finish(c);
         }
@@ -416,16 +426,10 @@ impl Daemon {
         }
     }
 
+    /// The I/O thread's share of housekeeping (cleanup and discovery run on the
+    /// [`Housekeeper`]'s thread): release older frames, bound the reply-key cache.
     fn housekeeping(&mut self) {
         self.last_housekeeping = Instant::now();
-        let cleaned = self.node.try_cleanup_dead_nodes();
-        if cleaned.cleanups > 0 {
-            tracing::info!(
-                removed = cleaned.cleanups,
-                "removed resources of dead processes"
-            );
-        }
-        self.discover_cameras();
         // Keep only the newest frame of each camera, releasing older ones to their drivers.
         for (name, camera) in &mut self.cameras {
             self.stats.frames_received += camera.refresh(name);
@@ -437,21 +441,9 @@ impl Daemon {
 
     // ---------------------------------------------------------------- cameras
 
-    fn discover_cameras(&mut self) {
-        let mut found = Vec::new();
-        let listed = Ipc::list(self.node.config(), |details| {
-            if matches!(details.static_details.messaging_pattern(), iceoryx2::service::static_config::messaging_pattern::MessagingPattern::PublishSubscribe(_)
-            ) {
-                if let Some(camera) = services::camera_of_service(details.static_details.name().as_str()) {
-                    found.push(camera.to_owned());
-                }
-            }
-            CallbackProgression::Continue
-        });
-        if let Err(e) = listed {
-            tracing::warn!(error = ?e, "listing services failed");
-        }
-        for name in found {
+    /// Subscribes to the cameras the housekeeper found.
+    fn open_found_cameras(&mut self) {
+        for name in self.housekeeper.cameras_found() {
             if !self.cameras.contains_key(&name) {
                 if let Err(e) = self.open_camera(&name) {
                     tracing::debug!(camera = %name, error = %e.message, "camera not opened");

@@ -3,7 +3,8 @@
 //!
 //! - [`daemon::run`] owns every iceoryx2 port on one I/O thread that sleeps on a WaitSet, keeps
 //!   the newest frame of each camera as the shared-memory sample itself, queues requests, and
-//!   runs detections on a rayon pool.
+//!   runs detections on a rayon pool; [`housekeeper::Housekeeper`] removes what dead processes
+//!   left and discovers cameras on a thread of its own.
 //! - A [`engine::DetectionEngine`] does the matching: [`ppf_engine::PpfEngine`] wraps
 //!   `ppfd_models`; the daemon itself knows nothing of the method.
 //! - [`registry::Registry`] holds the loaded models; [`config::DaemonConfig`] the settings (TOML
@@ -15,6 +16,7 @@ pub mod cli;
 pub mod config;
 pub mod daemon;
 pub mod engine;
+pub mod housekeeper;
 pub mod ppf_engine;
 pub mod registry;
 pub mod stats;

@@ -117,7 +117,13 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             histogram: histogram(),
         })
         .collect();
-    for extra in ["detection", "response transport", "end to end", "overhead"] {
+    for extra in [
+        "detection",
+        "hand-back",
+        "response transport",
+        "end to end",
+        "overhead",
+    ] {
         measures.push(Measure {
             name: extra,
             histogram: histogram(),
@@ -129,6 +135,7 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             .map(|(_, v)| *v)
             .chain([
                 l.daemon.detection_ns,
+                l.hand_back_ns(),
                 l.response_transport_ns,
                 l.end_to_end_ns,
                 l.overhead_ns(),

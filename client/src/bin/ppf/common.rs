@@ -53,6 +53,7 @@ pub fn print_latency(d: &Detections) {
         "detection",
         ms(d.latency.daemon.detection_ns)
     );
+    println!("  {:<18} {:>10}", "hand-back", ms(d.latency.hand_back_ns()));
     println!(
         "  {:<18} {:>10}",
         "response transport",
