@@ -30,7 +30,10 @@ pub struct VotingParams {
     pub neighbour_keys: bool,
     /// Hinterstoisser's vote-once flags.
     pub vote_once: bool,
-    /// At most this many accumulator peaks per reference point become hypotheses.
+    /// At most this many accumulator peaks per reference point become hypotheses. Measured
+    /// with 1, 2 and 3: on the LM-O frame 5, 6 and 5 of 8 best poses correct under VSD (1
+    /// loses the hole puncher, 3 the glue); synth-lmo-dev's recall 0.926 with 2 and 3; noisy
+    /// occluded generated views (4 × 40) 130, 130 and 124 best clusters within 0.05 D and 5°.
     pub peaks_per_reference: usize,
     /// A secondary peak must have at least this fraction of the highest peak's votes.
     pub peak_ratio: f32,
@@ -48,7 +51,7 @@ impl Default for VotingParams {
             reference_step: 2,
             neighbour_keys: true,
             vote_once: true,
-            peaks_per_reference: 3,
+            peaks_per_reference: 2,
             peak_ratio: 0.8,
             min_distance_fraction: 0.0,
             interpolate_alpha: true,
@@ -330,7 +333,7 @@ mod tests {
     fn peaks_are_highest_first_and_above_ratio() {
         let acc: Vec<u16> = vec![0, 5, 9, 1, 10, 8, 0, 7];
         let params = VotingParams {
-            peaks_per_reference: 3,
+            peaks_per_reference: 2,
             peak_ratio: 0.8,
             ..Default::default()
         };
@@ -338,7 +341,7 @@ mod tests {
         peaks(&acc, 4, &params, |c, v| got.push((c, v)));
         assert_eq!(got, vec![(4, 10), (2, 9), (5, 8)]);
         let params = VotingParams {
-            peaks_per_reference: 3,
+            peaks_per_reference: 2,
             peak_ratio: 0.95,
             ..Default::default()
         };

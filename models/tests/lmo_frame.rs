@@ -136,11 +136,11 @@ fn detect_frame(dir: &PathBuf) -> Outcome {
     outcome
 }
 
-/// What the detector reaches on this frame today: five objects found by voting alone and five
+/// What the detector reaches on this frame today: five objects found by voting alone and six
 /// best poses after re-scoring, ICP and the filters. The ape (20 % visible) and the eggbox (half
-/// hidden) are missed; the glue's refined true pose ranks second, its score within a few per
-/// cent of a pose on the clutter beside it (with the support left out of the score it ranked
-/// first here, but synth-lmo-dev's recall falls from 0.93 to 0.86).
+/// hidden) are missed. The glue is found only after re-scoring (its true pose ranks about 130th
+/// by votes), and with three accumulator peaks per reference point instead of two its refined
+/// pose ranked second, within a few per cent of a pose on the clutter beside it.
 #[test]
 fn lmo_frame_objects_are_found() {
     let Some(dir) = dataset_dir() else { return };
@@ -151,14 +151,14 @@ fn lmo_frame_objects_are_found() {
         "{} of 8 in the best clusters",
         o.clusters_ok
     );
-    assert!(o.final_ok >= 5, "{} of 8 best poses correct", o.final_ok);
+    assert!(o.final_ok >= 6, "{} of 8 best poses correct", o.final_ok);
 }
 
 /// The detection issues' targets on this frame: a correct pose among the 10 best clusters for
 /// at least 6 of the 8 objects, and (as a proxy for the VSD criterion) the best pose correct for
 /// at least 7.
 #[test]
-#[ignore = "targets not reached: 5 of 8 among the 10 best clusters (the glue ranks about 170th by votes, the eggbox about 440th), 5 of 8 best poses"]
+#[ignore = "targets not reached: 5 of 8 among the 10 best clusters (the glue ranks about 130th by votes, the eggbox about 590th), 6 of 8 best poses"]
 fn lmo_frame_reaches_the_issue_targets() {
     let Some(dir) = dataset_dir() else { return };
     let o = detect_frame(&dir);
