@@ -333,7 +333,7 @@ mod tests {
     fn peaks_are_highest_first_and_above_ratio() {
         let acc: Vec<u16> = vec![0, 5, 9, 1, 10, 8, 0, 7];
         let params = VotingParams {
-            peaks_per_reference: 2,
+            peaks_per_reference: 3,
             peak_ratio: 0.8,
             ..Default::default()
         };
@@ -341,7 +341,7 @@ mod tests {
         peaks(&acc, 4, &params, |c, v| got.push((c, v)));
         assert_eq!(got, vec![(4, 10), (2, 9), (5, 8)]);
         let params = VotingParams {
-            peaks_per_reference: 2,
+            peaks_per_reference: 3,
             peak_ratio: 0.95,
             ..Default::default()
         };
