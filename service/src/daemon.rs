@@ -42,10 +42,10 @@ use ppfd_protocol::services::{self, limits, wake, CameraService, ControlService,
 use ppfd_protocol::text;
 
 use crate::config::DaemonConfig;
-use crate::housekeeper::Housekeeper;
 use crate::engine::{
     DetectOptions, DetectionEngine, EngineError, EngineOutput, FrameView, LoadedModel,
 };
+use crate::housekeeper::Housekeeper;
 use crate::registry::Registry;
 use crate::stats::Stats;
 use crate::wakeup::{Signaller, Wakeup};

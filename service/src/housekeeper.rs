@@ -43,7 +43,8 @@ pub fn list_cameras(config: &iceoryx2::config::Config) -> Vec<String> {
             details.static_details.messaging_pattern(),
             MessagingPattern::PublishSubscribe(_)
         ) {
-            if let Some(camera) = services::camera_of_service(details.static_details.name().as_str())
+            if let Some(camera) =
+                services::camera_of_service(details.static_details.name().as_str())
             {
                 found.push(camera.to_owned());
             }
