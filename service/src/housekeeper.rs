@@ -36,7 +36,7 @@ pub struct Housekeeper {
 }
 
 /// The camera names among the publish-subscribe services visible with `config`.
-pub fn list_cameras(config: &iceoryx2::config::Config) -> Vec<String> {
+fn list_cameras(config: &iceoryx2::config::Config) -> Vec<String> {
     let mut found = Vec::new();
     let listed = Ipc::list(config, |details| {
         if matches!(
@@ -98,6 +98,8 @@ impl Housekeeper {
                 serve(&node, period, &ask_rx, &found_tx, wake);
             })
             .map_err(|e| DaemonError(format!("cannot start the housekeeping thread: {e}")))?;
+        // A first camera scan at once: cameras that were publishing before the daemon started.
+        let _ = ask_tx.send(Ask::Scan);
         match ready_rx.recv() {
             Ok(Ok(())) => Ok(Housekeeper {
                 ask: Some(ask_tx),
@@ -140,7 +142,9 @@ fn serve(
     found: &Sender<Vec<String>>,
     wake: Signaller,
 ) {
-    let mut next = Instant::now(); // the first round at once: cameras already publishing
+    // Dead processes were cleaned up as the daemon started; the first period only looks for
+    // cameras (see `start`), and cleanup follows a period later.
+    let mut next = Instant::now() + period;
     let mut reported = std::collections::HashSet::new();
     loop {
         let scan_only = match ask.recv_timeout(next.saturating_duration_since(Instant::now())) {
@@ -214,7 +218,7 @@ mod tests {
         let prefix = format!("hk{}_", std::process::id());
         let config = config(&prefix);
         let wake = Wakeup::new().unwrap();
-        // A period far beyond the test: every report below comes from the first round or a
+        // A period far beyond the test: every report below comes from the scan at start or a
         // scan asked for.
         let h = Housekeeper::start(&config, Duration::from_secs(3600), wake.signaller(), || {})
             .unwrap();
