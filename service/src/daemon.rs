@@ -1,19 +1,20 @@
-//! The I/O thread: owns every iceoryx2 port, sleeps on a WaitSet, and hands detections to a
+//! The I/O thread: owns the iceoryx2 ports, sleeps on a WaitSet, and hands detections to a
 //! rayon pool.
 //!
 //! Life of a detect request: a client sends it on `ppfd/detect` and notifies `ppfd/daemon`; the
 //! WaitSet wakes this thread, which takes the request off the port, checks it against the
 //! contract and the loaded models (refusing at once what cannot be served) and queues it. When a
 //! detection slot is free, the request's frame is resolved — the newest sample of its camera, or
-//! its own inline payload — and a job runs on the pool, reading the depth values straight from
-//! shared memory. The job reports on a channel and signals an eventfd; this thread wakes, writes
-//! the response into a loaned response slice, sends it, and wakes the client's listener on
-//! `ppfd/responses`.
+//! its own inline payload — and a job runs on the pool with the request, reading the depth
+//! values straight from shared memory. The worker writes the response into a loaned response
+//! slice, sends it and wakes the client's listener on `ppfd/responses` (see [`Responder`]); then
+//! it reports on a channel and signals an eventfd, and this thread counts the outcome and
+//! releases the frame.
 //!
-//! No depth value is copied on this path: the job gets a pointer into the sample (or request)
-//! that this thread keeps alive — an `Rc` of the sample sits in the job's [`InFlight`] record
-//! until its completion is received, and the daemon never drops a record before that (see
-//! [`Daemon`]'s `Drop`).
+//! No depth value is copied on this path: the job gets a pointer into the sample (or request).
+//! The request travels with the job and is dropped only after its answer; an `Rc` of the sample
+//! sits in the job's [`InFlight`] record on this thread until the job's completion is received,
+//! and the daemon never drops a record before that (see [`Daemon`]'s `Drop`).
 
 use std::collections::{HashMap, VecDeque};
 use std::path::PathBuf;
@@ -22,9 +23,7 @@ use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use iceoryx2::active_request::ActiveRequest;
 use iceoryx2::node::Node;
-use iceoryx2::port::notifier::{ListenerKey, Notifier};
 use iceoryx2::port::server::Server;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
@@ -38,24 +37,19 @@ use ppfd_protocol::detect::{
     DetectRequestHeader, DetectResponseHeader, FrameSource, PoseHypothesis, Status,
 };
 use ppfd_protocol::frame::FrameHeader;
-use ppfd_protocol::services::{self, limits, wake, CameraService, ControlService, DetectService};
+use ppfd_protocol::services::{self, limits, wake, CameraService};
 use ppfd_protocol::text;
 
 use crate::config::DaemonConfig;
-use crate::engine::{
-    DetectOptions, DetectionEngine, EngineError, EngineOutput, FrameView, LoadedModel,
-};
+use crate::engine::{DetectOptions, DetectionEngine, EngineError, FrameView, LoadedModel};
 use crate::housekeeper::Housekeeper;
 use crate::registry::Registry;
+use crate::responder::{self, ControlActive, DetectActive, Ipc, Outcome, Responder, Served};
 use crate::stats::Stats;
 use crate::wakeup::{Signaller, Wakeup};
 
-type Ipc = ipc::Service;
 type DetectServer = Server<Ipc, [u16], DetectRequestHeader, [PoseHypothesis], DetectResponseHeader>;
-type DetectActive =
-    ActiveRequest<Ipc, [u16], DetectRequestHeader, [PoseHypothesis], DetectResponseHeader>;
 type ControlServer = Server<Ipc, ControlRequest, (), [ModelInfo], ControlResponseHeader>;
-type ControlActive = ActiveRequest<Ipc, ControlRequest, (), [ModelInfo], ControlResponseHeader>;
 type FrameSample = Sample<Ipc, [u16], FrameHeader>;
 type FrameSubscriber = Subscriber<Ipc, [u16], FrameHeader>;
 
@@ -92,8 +86,9 @@ fn block_termination_signals() {
     }
 }
 
-/// Depth values in shared memory that a worker reads. Valid while the I/O thread holds the
-/// sample or request they belong to (see the module documentation).
+/// Depth values in shared memory that a worker reads. Valid while the sample (held by the I/O
+/// thread) or the request (held by the job itself) they belong to lives (see the module
+/// documentation).
 struct SharedDepth {
     ptr: *const u16,
     len: usize,
@@ -121,30 +116,16 @@ struct Queued {
     received_ns: u64,
 }
 
-/// A request whose detection runs. Field order matters: the frame is released only with the
-/// record, after the job reported.
+/// A request whose detection runs (its worker holds the request and answers it). The frame is
+/// released only with the record, after the job reported.
 struct InFlight {
-    active: DetectActive,
-    header: DetectRequestHeader,
-    received_ns: u64,
-    frame_sequence: u64,
-    frame_age_ns: u64,
     _frame: Option<Rc<FrameSample>>,
 }
 
-/// What `finish` needs of a finished job besides its request.
-struct Finished {
-    header: DetectRequestHeader,
-    received_ns: u64,
-    frame_sequence: u64,
-    frame_age_ns: u64,
-}
-
+/// A job's report, sent after its worker answered the request.
 struct Completion {
     job: u64,
-    result: Result<EngineOutput, EngineError>,
-    started_ns: u64,
-    finished_ns: u64,
+    outcome: Outcome,
 }
 
 struct ModelLoaded {
@@ -191,10 +172,7 @@ pub struct Daemon {
     cameras: HashMap<String, Camera>,
     detect_server: DetectServer,
     control_server: ControlServer,
-    responses: Notifier<Ipc>,
-    reply_keys: HashMap<u64, ListenerKey>,
-    _detect_service: DetectService<Ipc>,
-    _control_service: ControlService<Ipc>,
+    responder: Arc<Responder>,
     _responses_service: services::EventService<Ipc>,
     registry: Registry,
     engine: Arc<dyn DetectionEngine>,
@@ -384,10 +362,7 @@ impl Daemon {
             cameras: HashMap::new(),
             detect_server,
             control_server,
-            responses,
-            reply_keys: HashMap::new(),
-            _detect_service: detect_service,
-            _control_service: control_service,
+            responder: Arc::new(Responder::new(detect_service, control_service, responses)),
             _responses_service: responses_service,
             registry,
             engine,
@@ -434,9 +409,7 @@ impl Daemon {
         for (name, camera) in &mut self.cameras {
             self.stats.frames_received += camera.refresh(name);
         }
-        if self.reply_keys.len() > 4 * limits::MAX_CLIENTS {
-            self.reply_keys.clear();
-        }
+        self.responder.trim();
     }
 
     // ---------------------------------------------------------------- cameras
@@ -554,8 +527,9 @@ impl Daemon {
             let Some(q) = self.queue.pop_front() else {
                 break;
             };
-            if !self.detect_client_alive(&q.active) {
-                self.abandon(q.active, q.header.request_id);
+            if !self.responder.detect_client_alive(&q.active) {
+                let outcome = responder::abandon(q.active, q.header.request_id);
+                self.count(outcome);
                 continue;
             }
             if !q.active.is_connected() {
@@ -673,12 +647,15 @@ impl Daemon {
         };
         let done = self.done_tx.clone();
         let signaller = self.signaller;
-        let request_id = q.header.request_id;
+        let responder = self.responder.clone();
+        let (active, header, received_ns) = (q.active, q.header, q.received_ns);
+        let request_id = header.request_id;
         self.pool.spawn(move || {
             let started_ns = monotonic_now_ns();
             let _span = tracing::debug_span!("detect", request = request_id).entered();
-            // SAFETY: see `SharedDepth`: the I/O thread keeps the memory alive and unchanged
-            // until it has received this job's completion.
+            // SAFETY: see `SharedDepth`: a camera sample stays alive and unchanged on the I/O
+            // thread until it has received this job's completion; an inline frame lies in
+            // `active`, which this job drops only after the detection.
             let depth = unsafe { depth.values() };
             let frame = FrameView {
                 width: frame_header.width,
@@ -696,97 +673,43 @@ impl Daemon {
                     "the detection failed unexpectedly (panic)",
                 ))
             });
-            let finished_ns = monotonic_now_ns();
-            // The receiver lives as long as the daemon, which waits for every job.
-            let _ = done.send(Completion {
-                job,
-                result,
-                started_ns,
-                finished_ns,
-            });
-            signaller.signal();
-        });
-        self.in_flight.insert(
-            job,
-            InFlight {
-                active: q.active,
-                header: q.header,
-                received_ns: q.received_ns,
+            let served = Served {
+                header,
+                received_ns,
                 frame_sequence: frame_header.sequence,
                 frame_age_ns,
-                _frame: hold,
-            },
-        );
+                started_ns,
+                finished_ns: monotonic_now_ns(),
+            };
+            // Answered from here: the client does not wait for the I/O thread to wake up. The
+            // request (and an inline frame in it) is released only after the answer.
+            let outcome = responder.answer(active, &served, result);
+            // The receiver lives as long as the daemon, which waits for every job.
+            let _ = done.send(Completion { job, outcome });
+            signaller.signal();
+        });
+        self.in_flight.insert(job, InFlight { _frame: hold });
         Ok(())
     }
 
+    /// Records what the worker did with its request and releases the frame it read.
     fn finish(&mut self, c: Completion) {
-        let Some(job) = self.in_flight.remove(&c.job) else {
-            return;
-        };
-        let InFlight {
-            active,
-            header,
-            received_ns,
-            frame_sequence,
-            frame_age_ns,
-            _frame,
-        } = job;
-        drop(_frame);
-        let job = Finished {
-            header,
-            received_ns,
-            frame_sequence,
-            frame_age_ns,
-        };
-        if !self.detect_client_alive(&active) {
-            return self.abandon(active, job.header.request_id);
-        }
-        if !active.is_connected() {
-            self.stats.requests_abandoned += 1;
-            tracing::debug!(
-                request = job.header.request_id,
-                "client gone before its answer"
-            );
-            return;
-        }
-        let output = match c.result {
-            Ok(output) => output,
-            Err(e) => return self.refuse(active, &job.header, job.received_ns, e),
-        };
-        let mut response = DetectResponseHeader {
-            request_id: job.header.request_id,
-            frame_sequence: job.frame_sequence,
-            frame_age_ns: job.frame_age_ns,
-            latency: output.stages,
-            counts: output.counts,
-            ..Default::default()
-        };
-        let send_ns = job.header.send_time_ns;
-        response.latency.transport_ns = if send_ns != 0 {
-            job.received_ns.saturating_sub(send_ns)
-        } else {
-            0
-        };
-        response.latency.queue_wait_ns = c.started_ns.saturating_sub(job.received_ns);
-        response.latency.detection_ns = c.finished_ns.saturating_sub(c.started_ns);
-        let hypotheses =
-            &output.hypotheses[..output.hypotheses.len().min(limits::MAX_RESPONSE_HYPOTHESES)];
-        response.counts.returned = hypotheses.len() as u32;
-        response.hypothesis_count = hypotheses.len() as u32;
-        if let Some(total_ns) =
-            self.send_detect(&active, job.header.reply_token, response, hypotheses)
-        {
-            let overhead = response.latency.transport_ns + response.latency.queue_wait_ns;
-            self.stats
-                .record_served(total_ns, overhead, response.latency.detection_ns);
-            tracing::debug!(
-                request = job.header.request_id,
-                hypotheses = hypotheses.len(),
-                detection_us = response.latency.detection_ns / 1000,
-                total_us = total_ns / 1000,
-                "request served"
-            );
+        self.in_flight.remove(&c.job);
+        self.count(c.outcome);
+    }
+
+    fn count(&mut self, outcome: Outcome) {
+        match outcome {
+            Outcome::Served {
+                total_ns,
+                overhead_ns,
+                detection_ns,
+            } => self
+                .stats
+                .record_served(total_ns, overhead_ns, detection_ns),
+            Outcome::Undelivered => {}
+            Outcome::Refused => self.stats.requests_refused += 1,
+            Outcome::Abandoned => self.stats.requests_abandoned += 1,
         }
     }
 
@@ -797,113 +720,8 @@ impl Daemon {
         received_ns: u64,
         e: EngineError,
     ) {
-        if !self.detect_client_alive(&active) {
-            return self.abandon(active, request.request_id);
-        }
-        self.stats.requests_refused += 1;
-        tracing::debug!(request = request.request_id, status = %e.status, reason = %e.message, "request refused");
-        let mut response = DetectResponseHeader {
-            request_id: request.request_id,
-            status: e.status.code(),
-            error_value: e.value,
-            message: text::encode_truncated(&e.message),
-            ..Default::default()
-        };
-        if request.send_time_ns != 0 {
-            response.latency.transport_ns = received_ns.saturating_sub(request.send_time_ns);
-        }
-        self.send_detect(&active, request.reply_token, response, &[]);
-    }
-
-    /// Whether the client that sent `active` still exists. A dead client's connection slot may
-    /// already serve a new client (iceoryx2 reuses it once the dead node is cleaned up, which any
-    /// process may do): answering or even dropping the old request would then touch the new
-    /// client's channel.
-    fn detect_client_alive(&self, active: &DetectActive) -> bool {
-        let origin = active.origin();
-        let mut alive = false;
-        self._detect_service.dynamic_config().list_clients(|c| {
-            alive = c.client_id == origin;
-            if alive {
-                CallbackProgression::Stop
-            } else {
-                CallbackProgression::Continue
-            }
-        });
-        alive
-    }
-
-    /// Lets go of a dead client's request without touching its (possibly reused) channel: the
-    /// request's chunk in the dead client's memory is not returned (a few bytes per client that
-    /// died mid-request).
-    fn abandon(&mut self, active: DetectActive, request_id: u64) {
-        self.stats.requests_abandoned += 1;
-        tracing::debug!(request = request_id, "client died before its answer");
-        std::mem::forget(active);
-    }
-
-    /// Sends a response and wakes its client. Returns the total latency (client send → now).
-    fn send_detect(
-        &mut self,
-        active: &DetectActive,
-        reply_token: u64,
-        mut header: DetectResponseHeader,
-        hypotheses: &[PoseHypothesis],
-    ) -> Option<u64> {
-        let loaned = match active.loan_slice_uninit(hypotheses.len()) {
-            Ok(r) => r,
-            Err(e) => {
-                tracing::warn!(request = header.request_id, error = ?e, "cannot loan a response");
-                return None;
-            }
-        };
-        let mut response = loaned.write_from_slice(hypotheses);
-        let now = monotonic_now_ns();
-        let send_time_ns = active.user_header().send_time_ns;
-        header.response_send_ns = now;
-        header.latency.total_ns = if send_time_ns != 0 {
-            now.saturating_sub(send_time_ns)
-        } else {
-            0
-        };
-        *response.user_header_mut() = header;
-        if let Err(e) = response.send() {
-            tracing::debug!(request = header.request_id, error = ?e, "response not delivered");
-            return None;
-        }
-        self.notify_reply(reply_token);
-        Some(header.latency.total_ns)
-    }
-
-    fn notify_reply(&mut self, token: u64) {
-        if token == 0 {
-            return;
-        }
-        if let Some(key) = self.reply_keys.get(&token) {
-            if self.responses.notify_single_listener(key).is_ok() {
-                return;
-            }
-            self.reply_keys.remove(&token);
-        }
-        let Ok(name) = PortName::new(&services::reply_listener_name(token)) else {
-            return;
-        };
-        let mut found = None;
-        self.responses.for_each_listener(|monofier, details| {
-            if details.listener_name == name {
-                let _ = monofier.notify();
-                found = Some(monofier.listener_key());
-                CallbackProgression::Stop
-            } else {
-                CallbackProgression::Continue
-            }
-        });
-        match found {
-            Some(key) => {
-                self.reply_keys.insert(token, key);
-            }
-            None => tracing::debug!(token, "no listener to wake for this reply"),
-        }
+        let outcome = self.responder.refuse(active, request, received_ns, e);
+        self.count(outcome);
     }
 
     // ---------------------------------------------------------------- control
@@ -1040,17 +858,7 @@ impl Daemon {
         message: &str,
         models: &[ModelInfo],
     ) {
-        let origin = active.origin();
-        let mut alive = false;
-        self._control_service.dynamic_config().list_clients(|c| {
-            alive = c.client_id == origin;
-            if alive {
-                CallbackProgression::Stop
-            } else {
-                CallbackProgression::Continue
-            }
-        });
-        if !alive {
+        if !self.responder.control_client_alive(&active) {
             // As for detect requests: never touch a dead client's possibly reused channel.
             std::mem::forget(active);
             return;
@@ -1077,7 +885,7 @@ impl Daemon {
                     tracing::debug!(error = ?e, "control response not delivered");
                     return;
                 }
-                self.notify_reply(token);
+                self.responder.notify_reply(token);
             }
             Err(e) => tracing::warn!(error = ?e, "cannot loan a control response"),
         }
@@ -1090,7 +898,7 @@ impl Daemon {
             let e = EngineError::new(Status::ShuttingDown, "the daemon is shutting down");
             self.refuse(q.active, &q.header, q.received_ns, e);
         }
-        self.join_in_flight(true);
+        self.join_in_flight();
         let pending: Vec<ControlActive> = self.control_pending.drain().map(|(_, a)| a).collect();
         for active in pending {
             self.control_answer(
@@ -1102,14 +910,11 @@ impl Daemon {
         }
     }
 
-    /// Waits until no worker reads shared memory any more.
-    fn join_in_flight(&mut self, answer: bool) {
+    /// Waits until no worker reads shared memory any more (each answers its request first).
+    fn join_in_flight(&mut self) {
         while !self.in_flight.is_empty() {
             match self.done_rx.recv_timeout(Duration::from_secs(5)) {
-                Ok(c) if answer => self.finish(c),
-                Ok(c) => {
-                    self.in_flight.remove(&c.job);
-                }
+                Ok(c) => self.finish(c),
                 Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
                     tracing::warn!(
                         running = self.in_flight.len(),
@@ -1125,6 +930,6 @@ impl Daemon {
 impl Drop for Daemon {
     fn drop(&mut self) {
         // Workers read the frames held in `in_flight`: never release them under a worker.
-        self.join_in_flight(false);
+        self.join_in_flight();
     }
 }

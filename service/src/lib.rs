@@ -1,10 +1,11 @@
 //! The ppfd daemon: holds object models in memory and answers detect requests from co-located
 //! processes over iceoryx2 shared memory.
 //!
-//! - [`daemon::run`] owns every iceoryx2 port on one I/O thread that sleeps on a WaitSet, keeps
-//!   the newest frame of each camera as the shared-memory sample itself, queues requests, and
-//!   runs detections on a rayon pool; [`housekeeper::Housekeeper`] removes what dead processes
-//!   left and discovers cameras on a thread of its own.
+//! - [`daemon::run`] receives on one I/O thread that sleeps on a WaitSet, keeps the newest frame
+//!   of each camera as the shared-memory sample itself, queues requests, and runs detections on a
+//!   rayon pool, whose workers answer through the [`responder::Responder`];
+//!   [`housekeeper::Housekeeper`] removes what dead processes left and discovers cameras on a
+//!   thread of its own.
 //! - A [`engine::DetectionEngine`] does the matching: [`ppf_engine::PpfEngine`] wraps
 //!   `ppfd_models`; the daemon itself knows nothing of the method.
 //! - [`registry::Registry`] holds the loaded models; [`config::DaemonConfig`] the settings (TOML
@@ -19,6 +20,7 @@ pub mod engine;
 pub mod housekeeper;
 pub mod ppf_engine;
 pub mod registry;
+pub mod responder;
 pub mod stats;
 pub mod wakeup;
 

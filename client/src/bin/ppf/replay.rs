@@ -6,8 +6,12 @@ use std::time::{Duration, Instant};
 use clap::Args;
 use ppfd_client::{monotonic_now_ns, CameraPublisher, Intrinsics};
 use ppfd_models::bop::BopDataset;
+use ppfd_models::camera::OwnedDepthFrame;
 
 use crate::common::Connect;
+
+/// Decoded frames kept in memory when looping.
+const KEEP_DECODED_BYTES: usize = 1 << 30;
 
 #[derive(Args, Debug)]
 pub struct ReplayArgs {
@@ -88,10 +92,28 @@ pub fn run(args: ReplayArgs) -> Result<(), String> {
         if args.repeat { ", looping" } else { "" }
     );
     let period = Duration::from_secs_f64(1.0 / args.fps.max(0.01));
+    // When looping, frames are decoded once and kept (up to a memory budget): a camera driver
+    // only copies a frame into shared memory, so the replayed camera should not spend ~1.5 ms
+    // of CPU decoding a PNG per frame beside the daemon it feeds.
+    let mut decoded: Vec<Option<OwnedDepthFrame>> = (0..images.len()).map(|_| None).collect();
+    let mut kept_bytes = 0usize;
+    decoded[0] = Some(first.clone());
     let mut next = Instant::now();
     loop {
-        for &(scene, im) in &images {
-            let frame = dataset.depth_frame(scene, im).map_err(|e| e.to_string())?;
+        for (index, &(scene, im)) in images.iter().enumerate() {
+            let read;
+            let frame = match &decoded[index] {
+                Some(frame) => frame,
+                None => {
+                    read = dataset.depth_frame(scene, im).map_err(|e| e.to_string())?;
+                    let bytes = read.depth.len() * 2;
+                    if args.repeat && kept_bytes + bytes <= KEEP_DECODED_BYTES {
+                        kept_bytes += bytes;
+                        decoded[index] = Some(read.clone());
+                    }
+                    &read
+                }
+            };
             if (frame.width, frame.height) != (first.width, first.height) {
                 return Err(format!(
                     "scene {scene} image {im} is {}x{}, the camera publishes {}x{}",

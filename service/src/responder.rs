@@ -1,0 +1,318 @@
+//! Answers to requests, sent by whichever thread holds the request: the I/O thread refuses what
+//! it cannot serve and answers control requests; the pool worker that ran a detection answers
+//! it itself, so that a finished detection reaches its client without waking the I/O thread
+//! first (on two vCPUs that wake-up alone cost about 40 µs).
+//!
+//! The daemon's ports are `ipc_threadsafe` for this: an active request can move to a worker, and
+//! the responses notifier is shared behind a mutex with its cache of listener keys.
+
+use std::collections::HashMap;
+use std::sync::Mutex;
+
+use iceoryx2::active_request::ActiveRequest;
+use iceoryx2::port::notifier::{ListenerKey, Notifier};
+use iceoryx2::prelude::*;
+
+use ppfd_protocol::clock::monotonic_now_ns;
+use ppfd_protocol::control::{ControlRequest, ControlResponseHeader, ModelInfo};
+use ppfd_protocol::detect::{DetectRequestHeader, DetectResponseHeader, PoseHypothesis};
+use ppfd_protocol::services::{self, limits, ControlService, DetectService};
+use ppfd_protocol::text;
+
+use crate::engine::{EngineError, EngineOutput};
+
+/// The daemon's iceoryx2 service variant: inter-process, with ports that may cross threads.
+pub type Ipc = ipc_threadsafe::Service;
+/// A detect request taken off the port, until it is answered.
+pub type DetectActive =
+    ActiveRequest<Ipc, [u16], DetectRequestHeader, [PoseHypothesis], DetectResponseHeader>;
+/// A control request taken off the port, until it is answered.
+pub type ControlActive = ActiveRequest<Ipc, ControlRequest, (), [ModelInfo], ControlResponseHeader>;
+
+/// What became of a request once answered (or not), for the statistics.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Outcome {
+    /// Poses sent; latencies in ns.
+    Served {
+        total_ns: u64,
+        overhead_ns: u64,
+        detection_ns: u64,
+    },
+    /// Poses computed but the response could not be loaned or sent.
+    Undelivered,
+    /// Refused with an error status (sent if the client could still take it).
+    Refused,
+    /// The client died or stopped waiting before its answer.
+    Abandoned,
+}
+
+/// What the answer to a detection needs besides the engine's output.
+#[derive(Debug, Clone, Copy)]
+pub struct Served {
+    pub header: DetectRequestHeader,
+    pub received_ns: u64,
+    pub frame_sequence: u64,
+    pub frame_age_ns: u64,
+    pub started_ns: u64,
+    pub finished_ns: u64,
+}
+
+/// Sends responses and wakes their clients; shared by the I/O thread and the workers.
+pub struct Responder {
+    detect_service: DetectService<Ipc>,
+    control_service: ControlService<Ipc>,
+    wake: Mutex<Wake>,
+}
+
+struct Wake {
+    notifier: Notifier<Ipc>,
+    /// The listener of each reply token seen, so that waking a client is one call.
+    keys: HashMap<u64, ListenerKey>,
+}
+
+impl Responder {
+    pub fn new(
+        detect_service: DetectService<Ipc>,
+        control_service: ControlService<Ipc>,
+        notifier: Notifier<Ipc>,
+    ) -> Responder {
+        Responder {
+            detect_service,
+            control_service,
+            wake: Mutex::new(Wake {
+                notifier,
+                keys: HashMap::new(),
+            }),
+        }
+    }
+
+    /// The detect service (for its server and its count of servers).
+    pub fn detect_service(&self) -> &DetectService<Ipc> {
+        &self.detect_service
+    }
+
+    /// The control service (for its server).
+    pub fn control_service(&self) -> &ControlService<Ipc> {
+        &self.control_service
+    }
+
+    /// Answers a finished detection: its poses, or its error.
+    pub fn answer(
+        &self,
+        active: DetectActive,
+        job: &Served,
+        result: Result<EngineOutput, EngineError>,
+    ) -> Outcome {
+        if !self.detect_client_alive(&active) {
+            return abandon(active, job.header.request_id);
+        }
+        if !active.is_connected() {
+            tracing::debug!(
+                request = job.header.request_id,
+                "client gone before its answer"
+            );
+            return Outcome::Abandoned;
+        }
+        let output = match result {
+            Ok(output) => output,
+            Err(e) => return self.refuse(active, &job.header, job.received_ns, e),
+        };
+        let mut response = DetectResponseHeader {
+            request_id: job.header.request_id,
+            frame_sequence: job.frame_sequence,
+            frame_age_ns: job.frame_age_ns,
+            latency: output.stages,
+            counts: output.counts,
+            ..Default::default()
+        };
+        let send_ns = job.header.send_time_ns;
+        response.latency.transport_ns = if send_ns != 0 {
+            job.received_ns.saturating_sub(send_ns)
+        } else {
+            0
+        };
+        response.latency.queue_wait_ns = job.started_ns.saturating_sub(job.received_ns);
+        response.latency.detection_ns = job.finished_ns.saturating_sub(job.started_ns);
+        let hypotheses =
+            &output.hypotheses[..output.hypotheses.len().min(limits::MAX_RESPONSE_HYPOTHESES)];
+        response.counts.returned = hypotheses.len() as u32;
+        response.hypothesis_count = hypotheses.len() as u32;
+        let Some(total_ns) =
+            self.send_detect(&active, job.header.reply_token, response, hypotheses)
+        else {
+            return Outcome::Undelivered;
+        };
+        tracing::debug!(
+            request = job.header.request_id,
+            hypotheses = hypotheses.len(),
+            detection_us = response.latency.detection_ns / 1000,
+            total_us = total_ns / 1000,
+            "request served"
+        );
+        Outcome::Served {
+            total_ns,
+            overhead_ns: response.latency.transport_ns + response.latency.queue_wait_ns,
+            detection_ns: response.latency.detection_ns,
+        }
+    }
+
+    /// Refuses a request with the error's status and message.
+    pub fn refuse(
+        &self,
+        active: DetectActive,
+        request: &DetectRequestHeader,
+        received_ns: u64,
+        e: EngineError,
+    ) -> Outcome {
+        if !self.detect_client_alive(&active) {
+            return abandon(active, request.request_id);
+        }
+        tracing::debug!(request = request.request_id, status = %e.status, reason = %e.message, "request refused");
+        let mut response = DetectResponseHeader {
+            request_id: request.request_id,
+            status: e.status.code(),
+            error_value: e.value,
+            message: text::encode_truncated(&e.message),
+            ..Default::default()
+        };
+        if request.send_time_ns != 0 {
+            response.latency.transport_ns = received_ns.saturating_sub(request.send_time_ns);
+        }
+        self.send_detect(&active, request.reply_token, response, &[]);
+        Outcome::Refused
+    }
+
+    /// Whether the client that sent `active` still exists. A dead client's connection slot may
+    /// already serve a new client (iceoryx2 reuses it once the dead node is cleaned up, which any
+    /// process may do): answering or even dropping the old request would then touch the new
+    /// client's channel.
+    pub fn detect_client_alive(&self, active: &DetectActive) -> bool {
+        let origin = active.origin();
+        let mut alive = false;
+        self.detect_service.dynamic_config().list_clients(|c| {
+            alive = c.client_id == origin;
+            if alive {
+                CallbackProgression::Stop
+            } else {
+                CallbackProgression::Continue
+            }
+        });
+        alive
+    }
+
+    /// As [`Responder::detect_client_alive`], for a control request.
+    pub fn control_client_alive(&self, active: &ControlActive) -> bool {
+        let origin = active.origin();
+        let mut alive = false;
+        self.control_service.dynamic_config().list_clients(|c| {
+            alive = c.client_id == origin;
+            if alive {
+                CallbackProgression::Stop
+            } else {
+                CallbackProgression::Continue
+            }
+        });
+        alive
+    }
+
+    /// Sends a response and wakes its client. Returns the total latency (client send → now).
+    fn send_detect(
+        &self,
+        active: &DetectActive,
+        reply_token: u64,
+        mut header: DetectResponseHeader,
+        hypotheses: &[PoseHypothesis],
+    ) -> Option<u64> {
+        let loaned = match active.loan_slice_uninit(hypotheses.len()) {
+            Ok(r) => r,
+            Err(e) => {
+                tracing::warn!(request = header.request_id, error = ?e, "cannot loan a response");
+                return None;
+            }
+        };
+        let mut response = loaned.write_from_slice(hypotheses);
+        let now = monotonic_now_ns();
+        let send_time_ns = active.user_header().send_time_ns;
+        header.response_send_ns = now;
+        header.latency.total_ns = if send_time_ns != 0 {
+            now.saturating_sub(send_time_ns)
+        } else {
+            0
+        };
+        *response.user_header_mut() = header;
+        if let Err(e) = response.send() {
+            tracing::debug!(request = header.request_id, error = ?e, "response not delivered");
+            return None;
+        }
+        self.notify_reply(reply_token);
+        Some(header.latency.total_ns)
+    }
+
+    /// Wakes the listener of the client that gave `token` (0: the client polls).
+    pub fn notify_reply(&self, token: u64) {
+        if token == 0 {
+            return;
+        }
+        let mut wake = self.wake.lock().unwrap_or_else(|p| p.into_inner());
+        let Wake { notifier, keys } = &mut *wake;
+        if let Some(key) = keys.get(&token) {
+            if notifier.notify_single_listener(key).is_ok() {
+                return;
+            }
+            keys.remove(&token);
+        }
+        let Ok(name) = PortName::new(&services::reply_listener_name(token)) else {
+            return;
+        };
+        let mut found = None;
+        notifier.for_each_listener(|monofier, details| {
+            if details.listener_name == name {
+                let _ = monofier.notify();
+                found = Some(monofier.listener_key());
+                CallbackProgression::Stop
+            } else {
+                CallbackProgression::Continue
+            }
+        });
+        match found {
+            Some(key) => {
+                keys.insert(token, key);
+            }
+            None => tracing::debug!(token, "no listener to wake for this reply"),
+        }
+    }
+
+    /// Bounds the cache of listener keys (clients come and go over weeks).
+    pub fn trim(&self) {
+        let mut wake = self.wake.lock().unwrap_or_else(|p| p.into_inner());
+        if wake.keys.len() > 4 * limits::MAX_CLIENTS {
+            wake.keys.clear();
+        }
+    }
+}
+
+/// Lets go of a dead client's request without touching its (possibly reused) channel: the
+/// request's chunk in the dead client's memory is not returned (a few bytes per client that
+/// died mid-request).
+pub fn abandon(active: DetectActive, request_id: u64) -> Outcome {
+    tracing::debug!(request = request_id, "client died before its answer");
+    std::mem::forget(active);
+    Outcome::Abandoned
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn crosses_threads<T: Send>() {}
+    fn shared_by_threads<T: Send + Sync>() {}
+
+    /// What lets a pool worker answer its request: the request moves to the worker and the
+    /// responder is shared. With the single-threaded `ipc` variant neither would compile.
+    #[test]
+    fn requests_move_to_workers_and_the_responder_is_shared() {
+        crosses_threads::<DetectActive>();
+        shared_by_threads::<Responder>();
+        shared_by_threads::<std::sync::Arc<Responder>>();
+    }
+}
