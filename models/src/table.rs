@@ -12,7 +12,13 @@ use std::f32::consts::PI;
 /// An angle in 16-bit fixed point: `[−π, π)` ↦ `0..65536`, so that differences wrap for free.
 #[inline]
 pub fn alpha_to_fixed(alpha: f32) -> u16 {
-    (((alpha + PI) * (65536.0 / (2.0 * PI))).round() as i64).rem_euclid(65536) as u16
+    // Rounded to the nearest step, wrapping: floor(x + ½) modulo 2¹⁶. Written without
+    // `round`/`rem_euclid`, which are library calls on baseline x86-64 and sat in the voting
+    // loop's profile (once per scene pair).
+    let x = (alpha + PI) * (65536.0 / (2.0 * PI)) + 0.5;
+    let t = x as i64;
+    let floor = if (t as f32) > x { t - 1 } else { t };
+    floor as u16
 }
 
 /// The α bin of `α_m − α_s` given both in fixed point: integer arithmetic only, as the voting
@@ -98,6 +104,28 @@ mod tests {
                 (entry_alpha(e) - a).abs() < 2.0 * PI / 65536.0 + 1e-6,
                 "{a}"
             );
+        }
+    }
+
+    #[test]
+    fn fixed_point_rounds_to_the_nearest_step_and_wraps() {
+        let step = 2.0 * PI / 65536.0;
+        assert_eq!(alpha_to_fixed(-PI), 0);
+        assert_eq!(alpha_to_fixed(0.0), 32768);
+        // π is a whole turn from −π: it wraps to 0, and so does a hair below it.
+        assert_eq!(alpha_to_fixed(PI), 0);
+        assert_eq!(alpha_to_fixed(PI - 0.2 * step), 0);
+        assert_eq!(alpha_to_fixed(-PI + 0.4 * step), 0);
+        assert_eq!(alpha_to_fixed(-PI + 0.6 * step), 1);
+        // Below −π (a sum of angles, say) it wraps the other way.
+        assert_eq!(alpha_to_fixed(-PI - 1.0 * step), 65535);
+        for i in 0..1000 {
+            let a = -3.0 * PI + 6.0 * PI * (i as f32 + 0.13) / 1000.0;
+            let exact = ((a as f64 + std::f64::consts::PI) / step as f64).round() as i64;
+            let got = alpha_to_fixed(a) as i64;
+            // Equal up to f32 rounding of the scaled angle (at most one step, circularly).
+            let off = (got - exact).rem_euclid(65536);
+            assert!(off <= 1 || off == 65535, "{a}: {got} vs {exact}");
         }
     }
 

@@ -9,10 +9,7 @@
 
 use rayon::prelude::*;
 
-use crate::feature::{
-    alpha_bin, alpha_of_bin, pose_from_alignment, wrap_angle, LocalFrame, PointPairFeature,
-    MAX_KEYS,
-};
+use crate::feature::{alpha_of_bin, pose_from_alignment, LocalFrame, PointPairFeature, MAX_KEYS};
 use crate::model::ObjectModel;
 use crate::plane::SupportingPlane;
 use crate::scene::PreparedScene;
@@ -198,9 +195,8 @@ pub fn vote_from(
                             None => 0,
                         }
                     };
-                    let alpha_s = frame.alpha(&si);
-                    let alpha_s_fixed = alpha_to_fixed(alpha_s);
-                    let bit = 1u32 << alpha_bin(wrap_angle(alpha_s), alpha_bins);
+                    let alpha_s_fixed = alpha_to_fixed(frame.alpha(&si));
+                    let bit = 1u32 << fixed_bin(alpha_s_fixed, alpha_bins);
                     for &key in &keys[..n_keys] {
                         let k = key as usize;
                         let (start, end) = (
@@ -271,6 +267,13 @@ pub fn vote_from(
     (hypotheses, counts)
 }
 
+/// The bin of an angle given in fixed point (as [`alpha_to_fixed`] makes it) among `bins`:
+/// the same bins as [`crate::feature::alpha_bin`] (both start at −π).
+#[inline]
+fn fixed_bin(alpha_fixed: u16, bins: u32) -> u32 {
+    (alpha_fixed as u32 * bins) >> 16
+}
+
 /// Where the peak of a parabola through `(−1, below)`, `(0, centre)`, `(1, above)` lies, in
 /// bins, within `[−0.5, 0.5]` (0 when the centre is not a strict maximum of a concave parabola).
 #[inline]
@@ -294,17 +297,23 @@ fn peaks(acc: &[u16], _nb: usize, params: &VotingParams, mut emit: impl FnMut(us
     }
     let threshold = ((params.peak_ratio * max as f32).ceil() as u32).clamp(1, max) as u16;
     let mut best: Vec<(u32, usize)> = Vec::with_capacity(k + 1);
-    for (cell, &v) in acc.iter().enumerate() {
-        if v < threshold {
+    // Most rows hold no cell near the maximum: a row's maximum (vectorised) skips them whole.
+    for (row, cells) in acc.chunks(ROW).enumerate() {
+        if cells.iter().copied().max().unwrap_or(0) < threshold {
             continue;
         }
-        let v = v as u32;
-        if best.len() == k && v <= best[k - 1].0 {
-            continue;
+        for (i, &v) in cells.iter().enumerate() {
+            if v < threshold {
+                continue;
+            }
+            let v = v as u32;
+            if best.len() == k && v <= best[k - 1].0 {
+                continue;
+            }
+            let pos = best.partition_point(|&(bv, _)| bv >= v);
+            best.insert(pos, (v, row * ROW + i));
+            best.truncate(k);
         }
-        let pos = best.partition_point(|&(bv, _)| bv >= v);
-        best.insert(pos, (v, cell));
-        best.truncate(k);
     }
     for (v, cell) in best {
         emit(cell, v);
@@ -351,5 +360,19 @@ mod tests {
         got.clear();
         peaks(&[0, 0, 0], 3, &params, |c, v| got.push((c, v)));
         assert!(got.is_empty());
+        // Peaks in different accumulator rows (model points), one row without any.
+        let mut acc = vec![0u16; 4 * ROW];
+        acc[3] = 40;
+        acc[2 * ROW + 7] = 50;
+        acc[3 * ROW + 31] = 45;
+        acc[3 * ROW] = 20;
+        let params = VotingParams {
+            peaks_per_reference: 2,
+            peak_ratio: 0.5,
+            ..Default::default()
+        };
+        got.clear();
+        peaks(&acc, 30, &params, |c, v| got.push((c, v)));
+        assert_eq!(got, vec![(2 * ROW + 7, 50), (3 * ROW + 31, 45)]);
     }
 }
