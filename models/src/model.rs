@@ -145,6 +145,10 @@ pub struct ModelData {
     /// [`Mesh::fingerprint`] of the mesh it was built from: a cached model is reused only for
     /// the same mesh ([`crate::store::load_expecting`]).
     pub mesh_fingerprint: u32,
+    /// CRC-32 of the bytes of the file the mesh was read from, 0 when unknown: a cached model
+    /// whose file is unchanged is reused without reading the mesh again
+    /// ([`crate::store::load_built_from_file`]). Set with [`ObjectModel::with_source_crc`].
+    pub source_crc: u32,
     /// Subsampled oriented points (mm, unit normals): the model points of the lookup table.
     pub points: Vec<[f32; 3]>,
     pub normals: Vec<[f32; 3]>,
@@ -244,6 +248,7 @@ impl ObjectModel {
             diameter_mm,
             params: *params,
             mesh_fingerprint: mesh.fingerprint(),
+            source_crc: 0,
             points: points.positions.iter().map(|p| [p.x, p.y, p.z]).collect(),
             normals: points.normals.iter().map(|n| [n.x, n.y, n.z]).collect(),
             surface_points: surface.positions.iter().map(|p| [p.x, p.y, p.z]).collect(),
@@ -306,6 +311,24 @@ impl ObjectModel {
     /// [`Mesh::fingerprint`] of the mesh the model was built from.
     pub fn mesh_fingerprint(&self) -> u32 {
         self.data().mesh_fingerprint.to_native()
+    }
+
+    /// CRC-32 of the mesh file's bytes the model was built from (0: unknown).
+    pub fn source_crc(&self) -> u32 {
+        self.data().source_crc.to_native()
+    }
+
+    /// The same model, recording that its mesh was read from a file whose bytes have the CRC-32
+    /// `crc` ([`crate::store::source_crc`]).
+    pub fn with_source_crc(self, crc: u32) -> Result<Self> {
+        let mut data = rkyv::deserialize::<ModelData, rkyv::rancor::Error>(self.data())
+            .map_err(|e| Error::InvalidParameter(format!("cannot read the model back: {e}")))?;
+        data.source_crc = crc;
+        let bytes = rkyv::to_bytes::<rkyv::rancor::Error>(&data)
+            .map_err(|e| Error::InvalidParameter(format!("cannot archive model: {e}")))?;
+        Ok(Self {
+            backing: Backing::Owned(bytes),
+        })
     }
 
     /// Number of subsampled model points.

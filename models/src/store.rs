@@ -6,8 +6,10 @@
 //! archive and the table's internal consistency before handing out an [`ObjectModel`]: a
 //! truncated, corrupted, wrong-version or wrong-parameter file is refused, never trusted.
 //!
-//! A model file used as a cache of a mesh is checked with [`load_expecting`]: it is reused only
-//! when built with the same parameters from the same mesh ([`crate::mesh::Mesh::fingerprint`]).
+//! A model file used as a cache of a mesh is checked with [`load_built_from_file`] (the same
+//! parameters and the same bytes of the mesh file: no need to read the mesh) or, failing that,
+//! [`load_expecting`] (the same parameters and the same mesh, [`crate::mesh::Mesh::fingerprint`],
+//! whatever the file looks like).
 
 use std::fs::File;
 use std::io::Write;
@@ -22,8 +24,8 @@ use crate::{Error, Result};
 /// The file name extension of model files.
 pub const EXTENSION: &str = "ppfm";
 /// Bumped whenever [`crate::model::ModelData`] or the table encoding changes. Version 2 added
-/// the mesh fingerprint.
-pub const FORMAT_VERSION: u32 = 2;
+/// the mesh fingerprint, version 3 the CRC of the mesh file.
+pub const FORMAT_VERSION: u32 = 3;
 const MAGIC: &[u8; 8] = b"PPFDMODL";
 const HEADER_LEN: usize = 32;
 
@@ -132,6 +134,39 @@ pub fn load_expecting(
             format!(
                 "built from another mesh (fingerprint {built_from:08x}, the mesh now gives \
                  {mesh_fingerprint:08x}): rebuild the model"
+            ),
+        ));
+    }
+    Ok(model)
+}
+
+/// The CRC-32 of a mesh file's bytes, as [`load_built_from_file`] compares it.
+pub fn source_crc(file_bytes: &[u8]) -> u32 {
+    crc32fast::hash(file_bytes)
+}
+
+/// The fast cache check: like [`load`], and refuses a model built with other parameters than
+/// `expected` or from a mesh file whose bytes had another [`source_crc`] than `source_crc`.
+/// A refusal says nothing about the mesh itself: [`load_expecting`] may still accept the model.
+pub fn load_built_from_file(
+    path: &Path,
+    expected: &ModelParams,
+    source_crc: u32,
+) -> Result<ObjectModel> {
+    let model = load(path)?;
+    let params = model.params();
+    if params != *expected {
+        return Err(refuse(
+            path,
+            format!("built with {params:?}, expected {expected:?}: rebuild the model"),
+        ));
+    }
+    let built_from = model.source_crc();
+    if built_from == 0 || built_from != source_crc {
+        return Err(refuse(
+            path,
+            format!(
+                "built from another mesh file (CRC {built_from:08x}, the file now gives                  {source_crc:08x})"
             ),
         ));
     }
@@ -253,6 +288,37 @@ mod tests {
         let fingerprint = box_mesh(50.0, 30.0, 20.0).fingerprint();
         assert_eq!(loaded.mesh_fingerprint(), fingerprint);
         assert!(load_expecting(&path, &ModelParams::default(), fingerprint).is_ok());
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn the_file_check_wants_the_same_bytes_and_parameters() {
+        let dir = temp_dir("source");
+        let path = dir.join("box.ppfm");
+        let crc = source_crc(b"ply\nformat ascii 1.0\n...");
+        let model = built().with_source_crc(crc).unwrap();
+        assert_eq!(model.source_crc(), crc);
+        assert_eq!(model.table(), built().table(), "only the CRC changes");
+        save(&model, &path).unwrap();
+        let params = ModelParams::default();
+        assert_eq!(
+            load_built_from_file(&path, &params, crc)
+                .unwrap()
+                .source_crc(),
+            crc
+        );
+        let other = load_built_from_file(&path, &params, crc ^ 1)
+            .unwrap_err()
+            .to_string();
+        assert!(other.contains("another mesh file"), "{other}");
+        let coarser = ModelParams {
+            leaf_fraction: 0.07,
+            ..params
+        };
+        assert!(load_built_from_file(&path, &coarser, crc).is_err());
+        // A model built without a file (CRC 0) never passes this check.
+        save(&built(), &path).unwrap();
+        assert!(load_built_from_file(&path, &params, 0).is_err());
         std::fs::remove_dir_all(dir).unwrap();
     }
 

@@ -129,14 +129,34 @@ impl PpfEngine {
                     ),
                 )
             })?;
-        let mesh = Mesh::from_ply_file(path).map_err(model_error)?;
-        let fingerprint = mesh.fingerprint();
+        let bytes = std::fs::read(path).map_err(|source| {
+            model_error(ppfd_models::Error::Io {
+                path: path.to_path_buf(),
+                source,
+            })
+        })?;
+        let source_crc = store::source_crc(&bytes);
         let cache = Self::cache_path(path, cache_dir);
         let beside = path.with_extension(MODEL_EXTENSION);
         let mut candidates = vec![beside];
         if cache != candidates[0] {
             candidates.push(cache.clone());
         }
+        // First without parsing the mesh: a model built from these very bytes.
+        for candidate in candidates.iter().filter(|p| p.is_file()) {
+            match store::load_built_from_file(candidate, &self.model_params, source_crc) {
+                Ok(model) if model.object_id() == id => {
+                    tracing::info!(path = %candidate.display(), "using the model built earlier from this file");
+                    return Ok(loaded(model, candidate));
+                }
+                Ok(_) => {}
+                Err(e) => {
+                    tracing::debug!(path = %candidate.display(), reason = %e, "not built from this file")
+                }
+            }
+        }
+        let mesh = Mesh::from_ply_reader(&bytes[..], path).map_err(model_error)?;
+        let fingerprint = mesh.fingerprint();
         for candidate in candidates.iter().filter(|p| p.is_file()) {
             match store::load_expecting(candidate, &self.model_params, fingerprint) {
                 Ok(model) if model.object_id() == id => {
@@ -159,7 +179,9 @@ impl PpfEngine {
             .file_stem()
             .and_then(|s| s.to_str())
             .unwrap_or("object");
-        let model = ObjectModel::build(&mesh, id, name, &self.model_params).map_err(model_error)?;
+        let model = ObjectModel::build(&mesh, id, name, &self.model_params)
+            .and_then(|m| m.with_source_crc(source_crc))
+            .map_err(model_error)?;
         tracing::info!(
             path = %path.display(),
             object_id = id,
@@ -447,6 +469,32 @@ mod tests {
             let on_disk = store::load(&saved).unwrap();
             assert_eq!(on_disk.mesh_fingerprint(), fingerprint);
             drop((replaced, on_disk));
+
+            // The rebuilt model records the bytes of its file, so the next start need not
+            // parse the mesh: a model saved under those bytes' CRC is taken as it is. (Shown
+            // with a model of a cube of another name, which only this check can accept: its
+            // mesh fingerprint is not the file's.)
+            let crc = store::source_crc(&std::fs::read(&ply).unwrap());
+            assert_eq!(store::load(&saved).unwrap().source_crc(), crc);
+            let cube = ppfd_models::parts::box_mesh(nalgebra::Vector3::new(30.0, 30.0, 30.0));
+            let stand_in = ObjectModel::build(&cube, 1, "by-file", &ModelParams::default())
+                .unwrap()
+                .with_source_crc(crc)
+                .unwrap();
+            store::save(&stand_in, &saved).unwrap();
+            let by_file = load_dir(&e, &models, cache);
+            assert_eq!(by_file[0].info.name(), "by-file");
+            drop(by_file);
+            // Another CRC (the file changed since): the mesh decides, and rebuilds.
+            let stale = ObjectModel::build(&cube, 1, "stale", &ModelParams::default())
+                .unwrap()
+                .with_source_crc(crc ^ 1)
+                .unwrap();
+            store::save(&stale, &saved).unwrap();
+            let rebuilt = load_dir(&e, &models, cache);
+            assert_eq!(rebuilt[0].info.name(), "obj_000001");
+            assert!((rebuilt[0].info.diameter_mm - diagonal(b)).abs() < 0.01);
+            drop(rebuilt);
 
             // Asking for the model file beside the mesh by name goes through the mesh too.
             if !with_cache {

@@ -41,9 +41,9 @@ pub fn load_or_build(
     load_or_build_in(&cache_dir(), mesh_path, object_id, params)
 }
 
-/// [`load_or_build`] with the cache in `cache_dir`. The mesh is read every time: the cached
-/// model is used only if built from the same mesh (its fingerprint), with the same parameters
-/// and object id; otherwise it is rebuilt and replaced.
+/// [`load_or_build`] with the cache in `cache_dir`. The cached model is used if built with the
+/// same parameters and object id from the same bytes of the mesh file (then the mesh is not
+/// parsed) or from the same mesh (its fingerprint); otherwise it is rebuilt and replaced.
 fn load_or_build_in(
     cache_dir: &Path,
     mesh_path: &Path,
@@ -52,7 +52,16 @@ fn load_or_build_in(
 ) -> Result<ObjectModel, String> {
     let cached =
         cache_path(cache_dir, mesh_path).map_err(|e| format!("{}: {e}", mesh_path.display()))?;
-    let mesh = Mesh::from_ply_file(mesh_path).map_err(|e| e.to_string())?;
+    let bytes = std::fs::read(mesh_path).map_err(|e| format!("{}: {e}", mesh_path.display()))?;
+    let source_crc = store::source_crc(&bytes);
+    if cached.is_file() {
+        if let Ok(model) = store::load_built_from_file(&cached, params, source_crc) {
+            if model.object_id() == object_id {
+                return Ok(model);
+            }
+        }
+    }
+    let mesh = Mesh::from_ply_reader(&bytes[..], mesh_path).map_err(|e| e.to_string())?;
     if cached.is_file() {
         match store::load_expecting(&cached, params, mesh.fingerprint()) {
             Ok(model) if model.object_id() == object_id => return Ok(model),
@@ -69,7 +78,9 @@ fn load_or_build_in(
         .unwrap_or_default()
         .to_string_lossy()
         .into_owned();
-    let model = ObjectModel::build(&mesh, object_id, &name, params).map_err(|e| e.to_string())?;
+    let model = ObjectModel::build(&mesh, object_id, &name, params)
+        .and_then(|m| m.with_source_crc(source_crc))
+        .map_err(|e| e.to_string())?;
     if std::fs::create_dir_all(cache_dir).is_ok() {
         if let Err(e) = store::save(&model, &cached) {
             tracing::warn!("could not cache {}: {e}", cached.display());
