@@ -12,7 +12,7 @@ use crate::camera::DepthFrame;
 use rayon::prelude::*;
 
 use crate::clustering::{cluster_poses, ClusteringParams};
-use crate::filters::{is_consistent, silhouette_fraction, simplified_mesh, EdgeMap, FilterParams};
+use crate::filters::{is_consistent, silhouette_fraction, EdgeMap, FilterParams};
 use crate::icp::{refine, IcpParams};
 use crate::model::ObjectModel;
 use crate::plane::{PlaneParams, SupportingPlane};
@@ -319,16 +319,13 @@ impl Detector {
         let surface = model.surface_points();
         let conflict = p.rescoring.conflict_mm(d);
         let t = Instant::now();
-        let mesh = simplified_mesh(
-            &model.render_mesh(),
-            p.rescoring.silhouette_mesh_cell_fraction * d,
-        );
+        let mesh = model.silhouette_mesh(p.rescoring.silhouette_mesh_cell_fraction * d);
         let sphere = bounding_sphere(&mesh);
         let edges = edges.get_or_init(|| EdgeMap::new(scene, &p.filters));
         timings.filters += t.elapsed();
 
         let outline = Outline {
-            mesh: &mesh,
+            mesh: mesh.as_ref(),
             sphere: &sphere,
             edges,
         };

@@ -5,6 +5,7 @@
 //! ([`crate::store`]): a byte buffer holding an rkyv archive of [`ModelData`], read in place.
 
 use std::f32::consts::PI;
+use std::sync::{Arc, Mutex};
 
 use memmap2::Mmap;
 use nalgebra::{Point3, Vector3};
@@ -172,6 +173,9 @@ enum Backing {
 /// An object model ready for matching: built in memory or mapped from a model file.
 pub struct ObjectModel {
     backing: Backing,
+    /// The coarse mesh of silhouettes and the cell it was made with, made on first use
+    /// ([`ObjectModel::silhouette_mesh`]): a resident daemon makes it once, not per detection.
+    silhouette: Mutex<Option<(f32, Arc<Mesh>)>>,
 }
 
 impl std::fmt::Debug for ObjectModel {
@@ -262,6 +266,7 @@ impl ObjectModel {
             .map_err(|e| Error::InvalidParameter(format!("{name}: cannot archive model: {e}")))?;
         Ok(Self {
             backing: Backing::Owned(bytes),
+            silhouette: Mutex::new(None),
         })
     }
 
@@ -269,6 +274,7 @@ impl ObjectModel {
     pub(crate) fn from_validated_map(map: Mmap, offset: usize) -> Self {
         Self {
             backing: Backing::Mapped { map, offset },
+            silhouette: Mutex::new(None),
         }
     }
 
@@ -328,6 +334,7 @@ impl ObjectModel {
             .map_err(|e| Error::InvalidParameter(format!("cannot archive model: {e}")))?;
         Ok(Self {
             backing: Backing::Owned(bytes),
+            silhouette: Mutex::new(None),
         })
     }
 
@@ -393,6 +400,23 @@ impl ObjectModel {
                 .map(|f| f.map(|i| i.to_native()))
                 .collect(),
         }
+    }
+
+    /// The mesh with vertices merged on a grid of `cell_mm` ([`crate::filters::simplified_mesh`])
+    /// that silhouettes are rendered from; kept after the first call for the same cell.
+    pub fn silhouette_mesh(&self, cell_mm: f32) -> Arc<Mesh> {
+        let mut kept = self.silhouette.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some((cell, mesh)) = &*kept {
+            if cell.to_bits() == cell_mm.to_bits() {
+                return mesh.clone();
+            }
+        }
+        let mesh = Arc::new(crate::filters::simplified_mesh(
+            &self.render_mesh(),
+            cell_mm,
+        ));
+        *kept = Some((cell_mm, mesh.clone()));
+        mesh
     }
 
     /// The feature quantiser of this model.
@@ -490,6 +514,28 @@ pub(crate) mod tests {
             }
         }
         m
+    }
+
+    #[test]
+    fn the_silhouette_mesh_is_made_once_per_cell() {
+        let model = ObjectModel::build(
+            &box_mesh(50.0, 30.0, 20.0),
+            1,
+            "box",
+            &ModelParams::default(),
+        )
+        .unwrap();
+        let first = model.silhouette_mesh(4.0);
+        let made = crate::filters::simplified_mesh(&model.render_mesh(), 4.0);
+        assert_eq!(first.positions, made.positions);
+        assert_eq!(first.faces, made.faces);
+        assert!(Arc::ptr_eq(&first, &model.silhouette_mesh(4.0)), "kept");
+        let finer = model.silhouette_mesh(1.0);
+        assert!(!Arc::ptr_eq(&first, &finer), "another cell, another mesh");
+        assert_eq!(
+            finer.faces,
+            crate::filters::simplified_mesh(&model.render_mesh(), 1.0).faces
+        );
     }
 
     #[test]
