@@ -2,10 +2,9 @@
 //! best one not yet grouped; a cluster's score is its members' summed votes and its pose their
 //! vote-weighted average, rotations averaged as sign-aligned unit quaternions and renormalised.
 
-use std::collections::HashMap;
+use nalgebra::{Point3, Quaternion, Translation3, UnitQuaternion, Vector3, Vector4};
 
-use nalgebra::{Quaternion, Translation3, UnitQuaternion, Vector3, Vector4};
-
+use crate::grid::CellMap;
 use crate::voting::Hypothesis;
 use crate::Pose;
 
@@ -121,15 +120,9 @@ pub fn cluster_poses(
     // |q1 · q2| = cos(θ/2) for the angle θ between two rotations.
     let min_dot = (params.rotation_deg.to_radians() / 2.0).cos();
     let inv_cell = 1.0 / max_t;
-    let cell_of = |t: &Vector3<f32>| {
-        (
-            (t.x * inv_cell).floor() as i32,
-            (t.y * inv_cell).floor() as i32,
-            (t.z * inv_cell).floor() as i32,
-        )
-    };
+    let cell_of = |t: &Vector3<f32>| crate::grid::cell_of(&Point3::from(*t), inv_cell);
     let mut clusters: Vec<Accumulating> = Vec::new();
-    let mut grid: HashMap<(i32, i32, i32), Vec<u32>> = HashMap::new();
+    let mut grid: CellMap<Vec<u32>> = CellMap::default();
     for i in order {
         let h = &hypotheses[i];
         let t = h.pose.translation.vector;

@@ -374,22 +374,17 @@ pub fn silhouette_fraction_of_points(
 /// distance; merging them at a pixel's footprint keeps the outline within a cell and makes
 /// rendering several times cheaper.
 pub fn simplified_mesh(mesh: &Mesh, cell_mm: f32) -> Mesh {
-    use std::collections::HashMap;
     if !(cell_mm > 0.0) {
         return mesh.clone();
     }
     let inv = 1.0 / cell_mm;
-    let mut cell_of: HashMap<(i32, i32, i32), u32> = HashMap::new();
+    let mut cell_of: crate::grid::CellMap<u32> = Default::default();
     let mut sums: Vec<(nalgebra::Vector3<f32>, u32)> = Vec::new();
     let remap: Vec<u32> = mesh
         .positions
         .iter()
         .map(|p| {
-            let key = (
-                (p.x * inv).floor() as i32,
-                (p.y * inv).floor() as i32,
-                (p.z * inv).floor() as i32,
-            );
+            let key = crate::grid::cell_of(p, inv);
             let id = *cell_of.entry(key).or_insert_with(|| {
                 sums.push((nalgebra::Vector3::zeros(), 0));
                 (sums.len() - 1) as u32

@@ -44,6 +44,7 @@ pub mod error;
 pub mod eval;
 pub mod feature;
 pub mod filters;
+pub mod grid;
 pub mod icp;
 pub mod mesh;
 pub mod model;

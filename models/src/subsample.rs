@@ -8,9 +8,9 @@
 //! carry the same information (closer than the leaf, normals within the clustering angle) are
 //! reduced to one.
 
-use std::collections::HashMap;
-
 use nalgebra::{Point3, Vector3};
+
+use crate::grid::CellMap;
 
 /// Oriented points: positions (mm) with unit normals, index-aligned.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -49,11 +49,7 @@ type VoxelKey = (i32, i32, i32);
 
 #[inline]
 fn voxel_of(p: &Point3<f32>, inv_leaf: f32) -> VoxelKey {
-    (
-        (p.x * inv_leaf).floor() as i32,
-        (p.y * inv_leaf).floor() as i32,
-        (p.z * inv_leaf).floor() as i32,
-    )
+    crate::grid::cell_of(p, inv_leaf)
 }
 
 struct Cluster {
@@ -140,7 +136,7 @@ fn filter_neighbours(
     clusters.sort_by(|a, b| b.2.cmp(&a.2));
     let inv = 1.0 / radius;
     let r2 = radius * radius;
-    let mut grid: HashMap<VoxelKey, Vec<u32>> = HashMap::new();
+    let mut grid: CellMap<Vec<u32>> = CellMap::default();
     let mut out = OrientedPoints::default();
     for (p, n, _) in clusters {
         let (kx, ky, kz) = voxel_of(&p, inv);
