@@ -86,16 +86,6 @@ impl Responder {
         }
     }
 
-    /// The detect service (for its server and its count of servers).
-    pub fn detect_service(&self) -> &DetectService<Ipc> {
-        &self.detect_service
-    }
-
-    /// The control service (for its server).
-    pub fn control_service(&self) -> &ControlService<Ipc> {
-        &self.control_service
-    }
-
     /// Answers a finished detection: its poses, or its error.
     pub fn answer(
         &self,
