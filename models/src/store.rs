@@ -119,14 +119,7 @@ pub fn load_expecting(
     expected: &ModelParams,
     mesh_fingerprint: u32,
 ) -> Result<ObjectModel> {
-    let model = load(path)?;
-    let params = model.params();
-    if params != *expected {
-        return Err(refuse(
-            path,
-            format!("built with {params:?}, expected {expected:?}: rebuild the model"),
-        ));
-    }
+    let model = load_built_with(path, expected)?;
     let built_from = model.mesh_fingerprint();
     if built_from != mesh_fingerprint {
         return Err(refuse(
@@ -135,6 +128,19 @@ pub fn load_expecting(
                 "built from another mesh (fingerprint {built_from:08x}, the mesh now gives \
                  {mesh_fingerprint:08x}): rebuild the model"
             ),
+        ));
+    }
+    Ok(model)
+}
+
+/// Like [`load`], and refuses a model built with other parameters than `expected`.
+fn load_built_with(path: &Path, expected: &ModelParams) -> Result<ObjectModel> {
+    let model = load(path)?;
+    let params = model.params();
+    if params != *expected {
+        return Err(refuse(
+            path,
+            format!("built with {params:?}, expected {expected:?}: rebuild the model"),
         ));
     }
     Ok(model)
@@ -153,14 +159,7 @@ pub fn load_built_from_file(
     expected: &ModelParams,
     source_crc: u32,
 ) -> Result<ObjectModel> {
-    let model = load(path)?;
-    let params = model.params();
-    if params != *expected {
-        return Err(refuse(
-            path,
-            format!("built with {params:?}, expected {expected:?}: rebuild the model"),
-        ));
-    }
+    let model = load_built_with(path, expected)?;
     let built_from = model.source_crc();
     if built_from == 0 || built_from != source_crc {
         return Err(refuse(

@@ -10,8 +10,10 @@ use std::collections::HashMap;
 use std::sync::Mutex;
 
 use iceoryx2::active_request::ActiveRequest;
+use iceoryx2::identifiers::UniqueClientId;
 use iceoryx2::port::notifier::{ListenerKey, Notifier};
 use iceoryx2::prelude::*;
+use iceoryx2::service::dynamic_config::request_response::ClientDetails;
 
 use ppfd_protocol::clock::monotonic_now_ns;
 use ppfd_protocol::control::{ControlRequest, ControlResponseHeader, ModelInfo};
@@ -178,31 +180,19 @@ impl Responder {
     /// client's channel.
     pub fn detect_client_alive(&self, active: &DetectActive) -> bool {
         let origin = active.origin();
-        let mut alive = false;
-        self.detect_service.dynamic_config().list_clients(|c| {
-            alive = c.client_id == origin;
-            if alive {
-                CallbackProgression::Stop
-            } else {
-                CallbackProgression::Continue
-            }
-        });
-        alive
+        listed(
+            |visit| self.detect_service.dynamic_config().list_clients(visit),
+            origin,
+        )
     }
 
     /// As [`Responder::detect_client_alive`], for a control request.
     pub fn control_client_alive(&self, active: &ControlActive) -> bool {
         let origin = active.origin();
-        let mut alive = false;
-        self.control_service.dynamic_config().list_clients(|c| {
-            alive = c.client_id == origin;
-            if alive {
-                CallbackProgression::Stop
-            } else {
-                CallbackProgression::Continue
-            }
-        });
-        alive
+        listed(
+            |visit| self.control_service.dynamic_config().list_clients(visit),
+            origin,
+        )
     }
 
     /// Sends a response and wakes its client. Returns the total latency (client send → now).
@@ -279,6 +269,24 @@ impl Responder {
             wake.keys.clear();
         }
     }
+}
+
+/// Whether `origin` is among the clients that `list_clients` walks (a service's
+/// `dynamic_config().list_clients`).
+fn listed(
+    list_clients: impl FnOnce(&mut dyn FnMut(&ClientDetails) -> CallbackProgression),
+    origin: UniqueClientId,
+) -> bool {
+    let mut alive = false;
+    list_clients(&mut |c: &ClientDetails| {
+        alive = c.client_id == origin;
+        if alive {
+            CallbackProgression::Stop
+        } else {
+            CallbackProgression::Continue
+        }
+    });
+    alive
 }
 
 /// Lets go of a dead client's request without touching its (possibly reused) channel: the
