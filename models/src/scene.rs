@@ -543,6 +543,8 @@ pub fn plane_fit(
     let out: Vec<(Point3<f32>, Vector3<f32>)> = (0..h)
         .into_par_iter()
         .flat_map_iter(|v| {
+            // The samples of one pixel's window, reused along the row.
+            let mut window: Vec<(f32, f32, f32)> = Vec::new();
             (0..w).map(move |u| {
                 let Some(z) = z_of(u, v) else {
                     return (nan_p, nan_n);
@@ -554,50 +556,50 @@ pub fn plane_fit(
                 let residual = params
                     .plane_residual_mm
                     .max(params.plane_residual_fraction * z);
+                // The window's samples with depth, gathered once for both fits.
+                window.clear();
+                let mut dv = -r;
+                while dv <= r {
+                    let y = v + dv;
+                    if y >= 0 && y < h {
+                        let mut du = -r;
+                        while du <= r {
+                            let x = u + du;
+                            if x >= 0 && x < w {
+                                if let Some(zn) = z_of(x, y) {
+                                    window.push((du as f32, dv as f32, zn));
+                                }
+                            }
+                            du += stride;
+                        }
+                    }
+                    dv += stride;
+                }
                 // Two fits: neighbours within the jump of the centre, then those near the plane.
                 let mut plane: Option<(f32, f32, f32)> = None;
                 for pass in 0..2 {
                     let mut m = [0f64; 6]; // Σdu², Σdu·dv, Σdu, Σdv², Σdv, n
                     let mut b = [0f64; 3]; // Σdu·z, Σdv·z, Σz
-                    let mut dv = -r;
-                    while dv <= r {
-                        let y = v + dv;
-                        if y >= 0 && y < h {
-                            let mut du = -r;
-                            while du <= r {
-                                let x = u + du;
-                                if x >= 0 && x < w {
-                                    if let Some(zn) = z_of(x, y) {
-                                        let keep = match plane {
-                                            None => {
-                                                let d = du.abs().max(dv.abs()) as f32;
-                                                (zn - z).abs()
-                                                    <= (per_pixel * d).max(params.min_depth_jump_mm)
-                                            }
-                                            Some((a, bb, c)) => {
-                                                (zn - (a * du as f32 + bb * dv as f32 + c)).abs()
-                                                    <= residual
-                                            }
-                                        };
-                                        if keep {
-                                            let (fu, fv, fz) =
-                                                (du as f64, dv as f64, (zn - z) as f64);
-                                            m[0] += fu * fu;
-                                            m[1] += fu * fv;
-                                            m[2] += fu;
-                                            m[3] += fv * fv;
-                                            m[4] += fv;
-                                            m[5] += 1.0;
-                                            b[0] += fu * fz;
-                                            b[1] += fv * fz;
-                                            b[2] += fz;
-                                        }
-                                    }
-                                }
-                                du += stride;
+                    for &(du, dv, zn) in &window {
+                        let keep = match plane {
+                            None => {
+                                let d = du.abs().max(dv.abs());
+                                (zn - z).abs() <= (per_pixel * d).max(params.min_depth_jump_mm)
                             }
+                            Some((a, bb, c)) => (zn - (a * du + bb * dv + c)).abs() <= residual,
+                        };
+                        if keep {
+                            let (fu, fv, fz) = (du as f64, dv as f64, (zn - z) as f64);
+                            m[0] += fu * fu;
+                            m[1] += fu * fv;
+                            m[2] += fu;
+                            m[3] += fv * fv;
+                            m[4] += fv;
+                            m[5] += 1.0;
+                            b[0] += fu * fz;
+                            b[1] += fv * fz;
+                            b[2] += fz;
                         }
-                        dv += stride;
                     }
                     if m[5] < 4.0 {
                         return (raw_point, nan_n);
