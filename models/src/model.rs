@@ -327,7 +327,13 @@ impl ObjectModel {
     /// The same model, recording that its mesh was read from a file whose bytes have the CRC-32
     /// `crc` ([`crate::store::source_crc`]).
     pub fn with_source_crc(self, crc: u32) -> Result<Self> {
-        let mut data = rkyv::deserialize::<ModelData, rkyv::rancor::Error>(self.data())
+        Self::clone_with_source_crc(&self, crc)
+    }
+
+    /// A copy of `model` recording `crc` as its mesh file's CRC (see
+    /// [`ObjectModel::with_source_crc`]).
+    pub fn clone_with_source_crc(model: &ObjectModel, crc: u32) -> Result<Self> {
+        let mut data = rkyv::deserialize::<ModelData, rkyv::rancor::Error>(model.data())
             .map_err(|e| Error::InvalidParameter(format!("cannot read the model back: {e}")))?;
         data.source_crc = crc;
         let bytes = rkyv::to_bytes::<rkyv::rancor::Error>(&data)

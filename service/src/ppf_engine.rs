@@ -161,6 +161,15 @@ impl PpfEngine {
             match store::load_expecting(candidate, &self.model_params, fingerprint) {
                 Ok(model) if model.object_id() == id => {
                     tracing::info!(path = %candidate.display(), "using the model built earlier");
+                    // The same mesh in a rewritten file: record the file's new CRC, so that the
+                    // next start need not parse the mesh again.
+                    let model = match with_file_crc(model, candidate, source_crc) {
+                        Ok(updated) => updated,
+                        Err((model, e)) => {
+                            tracing::debug!(path = %candidate.display(), error = %e, "CRC not recorded");
+                            model
+                        }
+                    };
                     return Ok(loaded(model, candidate));
                 }
                 Ok(model) => tracing::info!(
@@ -204,6 +213,26 @@ impl PpfEngine {
             }
         }
     }
+}
+
+/// `model`, saved at `path` again with `crc` as its mesh file's CRC (nothing to do when it has
+/// it already), and mapped back; on failure the model as it was, with the reason.
+fn with_file_crc(
+    model: ObjectModel,
+    path: &Path,
+    crc: u32,
+) -> Result<ObjectModel, (ObjectModel, ppfd_models::Error)> {
+    if model.source_crc() == crc {
+        return Ok(model);
+    }
+    let updated = match ObjectModel::clone_with_source_crc(&model, crc) {
+        Ok(updated) => updated,
+        Err(e) => return Err((model, e)),
+    };
+    if let Err(e) = store::save(&updated, path) {
+        return Err((model, e));
+    }
+    store::load(path).map_err(|e| (model, e))
 }
 
 impl DetectionEngine for PpfEngine {
@@ -454,6 +483,13 @@ mod tests {
             let again = load_dir(&e, &models, cache);
             assert_eq!(again[0].info.name(), "earlier");
             drop(again);
+            // Accepted by its mesh, it now also records the file's CRC (it had none), so the
+            // next start takes it without parsing the mesh.
+            let file_crc = store::source_crc(&std::fs::read(&ply).unwrap());
+            let recorded = store::load(&saved).unwrap();
+            assert_eq!(recorded.name(), "earlier");
+            assert_eq!(recorded.source_crc(), file_crc);
+            drop(recorded);
 
             // Another mesh under the same name: rebuilt, and the saved model replaced.
             write_box_ply(&ply, b);

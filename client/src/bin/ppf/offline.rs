@@ -64,7 +64,17 @@ fn load_or_build_in(
     let mesh = Mesh::from_ply_reader(&bytes[..], mesh_path).map_err(|e| e.to_string())?;
     if cached.is_file() {
         match store::load_expecting(&cached, params, mesh.fingerprint()) {
-            Ok(model) if model.object_id() == object_id => return Ok(model),
+            Ok(model) if model.object_id() == object_id => {
+                // The same mesh in a rewritten file: record the file's CRC for the next run.
+                if model.source_crc() != source_crc {
+                    if let Ok(updated) = ObjectModel::clone_with_source_crc(&model, source_crc) {
+                        if store::save(&updated, &cached).is_ok() {
+                            return Ok(updated);
+                        }
+                    }
+                }
+                return Ok(model);
+            }
             Ok(model) => tracing::info!(
                 "{}: object {}, not {object_id}: rebuilding",
                 cached.display(),
@@ -171,6 +181,11 @@ mod tests {
             load_or_build_in(&cache, &ply, 3, &params).unwrap().name(),
             "earlier"
         );
+        // Accepted by its mesh, it now records the file's CRC: the next run reads no mesh.
+        let crc = store::source_crc(&std::fs::read(&ply).unwrap());
+        let recorded = store::load(&cached).unwrap();
+        assert_eq!((recorded.name(), recorded.source_crc()), ("earlier", crc));
+        assert!(store::load_built_from_file(&cached, &params, crc).is_ok());
 
         // The mesh file replaced by another mesh (its modification time kept or not): rebuilt.
         write_box_ply(&ply, b);
