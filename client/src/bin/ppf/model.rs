@@ -93,17 +93,21 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
                 store::save(&model, &out).map(|_| (model, out))
             });
         match result {
-            Ok((model, out)) => bar.println(format!(
-                "{}: object {id}, {} points, {} table entries, {:.1} MB -> {}",
-                path.display(),
-                model.point_count(),
-                model.table_entry_count(),
-                model.byte_size() as f64 / 1e6,
-                out.display()
-            )),
+            // `suspend`, not `ProgressBar::println`: that prints nothing when the bar is
+            // hidden (output not a terminal), and a script would see no reason for a failure.
+            Ok((model, out)) => bar.suspend(|| {
+                println!(
+                    "{}: object {id}, {} points, {} table entries, {:.1} MB -> {}",
+                    path.display(),
+                    model.point_count(),
+                    model.table_entry_count(),
+                    model.byte_size() as f64 / 1e6,
+                    out.display()
+                )
+            }),
             Err(e) => {
                 failures += 1;
-                bar.println(format!("error: {e}"));
+                bar.suspend(|| eprintln!("error: {e}"));
             }
         }
         bar.inc(1);

@@ -1,0 +1,68 @@
+//! `ppf model build` run as a script runs it (output not a terminal, so no progress bar): each
+//! mesh says what became of it, and a failure says why.
+#![cfg(feature = "cli")]
+
+use std::path::PathBuf;
+use std::process::Command;
+
+use ppfd_models::parts::Part;
+
+/// A fresh scratch directory, removed when dropped.
+struct Scratch(PathBuf);
+
+impl Scratch {
+    fn new(name: &str) -> Scratch {
+        let dir = std::env::temp_dir().join(format!("ppf-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        Scratch(dir)
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+#[test]
+fn each_mesh_reports_its_model_or_why_it_failed_without_a_terminal() {
+    let scratch = Scratch::new("model-build");
+    let good = scratch.0.join("obj_000003.ply");
+    std::fs::write(&good, Part::ALL[0].mesh().to_ply_ascii()).unwrap();
+    let bad = scratch.0.join("obj_000004.ply");
+    std::fs::write(
+        &bad,
+        "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nend_header\n1\n2\n",
+    )
+    .unwrap();
+    let out = scratch.0.join("models");
+
+    let run = Command::new(env!("CARGO_BIN_EXE_ppf"))
+        .args(["model", "build"])
+        .arg(&good)
+        .arg(&bad)
+        .arg("--out")
+        .arg(&out)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    eprintln!("stdout:\n{stdout}\nstderr:\n{stderr}");
+
+    assert!(!run.status.success(), "a failed mesh must fail the command");
+    // The good mesh is built, saved, and says so.
+    assert!(out.join("obj_000003.ppfm").is_file());
+    assert!(
+        stdout.contains("obj_000003.ply: object 3,") && stdout.contains("table entries"),
+        "no line for the built model"
+    );
+    // The bad one names itself and the reason, then the summary.
+    let reason = stderr
+        .lines()
+        .find(|l| l.contains("obj_000004.ply"))
+        .expect("no line for the failed mesh");
+    assert!(reason.contains("malformed PLY") && reason.contains("'y'"), "{reason}");
+    assert!(stderr.contains("1 of 2 meshes failed"));
+    assert!(!out.join("obj_000004.ppfm").exists());
+}
