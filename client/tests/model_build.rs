@@ -62,7 +62,10 @@ fn each_mesh_reports_its_model_or_why_it_failed_without_a_terminal() {
         .lines()
         .find(|l| l.contains("obj_000004.ply"))
         .expect("no line for the failed mesh");
-    assert!(reason.contains("malformed PLY") && reason.contains("'y'"), "{reason}");
+    assert!(
+        reason.contains("malformed PLY") && reason.contains("'y'"),
+        "{reason}"
+    );
     assert!(stderr.contains("1 of 2 meshes failed"));
     assert!(!out.join("obj_000004.ppfm").exists());
 }
