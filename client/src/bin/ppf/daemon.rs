@@ -86,8 +86,10 @@ pub fn stats(args: StatsArgs) -> Result<(), String> {
         s.requests_expired,
         s.requests_abandoned
     );
+    // The daemon takes a camera's frames when it needs one (a request, or its housekeeping
+    // round) and keeps the newest; frames published in between are skipped, not lost work.
     println!(
-        "frames received   {} from {} cameras",
+        "frames taken      {} from {} cameras (the newest when needed; the rest skipped)",
         s.frames_received, s.cameras
     );
     println!(
