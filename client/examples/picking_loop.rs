@@ -28,7 +28,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let client = Client::connect()?;
     let options = DetectOptions {
         hypotheses_per_object: 2,
-        timeout: Duration::from_millis(2000),
+        // Generous: on a 2-core machine a cluttered frame takes seconds per object (see the
+        // README's detection figures), and a cell would rather wait than re-ask.
+        timeout: Duration::from_secs(30),
         max_frame_age: Some(Duration::from_millis(500)),
     };
     let mut picked = 0;
