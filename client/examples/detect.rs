@@ -19,6 +19,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         &objects,
         &DetectOptions {
             hypotheses_per_object: 3,
+            // A cluttered frame takes seconds per object on a 2-core machine.
+            timeout: std::time::Duration::from_secs(30),
             ..Default::default()
         },
     )?;

@@ -31,7 +31,7 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 1)]
     pub hypotheses: u32,
     /// Timeout per request, milliseconds.
-    #[arg(long, default_value_t = 10_000)]
+    #[arg(long, default_value_t = 30_000)]
     pub timeout_ms: u64,
     /// Print the results as JSON.
     #[arg(long)]

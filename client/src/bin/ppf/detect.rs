@@ -17,8 +17,9 @@ pub struct DetectArgs {
     /// Hypotheses per object.
     #[arg(long, default_value_t = 1)]
     pub hypotheses: u32,
-    /// Give up after this long, milliseconds.
-    #[arg(long, default_value_t = 5000)]
+    /// Give up after this long, milliseconds (a cluttered VGA frame takes seconds per object on
+    /// a 2-core machine).
+    #[arg(long, default_value_t = 30_000)]
     pub timeout_ms: u64,
     /// Print the answer as JSON.
     #[arg(long)]
