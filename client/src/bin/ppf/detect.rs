@@ -1,30 +1,24 @@
 //! `ppf detect`: one detect request against a running daemon; prints the poses and the latency
 //! breakdown.
 
-use clap::Args;
 use ppfd_client::DetectOptions;
 
 use crate::common::{millis, print_hypotheses, print_latency, Connect};
 
-#[derive(Args, Debug)]
+/// What `ppf detect --camera` asks for; the flags are parsed with the dataset form of the command
+/// ([`crate::detect_offline::DetectCommand`]).
+#[derive(Debug)]
 pub struct DetectArgs {
     /// Camera whose newest frame to use.
-    #[arg(long)]
     pub camera: String,
-    /// Object ids, comma-separated.
-    #[arg(long, value_delimiter = ',', required = true)]
+    /// Object ids.
     pub objects: Vec<u32>,
     /// Hypotheses per object.
-    #[arg(long, default_value_t = 1)]
     pub hypotheses: u32,
-    /// Give up after this long, milliseconds (a cluttered VGA frame takes seconds per object on
-    /// a 2-core machine).
-    #[arg(long, default_value_t = 30_000)]
+    /// Give up after this long, milliseconds.
     pub timeout_ms: u64,
     /// Print the answer as JSON.
-    #[arg(long)]
     pub json: bool,
-    #[command(flatten)]
     pub connect: Connect,
 }
 

@@ -30,8 +30,9 @@ pub struct DetectCommand {
     /// Hypotheses per object.
     #[arg(long, default_value_t = 1)]
     pub hypotheses: u32,
-    /// Give up after this long, milliseconds (with --camera).
-    #[arg(long, default_value_t = 5000)]
+    /// Give up after this long, milliseconds (with --camera; a cluttered VGA frame takes
+    /// seconds per object on a 2-core machine).
+    #[arg(long, default_value_t = 30_000)]
     pub timeout_ms: u64,
     /// Print the answer as JSON (with --camera).
     #[arg(long)]
