@@ -20,7 +20,7 @@ use crate::render::{bounding_sphere, Renderer};
 use crate::rescoring::{score_poses, Outline, RescoringParams};
 use crate::scene::{prepare, PreparedScene, SceneImage, SceneParams};
 use crate::subsample::SubsampleParams;
-use crate::voting::{reference_points, vote_from, VotingParams};
+use crate::voting::{vote_from, Selection, VotingParams};
 use crate::{Error, Pose, Result};
 
 /// Parameters of the whole detection pipeline, one struct per stage.
@@ -270,13 +270,13 @@ impl Detector {
             let scene = &clouds[cloud_of[i]];
             let mut timings = StageTimings::default();
             let t = Instant::now();
-            let references = reference_points(
+            let selection = Selection::new(
                 scene,
                 self.params.voting.reference_step,
                 &planes,
                 model.diameter_mm(),
             );
-            let (raw, counts) = vote_from(model, scene, &references, &self.params.voting);
+            let (raw, counts) = vote_from(model, scene, &selection, &self.params.voting);
             timings.voting = t.elapsed();
             let t = Instant::now();
             let clusters = cluster_poses(&raw, model.diameter_mm(), &self.params.clustering);

@@ -173,3 +173,92 @@ fn model_points_moved_by_a_pose_vote_for_that_pose() {
     }
     assert!(hits >= 19, "{hits}/20");
 }
+
+/// Points on the table cannot be model points: with `plane_partners` off they pair with no
+/// reference point, and voting gives exactly what it gives on the scene without them.
+#[test]
+fn table_points_are_no_partners() {
+    use ppfd_models::plane::SupportingPlane;
+    use ppfd_models::subsample::OrientedPoints;
+    use ppfd_models::voting::{vote_from, Selection};
+    let part = Part::LBracket;
+    let mesh = part.mesh();
+    let model = ObjectModel::build(&mesh, 1, part.name(), &ModelParams::default()).unwrap();
+    let d = model.diameter_mm();
+    let scene = SceneSpec::new(3)
+        .object(1, &mesh)
+        .camera_distance_mm(700.0, 800.0)
+        .build()
+        .unwrap();
+    let params = DetectParams::new();
+    let image = prepare(&scene.frame.view(), &params.scene).unwrap();
+    let points = image.oriented_points();
+    let planes = SupportingPlane::find_all(&points, &params.plane);
+    assert!(!planes.is_empty(), "no table found");
+    let cloud = PreparedScene::new(&points, &model.params().subsample_params(d)).unwrap();
+    let selection = Selection::new(&cloud, params.voting.reference_step, &planes, d);
+    let on_table = selection.on_plane.iter().filter(|&&b| b).count();
+    assert!(
+        on_table > cloud.points.len() / 4,
+        "{on_table} of {} points on the table",
+        cloud.points.len()
+    );
+    assert!(selection.references.iter().all(|&r| !selection.on_plane[r]));
+
+    let (with, with_counts) = vote_from(
+        &model,
+        &cloud,
+        &selection,
+        &ppfd_models::voting::VotingParams {
+            plane_partners: true,
+            ..params.voting
+        },
+    );
+    let (without, counts) = vote_from(&model, &cloud, &selection, &params.voting);
+    assert!(
+        counts.pairs < with_counts.pairs,
+        "{} pairs without the table, {} with it",
+        counts.pairs,
+        with_counts.pairs
+    );
+
+    // The same scene with the table's points taken out, the same reference points.
+    let mut kept = OrientedPoints::default();
+    for i in 0..cloud.points.len() {
+        if !selection.on_plane[i] {
+            kept.push(cloud.points.positions[i], cloud.points.normals[i]);
+        }
+    }
+    // A leaf far below the points' spacing keeps every point as it is (in another order).
+    let bare = PreparedScene::new(
+        &kept,
+        &ppfd_models::subsample::SubsampleParams {
+            leaf_mm: 1e-3,
+            cluster_angle: 1e-3,
+            neighbour_filtering: false,
+        },
+    )
+    .unwrap();
+    assert_eq!(bare.points.len(), kept.len());
+    let bits = |p: &nalgebra::Point3<f32>| p.coords.map(f32::to_bits);
+    let index: std::collections::HashMap<_, usize> = bare
+        .points
+        .positions
+        .iter()
+        .enumerate()
+        .map(|(i, p)| (bits(p), i))
+        .collect();
+    let bare_selection = Selection {
+        references: selection
+            .references
+            .iter()
+            .map(|&r| index[&bits(&cloud.points.positions[r])])
+            .collect(),
+        on_plane: vec![false; kept.len()],
+    };
+    // (The hypotheses themselves may differ at bin borders: subsampling renormalises normals.)
+    let (_, expected_counts) = vote_from(&model, &bare, &bare_selection, &params.voting);
+    assert_eq!(counts.pairs, expected_counts.pairs);
+    assert_eq!(counts.votes, expected_counts.votes);
+    assert!(!with.is_empty() && !without.is_empty());
+}

@@ -181,6 +181,7 @@ pub fn set_param(p: &mut ppfd_models::detector::DetectParams, kv: &str) -> Resul
         "clustering.refine_iterations" => p.clustering.refine_iterations = u()?,
         "clustering.refine_from_densest" => p.clustering.refine_from_densest = b()?,
         "voting.interpolate_alpha" => p.voting.interpolate_alpha = b()?,
+        "voting.plane_partners" => p.voting.plane_partners = b()?,
         "rescoring.top_clusters" => p.rescoring.top_clusters = u()?,
         "rescoring.tolerance_fraction" => p.rescoring.tolerance_fraction = f()?,
         "rescoring.refined_tolerance_fraction" => p.rescoring.refined_tolerance_fraction = f()?,
@@ -335,7 +336,7 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
     use ppfd_models::render::bounding_sphere;
     use ppfd_models::rescoring::{score_poses, Outline};
     use ppfd_models::scene::{prepare, PreparedScene};
-    use ppfd_models::voting::{reference_points, vote_from};
+    use ppfd_models::voting::{vote_from, Selection};
     let dataset = BopDataset::open(&args.dataset)?;
     let gt = dataset.ground_truth(args.scene, args.image)?.to_vec();
     let ids = if args.objects.is_empty() {
@@ -411,8 +412,8 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             )
         };
         let t = std::time::Instant::now();
-        let references = reference_points(&cloud, p.voting.reference_step, &planes, d);
-        let (raw, _) = vote_from(model, &cloud, &references, &p.voting);
+        let selection = Selection::new(&cloud, p.voting.reference_step, &planes, d);
+        let (raw, _) = vote_from(model, &cloud, &selection, &p.voting);
         let clusters = cluster_poses(&raw, d, &p.clustering);
         let vote_ms = t.elapsed().as_secs_f64() * 1e3;
         let first_correct = |poses: &[ppfd_models::Pose]| poses.iter().position(|q| ok(q));
