@@ -89,11 +89,20 @@ pub struct VotingCounts {
 const ROW_SHIFT: usize = 5;
 const ROW: usize = 1 << ROW_SHIFT;
 
+/// Copies of the accumulator that take turns at a key's votes. Consecutive entries of a key
+/// often name the same cell; with one accumulator each increment waits for the one before it
+/// (a load behind a store to the same address). Measured on the LM-O frame (duck, hole
+/// puncher): voting in 0.74–0.78 of the time with 2 copies, 0.62–0.69 with 4.
+const LANES: usize = 4;
+
 /// Per-thread scratch: the accumulator and vote-once flags, reused across reference points.
 struct Scratch {
     /// Votes per (model point, α bin); 16 bits: one reference point pairs with a few thousand
     /// scene points at most, and a cell saturates rather than wraps.
     accumulator: Vec<u16>,
+    /// The other [`LANES`] − 1 copies, added into `accumulator` (and cleared) after each
+    /// reference point's votes.
+    lanes: [Vec<u16>; LANES - 1],
     flags: Vec<u32>,
     touched_keys: Vec<u32>,
     neighbours: Vec<usize>,
@@ -189,6 +198,7 @@ pub fn vote_from(
         .map(|chunk| {
             let mut scratch = Scratch {
                 accumulator: vec![0; n_model * ROW],
+                lanes: std::array::from_fn(|_| vec![0; n_model * ROW]),
                 flags: vec![0; key_count],
                 touched_keys: Vec::new(),
                 neighbours: Vec::new(),
@@ -250,16 +260,38 @@ pub fn vote_from(
                         }
                         let entries = &entries_all[start..end];
                         votes += entries.len() as u64;
-                        let acc = &mut s.accumulator[..];
-                        for e in entries {
-                            let e = e.to_native();
+                        let cell = |e: u32| {
                             let m = entry_model_point(e) as usize;
-                            let a =
-                                fixed_difference_bin(e as u16, alpha_s_fixed, alpha_bins) as usize;
-                            let cell = &mut acc[(m << ROW_SHIFT) | a];
-                            *cell = cell.saturating_add(1);
+                            let a = fixed_difference_bin(e as u16, alpha_s_fixed, alpha_bins);
+                            (m << ROW_SHIFT) | a as usize
+                        };
+                        let [l1, l2, l3] = &mut s.lanes;
+                        let l0 = &mut s.accumulator;
+                        let mut groups = entries.chunks_exact(LANES);
+                        for g in &mut groups {
+                            let c = [0, 1, 2, 3].map(|i| cell(g[i].to_native()));
+                            l0[c[0]] = l0[c[0]].saturating_add(1);
+                            l1[c[1]] = l1[c[1]].saturating_add(1);
+                            l2[c[2]] = l2[c[2]].saturating_add(1);
+                            l3[c[3]] = l3[c[3]].saturating_add(1);
+                        }
+                        let rest = groups.remainder();
+                        for (lane, e) in [l0, l1, l2].into_iter().zip(rest) {
+                            let c = cell(e.to_native());
+                            lane[c] = lane[c].saturating_add(1);
                         }
                     }
+                }
+                let [l1, l2, l3] = &mut s.lanes;
+                for (((a, b), c), d) in s
+                    .accumulator
+                    .iter_mut()
+                    .zip(l1.iter_mut())
+                    .zip(l2.iter_mut())
+                    .zip(l3.iter_mut())
+                {
+                    *a = a.saturating_add(*b).saturating_add(*c).saturating_add(*d);
+                    (*b, *c, *d) = (0, 0, 0);
                 }
                 for &k in &s.touched_keys {
                     s.flags[k as usize] = 0;
@@ -368,6 +400,95 @@ mod tests {
         let f = |x: f32| (10.0 - 4.0 * (x - 0.25).abs()) as u32;
         let o = sub_bin_offset(f(-1.0), f(0.0), f(1.0));
         assert!(o > 0.0 && o < 0.5, "{o}");
+    }
+
+    /// The accumulator against a plain count: every pair within D (in the kd-tree's order:
+    /// which pair of a (key, α bin) votes first decides the cells), its keys, the vote-once
+    /// flags as a set, one counter per (model point, α bin).
+    #[test]
+    fn votes_match_a_plain_count() {
+        use crate::feature::PointPairFeature;
+        use crate::model::{ModelParams, ObjectModel};
+        use crate::subsample::OrientedPoints;
+        use nalgebra::{Translation3, UnitQuaternion};
+        use std::collections::HashSet;
+
+        let part = crate::parts::Part::LBracket;
+        let model = ObjectModel::build(&part.mesh(), 1, "l", &ModelParams::default()).unwrap();
+        let d = model.diameter_mm();
+        let pose = Pose::from_parts(
+            Translation3::new(10.0, -20.0, 700.0),
+            UnitQuaternion::from_euler_angles(0.3, -0.5, 1.1),
+        );
+        let surface = model.surface_points();
+        let mut moved = OrientedPoints::default();
+        for (p, n) in surface.positions.iter().zip(&surface.normals) {
+            moved.push(pose * p, pose * n);
+        }
+        let scene = PreparedScene::new(&moved, &model.params().subsample_params(d)).unwrap();
+        let params = VotingParams {
+            peaks_per_reference: 1,
+            interpolate_alpha: false,
+            ..Default::default()
+        };
+        let q = model.quantizer();
+        let data = model.data();
+        let bins = data.params.alpha_bins.to_native();
+        let pts = &scene.points;
+        let mut checked = 0;
+        for r in (0..pts.len()).step_by(7).take(25) {
+            let one = Selection {
+                references: vec![r],
+                on_plane: Vec::new(),
+            };
+            let (hyps, counts) = vote_from(&model, &scene, &one, &params);
+
+            let (sr, nr) = (pts.positions[r], pts.normals[r]);
+            let frame = LocalFrame::new(&sr, &nr);
+            let mut acc = vec![0u32; model.point_count() * ROW];
+            let mut cast = HashSet::new();
+            let mut votes = 0u64;
+            let mut partners = Vec::new();
+            scene.within(&sr, d, |i| partners.push(i));
+            assert!(partners.len() > 20);
+            for i in partners {
+                let (si, ni) = (pts.positions[i], pts.normals[i]);
+                if i == r {
+                    continue;
+                }
+                let Some(f) = PointPairFeature::compute(&sr, &nr, &si, &ni) else {
+                    continue;
+                };
+                let alpha_s = alpha_to_fixed(frame.alpha(&si));
+                let mut keys = [0u32; MAX_KEYS];
+                let n = q.keys_with_neighbours(&f, &mut keys);
+                for &k in &keys[..n] {
+                    let k = k as usize;
+                    let (start, end) = (
+                        data.table_offsets[k].to_native() as usize,
+                        data.table_offsets[k + 1].to_native() as usize,
+                    );
+                    if start == end || !cast.insert((k, fixed_bin(alpha_s, bins))) {
+                        continue;
+                    }
+                    for e in &data.table_entries[start..end] {
+                        let e = e.to_native();
+                        let a = fixed_difference_bin(e as u16, alpha_s, bins) as usize;
+                        acc[(entry_model_point(e) as usize) * ROW + a] += 1;
+                        votes += 1;
+                    }
+                }
+            }
+            assert_eq!(counts.votes, votes, "reference point {r}");
+            let max = acc.iter().copied().max().unwrap();
+            assert!(max > 0);
+            let h = &hyps[0];
+            assert_eq!(h.votes, max, "reference point {r}");
+            let row = &acc[h.model_point as usize * ROW..][..ROW];
+            assert_eq!(row.iter().copied().max(), Some(max));
+            checked += 1;
+        }
+        assert_eq!(checked, 25);
     }
 
     #[test]
