@@ -19,11 +19,11 @@ use crate::Pose;
 /// Parameters of voting.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct VotingParams {
-    /// Every `reference_step`-th subsampled scene point (off large planes, see
-    /// [`reference_points`]) is a reference point. Drost et al. use every 5th; 2 here: on the
-    /// real LM-O frame every 3rd and every 5th lose the glue (VSD recall 0.750 → 0.625, at 0.7
-    /// and 0.5 of the time), and on synth-lmo-dev every 5th costs 0.926 → 0.912. (An earlier
-    /// version lost the driller at every 5th.)
+    /// Every `reference_step`-th subsampled scene point (off large planes, see [`Selection`])
+    /// is a reference point. Drost et al. use every 5th; 2 here: on the real LM-O frame every
+    /// 3rd and every 5th lose the glue and one more object (VSD recall 0.750 → 0.500, at 0.76
+    /// and 0.59 of the time), and on synth-lmo-dev every 3rd costs 0.931 → 0.926 and every
+    /// 5th 0.907. (Earlier versions lost only the glue, or the driller, at every 5th.)
     pub reference_step: usize,
     /// Use the paper's neighbouring keys (≤ 15 extra) against quantisation noise.
     pub neighbour_keys: bool,
