@@ -188,7 +188,8 @@ pub fn vote_from(
     let offsets = &data.table_offsets;
     let entries_all = &data.table_entries;
     // A few blocks per thread, each with its own scratch: enough to balance the load, few
-    // enough that the scratch (the flags alone are 270 KB) is set up only a handful of times.
+    // enough that the scratch (270 KB of flags, and 256 bytes per model point for the four
+    // accumulator copies) is set up only a handful of times.
     let block = references
         .len()
         .div_ceil(4 * rayon::current_num_threads())
