@@ -28,6 +28,12 @@ pub struct IcpParams {
     /// Stop early when an update moves less than this, mm and radians.
     pub convergence_translation_mm: f32,
     pub convergence_rotation: f32,
+    /// The first `coarse_iterations` use every `coarse_stride`-th surface point only (a
+    /// uniform sample, as Rusinkiewicz & Levoy advise): a pose far off needs few points to
+    /// move most of the way, and the remaining iterations use them all. Converging early in
+    /// the coarse phase moves on to the fine one. `coarse_stride` 1 uses every point throughout.
+    pub coarse_iterations: usize,
+    pub coarse_stride: usize,
 }
 
 impl Default for IcpParams {
@@ -40,6 +46,8 @@ impl Default for IcpParams {
             max_normal_angle_deg: 60.0,
             convergence_translation_mm: 0.05,
             convergence_rotation: 1e-4,
+            coarse_iterations: 4,
+            coarse_stride: 4,
         }
     }
 }
@@ -72,12 +80,17 @@ pub fn refine(
     };
     let mut max_d = params.initial_distance_fraction * diameter_mm;
     let min_d = params.final_distance_fraction * diameter_mm;
-    for it in 0..params.iterations {
+    let coarse_until = params.coarse_iterations.min(params.iterations);
+    let mut it = 0;
+    while it < params.iterations {
+        let coarse = it < coarse_until;
+        let stride = if coarse { params.coarse_stride.max(1) } else { 1 };
         let mut ata = Matrix6::<f64>::zeros();
         let mut atb = Vector6::<f64>::zeros();
         let mut count = 0u32;
         let mut sq = 0f64;
-        for (p, n) in surface.positions.iter().zip(&surface.normals) {
+        let points = surface.positions.iter().zip(&surface.normals);
+        for (p, n) in points.step_by(stride) {
             let Some((pc, nc, u, v)) = facing_projection(&pose, p, n, k) else {
                 continue;
             };
@@ -105,8 +118,13 @@ pub fn refine(
             count += 1;
         }
         result.correspondences = count;
-        result.iterations = it as u32 + 1;
+        result.iterations += 1;
+        it += 1;
         if count < 6 {
+            if coarse {
+                it = coarse_until; // too few in the sample: try with every point
+                continue;
+            }
             break;
         }
         result.rms_mm = (sq / count as f64).sqrt() as f32;
@@ -125,6 +143,10 @@ pub fn refine(
         if dt.norm() < params.convergence_translation_mm
             && omega.norm() < params.convergence_rotation
         {
+            if coarse {
+                it = coarse_until;
+                continue;
+            }
             break;
         }
     }

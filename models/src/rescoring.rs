@@ -151,8 +151,8 @@ pub fn facing_projection(
     if pc.z <= 0.0 || nc.dot(&pc.coords) >= 0.0 {
         return None;
     }
-    let uv = k.project(&pc);
-    Some((pc, nc, uv.x.round() as i64, uv.y.round() as i64))
+    let (u, v) = k.pixel(&pc);
+    Some((pc, nc, u, v))
 }
 
 /// Measures the fit of `surface` (model coordinates) at `pose` against `scene`.

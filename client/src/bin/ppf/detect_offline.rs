@@ -200,6 +200,8 @@ pub fn set_param(p: &mut ppfd_models::detector::DetectParams, kv: &str) -> Resul
         "icp.initial_distance_fraction" => p.icp.initial_distance_fraction = f()?,
         "icp.final_distance_fraction" => p.icp.final_distance_fraction = f()?,
         "icp.max_normal_angle_deg" => p.icp.max_normal_angle_deg = f()?,
+        "icp.coarse_iterations" => p.icp.coarse_iterations = u()?,
+        "icp.coarse_stride" => p.icp.coarse_stride = u()?,
         "filters.max_see_through_fraction" => p.filters.max_see_through_fraction = f()?,
         "filters.min_support_fraction" => p.filters.min_support_fraction = f()?,
         "filters.edge_jump_mm" => p.filters.edge_jump_mm = f()?,
