@@ -84,7 +84,11 @@ pub fn refine(
     let mut it = 0;
     while it < params.iterations {
         let coarse = it < coarse_until;
-        let stride = if coarse { params.coarse_stride.max(1) } else { 1 };
+        let stride = if coarse {
+            params.coarse_stride.max(1)
+        } else {
+            1
+        };
         let mut ata = Matrix6::<f64>::zeros();
         let mut atb = Vector6::<f64>::zeros();
         let mut count = 0u32;

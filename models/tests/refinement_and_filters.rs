@@ -80,6 +80,80 @@ fn icp_reduces_pose_error() {
     }
 }
 
+/// The first iterations fit a sample of every `coarse_stride`-th surface point, and the run
+/// ends where ICP on every point throughout ends.
+#[test]
+fn coarse_iterations_fit_a_sample_and_end_where_full_icp_ends() {
+    let params = DetectParams::new();
+    assert!(params.icp.coarse_iterations > 0 && params.icp.coarse_stride > 1);
+    let part = Part::LBracket;
+    let mesh = part.mesh();
+    let model = ObjectModel::build(
+        &mesh,
+        part.object_id(),
+        part.name(),
+        &ModelParams::default(),
+    )
+    .unwrap();
+    let scene = SceneSpec::new(40)
+        .object(part.object_id(), &mesh)
+        .noise(Some(NoiseModel::kinect()))
+        .build()
+        .unwrap();
+    let truth = scene.ground_truth[0].1;
+    let image = prepare(&scene.frame.view(), &params.scene).unwrap();
+    let off = Pose::from_parts(
+        Translation3::new(5.0, -4.0, 4.0),
+        UnitQuaternion::from_axis_angle(
+            &Unit::new_normalize(Vector3::new(-0.4, 1.0, 0.3)),
+            5f32.to_radians(),
+        ),
+    );
+    let centre = truth * bounding_sphere(&mesh).0;
+    let about = Pose::from_parts(
+        Translation3::from(centre.coords),
+        UnitQuaternion::identity(),
+    );
+    let start = about * off * about.inverse() * truth;
+    let surface = model.surface_points();
+    let d = model.diameter_mm();
+    let run = |icp| refine(&surface, &start, &image, d, &icp);
+
+    // One iteration: the coarse one pairs about a quarter of what the full one pairs.
+    let one = |coarse_iterations| ppfd_models::icp::IcpParams {
+        iterations: 1,
+        coarse_iterations,
+        ..params.icp
+    };
+    let (sample, all) = (run(one(1)), run(one(0)));
+    let ratio = sample.correspondences as f32 / all.correspondences as f32;
+    eprintln!(
+        "first iteration: {} of {} pairs ({ratio:.3})",
+        sample.correspondences, all.correspondences
+    );
+    assert!(
+        (0.2..0.3).contains(&ratio),
+        "{} vs {}",
+        sample.correspondences,
+        all.correspondences
+    );
+
+    // The whole run ends at the same pose, as close to the truth.
+    let coarse = run(params.icp);
+    let full = run(ppfd_models::icp::IcpParams {
+        coarse_stride: 1,
+        ..params.icp
+    });
+    let (dt, dr) = errors(&coarse.pose, &full.pose);
+    let (ct, cr) = errors(&coarse.pose, &truth);
+    let (ft, fr) = errors(&full.pose, &truth);
+    eprintln!(
+        "coarse then fine: {ct:.2} mm {cr:.2} deg; fine only: {ft:.2} mm {fr:.2} deg; apart {dt:.2} mm {dr:.2} deg"
+    );
+    assert!(dt < 0.5 && dr < 0.3, "{dt} mm {dr} deg apart");
+    assert!(ct < ft + 0.3 && cr < fr + 0.2);
+}
+
 #[test]
 fn filters_reject_a_planar_impostor_and_keep_the_true_pose() {
     let params = DetectParams::new();
