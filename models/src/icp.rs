@@ -7,7 +7,7 @@
 
 use nalgebra::{Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
 
-use crate::rescoring::facing_projection;
+use crate::rescoring::{facing_projection, PoseMatrix};
 use crate::scene::SceneImage;
 use crate::subsample::OrientedPoints;
 use crate::Pose;
@@ -94,8 +94,9 @@ pub fn refine(
         let mut count = 0u32;
         let mut sq = 0f64;
         let points = surface.positions.iter().zip(&surface.normals);
+        let moved = PoseMatrix::new(&pose);
         for (p, n) in points.step_by(stride) {
-            let Some((pc, nc, u, v)) = facing_projection(&pose, p, n, k) else {
+            let Some((pc, nc, u, v)) = facing_projection(&moved, p, n, k) else {
                 continue;
             };
             let Some((q, qn)) = scene.at(u, v) else {
