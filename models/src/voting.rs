@@ -21,9 +21,11 @@ use crate::Pose;
 pub struct VotingParams {
     /// Every `reference_step`-th subsampled scene point (off large planes, see [`Selection`])
     /// is a reference point. Drost et al. use every 5th; 2 here: on the real LM-O frame every
-    /// 3rd and every 5th lose the glue and one more object (VSD recall 0.750 → 0.500, at 0.76
-    /// and 0.59 of the time), and on synth-lmo-dev every 3rd costs 0.931 → 0.926 and every
-    /// 5th 0.907. (Earlier versions lost only the glue, or the driller, at every 5th.)
+    /// 3rd loses the glue (VSD recall 0.750 → 0.625, at 0.73 of the time) and every 5th the
+    /// glue and the cat (0.500, at 0.48 of the time); on synth-lmo-dev every 3rd costs
+    /// 0.931 → 0.921 and every 5th 0.907. The margins are thin: the same day, before re-scoring
+    /// and ICP got faster, every 3rd lost the holepuncher too. (Earlier versions lost only the
+    /// glue, or the driller, at every 5th.)
     pub reference_step: usize,
     /// Use the paper's neighbouring keys (≤ 15 extra) against quantisation noise.
     pub neighbour_keys: bool,
