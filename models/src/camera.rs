@@ -25,7 +25,7 @@ impl Intrinsics {
         fx: 572.4114,
         fy: 573.57043,
         cx: 325.2611,
-        cy: 242.04899,
+        cy: 242.049,
     };
 
     /// Refuses focal lengths that are zero, negative or not finite, and non-finite centres.
@@ -118,7 +118,7 @@ impl<'a> DepthFrame<'a> {
     #[inline]
     pub fn depth_mm(&self, u: u32, v: u32) -> Option<f32> {
         let raw = self.depth[(v * self.width + u) as usize];
-        (raw != 0).then(|| raw as f32 * self.depth_scale_mm)
+        (raw != 0).then_some(raw as f32 * self.depth_scale_mm)
     }
 }
 

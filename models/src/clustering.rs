@@ -239,7 +239,7 @@ pub fn cluster_poses(
             }
         })
         .collect();
-    out.sort_by(|a, b| b.votes.cmp(&a.votes));
+    out.sort_by_key(|c| std::cmp::Reverse(c.votes));
     out
 }
 

@@ -374,7 +374,7 @@ pub fn silhouette_fraction_of_points(
 /// distance; merging them at a pixel's footprint keeps the outline within a cell and makes
 /// rendering several times cheaper.
 pub fn simplified_mesh(mesh: &Mesh, cell_mm: f32) -> Mesh {
-    if !(cell_mm > 0.0) {
+    if cell_mm.is_nan() || cell_mm <= 0.0 {
         return mesh.clone();
     }
     let inv = 1.0 / cell_mm;

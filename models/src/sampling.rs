@@ -28,7 +28,7 @@ pub fn sample_surface(mesh: &Mesh, count: usize, seed: u64) -> Result<OrientedPo
         })
         .collect();
     let total: f64 = areas.iter().map(|&a| a as f64).sum();
-    if !(total > 0.0) {
+    if total.is_nan() || total <= 0.0 {
         return Err(Error::InvalidMesh("mesh has zero surface area".into()));
     }
     let mut rng = Rng::new(seed);

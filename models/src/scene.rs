@@ -343,6 +343,7 @@ impl PlaneMoments {
 
     /// The plane over pixels `[u0, u1] × [v0, v1]` (inclusive, inside the image) expressed
     /// about `(uc, vc)`; `None` with fewer than `min_count` pixels or a degenerate layout.
+    #[allow(clippy::too_many_arguments)]
     fn fit(
         &self,
         u0: usize,
@@ -506,7 +507,7 @@ fn normal_of_plane(
     zv: f32,
     zc: f32,
 ) -> Option<(Point3<f32>, Vector3<f32>)> {
-    if !(zc > 0.0) {
+    if zc.is_nan() || zc <= 0.0 {
         return None;
     }
     let ray = Vector3::new((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);
@@ -514,7 +515,7 @@ fn normal_of_plane(
     let pv = ray * zv + Vector3::new(0.0, zc / k.fy, 0.0);
     let n = pu.cross(&pv);
     let len = n.norm();
-    if !(len > 1e-12) {
+    if len.is_nan() || len <= 1e-12 {
         return None;
     }
     let n = n / len;

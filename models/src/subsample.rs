@@ -133,7 +133,7 @@ fn filter_neighbours(
     cos_cluster: f32,
 ) -> OrientedPoints {
     // Stable sort: among equal member counts the voxel order stays, so output is deterministic.
-    clusters.sort_by(|a, b| b.2.cmp(&a.2));
+    clusters.sort_by_key(|c| std::cmp::Reverse(c.2));
     let inv = 1.0 / radius;
     let r2 = radius * radius;
     let mut grid: CellMap<Vec<u32>> = CellMap::default();

@@ -385,7 +385,7 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
         let rank = |poses: Vec<ppfd_models::Pose>| {
             poses
                 .iter()
-                .position(|q| ok(q))
+                .position(&ok)
                 .map_or("-".to_string(), |r| (r + 1).to_string())
         };
         let mp = model.params();
@@ -418,7 +418,7 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
         let (raw, _) = vote_from(model, &cloud, &selection, &p.voting);
         let clusters = cluster_poses(&raw, d, &p.clustering);
         let vote_ms = t.elapsed().as_secs_f64() * 1e3;
-        let first_correct = |poses: &[ppfd_models::Pose]| poses.iter().position(|q| ok(q));
+        let first_correct = |poses: &[ppfd_models::Pose]| poses.iter().position(&ok);
         let cluster_poses_list: Vec<_> = clusters.iter().map(|c| c.pose).collect();
         if first_correct(&cluster_poses_list).is_some_and(|r| r < 10) {
             in_top10 += 1;
