@@ -533,11 +533,21 @@ pub fn plane_fit(
 ) -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
     let (w, h) = (frame.width as i64, frame.height as i64);
     let k = frame.intrinsics;
-    let z_of = |u: i64, v: i64| -> Option<f32> {
-        let raw = frame.depth[(v * w + u) as usize];
-        let z = raw as f32 * frame.depth_scale_mm;
-        (raw != 0 && z >= params.min_depth_mm && z <= params.max_depth_mm).then_some(z)
-    };
+    // Depth in mm, NaN where there is none or it is out of range: one load per window sample.
+    let depth: Vec<f32> = frame
+        .depth
+        .par_iter()
+        .map(|&raw| {
+            let z = raw as f32 * frame.depth_scale_mm;
+            if raw != 0 && z >= params.min_depth_mm && z <= params.max_depth_mm {
+                z
+            } else {
+                f32::NAN
+            }
+        })
+        .collect();
+    let depth = &depth;
+    let tan_slope = params.max_slope_deg.to_radians().tan();
     let nan_p = Point3::new(f32::NAN, f32::NAN, f32::NAN);
     let nan_n = Vector3::new(f32::NAN, f32::NAN, f32::NAN);
     let max_samples = params.plane_samples_per_axis.max(3) as i64;
@@ -547,84 +557,100 @@ pub fn plane_fit(
             // The samples of one pixel's window, reused along the row.
             let mut window: Vec<(f32, f32, f32)> = Vec::new();
             (0..w).map(move |u| {
-                let Some(z) = z_of(u, v) else {
+                let z = depth[(v * w + u) as usize];
+                if z.is_nan() {
                     return (nan_p, nan_n);
-                };
+                }
                 let raw_point = k.backproject(u as f32, v as f32, z);
                 let r = params.normal_window_px(k.fx, z);
                 let stride = ((2 * r + 1) + max_samples - 1) / max_samples;
-                let per_pixel = params.jump_mm(z, 1.0, k.fx);
+                // `SceneParams::jump_mm(z, 1.0, fx)`, with the tangent taken once.
+                let per_pixel = (1.0 * z / k.fx * tan_slope).max(params.min_depth_jump_mm);
                 let residual = params
                     .plane_residual_mm
                     .max(params.plane_residual_fraction * z);
                 // The window's samples with depth, gathered once for both fits.
                 window.clear();
+                let (x0, x1) = ((u - r).max(0), (u + r).min(w - 1));
+                let first = x0 + (u - r - x0).rem_euclid(stride); // on the stride grid from u − r
                 let mut dv = -r;
                 while dv <= r {
                     let y = v + dv;
                     if y >= 0 && y < h {
-                        let mut du = -r;
-                        while du <= r {
-                            let x = u + du;
-                            if x >= 0 && x < w {
-                                if let Some(zn) = z_of(x, y) {
-                                    window.push((du as f32, dv as f32, zn));
-                                }
+                        let row = &depth[(y * w) as usize..((y + 1) * w) as usize];
+                        let mut x = first;
+                        while x <= x1 {
+                            let zn = row[x as usize];
+                            if !zn.is_nan() {
+                                window.push(((x - u) as f32, dv as f32, zn));
                             }
-                            du += stride;
+                            x += stride;
                         }
                     }
                     dv += stride;
                 }
                 // Two fits: neighbours within the jump of the centre, then those near the plane.
-                let mut plane: Option<(f32, f32, f32)> = None;
-                for pass in 0..2 {
-                    let mut m = [0f64; 6]; // Σdu², Σdu·dv, Σdu, Σdv², Σdv, n
-                    let mut b = [0f64; 3]; // Σdu·z, Σdv·z, Σz
-                    for &(du, dv, zn) in &window {
-                        let keep = match plane {
-                            None => {
-                                let d = du.abs().max(dv.abs());
-                                (zn - z).abs() <= (per_pixel * d).max(params.min_depth_jump_mm)
-                            }
-                            Some((a, bb, c)) => (zn - (a * du + bb * dv + c)).abs() <= residual,
-                        };
-                        if keep {
-                            let (fu, fv, fz) = (du as f64, dv as f64, (zn - z) as f64);
-                            m[0] += fu * fu;
-                            m[1] += fu * fv;
-                            m[2] += fu;
-                            m[3] += fv * fv;
-                            m[4] += fv;
-                            m[5] += 1.0;
-                            b[0] += fu * fz;
-                            b[1] += fv * fz;
-                            b[2] += fz;
-                        }
-                    }
-                    if m[5] < 4.0 {
-                        return (raw_point, nan_n);
-                    }
-                    let a = nalgebra::Matrix3::new(
-                        m[0], m[1], m[2], m[1], m[3], m[4], m[2], m[4], m[5],
-                    );
-                    let Some(x) = a
-                        .cholesky()
-                        .map(|c| c.solve(&nalgebra::Vector3::new(b[0], b[1], b[2])))
-                    else {
+                let jump = |du: f32, dv: f32, zn: f32| {
+                    let d = du.abs().max(dv.abs());
+                    (zn - z).abs() <= (per_pixel * d).max(params.min_depth_jump_mm)
+                };
+                let Some(first) = fit_window(&window, z, jump) else {
+                    return (raw_point, nan_n);
+                };
+                let mut plane = first;
+                if params.plane_residual_mm > 0.0 {
+                    let (a, bb, c) = first;
+                    let near =
+                        |du: f32, dv: f32, zn: f32| (zn - (a * du + bb * dv + c)).abs() <= residual;
+                    let Some(second) = fit_window(&window, z, near) else {
                         return (raw_point, nan_n);
                     };
-                    plane = Some((x[0] as f32, x[1] as f32, x[2] as f32 + z));
-                    if pass == 0 && params.plane_residual_mm <= 0.0 {
-                        break;
-                    }
+                    plane = second;
                 }
+                let plane = Some(plane);
                 let (zu, zv, zc) = plane.unwrap();
                 normal_of_plane(&k, u as f32, v as f32, zu, zv, zc).unwrap_or((raw_point, nan_n))
             })
         })
         .collect();
     out.into_iter().unzip()
+}
+
+/// The least-squares plane `z = a·du + b·dv + c` through the window samples `(du, dv, z)` that
+/// `keep` accepts, depths taken relative to the centre's `z` (and `c` returned absolute);
+/// `None` with fewer than four samples or a degenerate layout.
+#[inline]
+fn fit_window(
+    window: &[(f32, f32, f32)],
+    z: f32,
+    keep: impl Fn(f32, f32, f32) -> bool,
+) -> Option<(f32, f32, f32)> {
+    // Σdu², Σdu·dv, Σdu, Σdv², Σdv, n; Σdu·z, Σdv·z, Σz, as locals so that they stay in
+    // registers.
+    let (mut uu, mut uv, mut su, mut vv, mut sv, mut n) = (0f64, 0f64, 0f64, 0f64, 0f64, 0f64);
+    let (mut uz, mut vz, mut sz) = (0f64, 0f64, 0f64);
+    for &(du, dv, zn) in window {
+        if keep(du, dv, zn) {
+            let (fu, fv, fz) = (du as f64, dv as f64, (zn - z) as f64);
+            uu += fu * fu;
+            uv += fu * fv;
+            su += fu;
+            vv += fv * fv;
+            sv += fv;
+            n += 1.0;
+            uz += fu * fz;
+            vz += fv * fz;
+            sz += fz;
+        }
+    }
+    if n < 4.0 {
+        return None;
+    }
+    let a = nalgebra::Matrix3::new(uu, uv, su, uv, vv, sv, su, sv, n);
+    let x = a
+        .cholesky()
+        .map(|c| c.solve(&nalgebra::Vector3::new(uz, vz, sz)))?;
+    Some((x[0] as f32, x[1] as f32, x[2] as f32 + z))
 }
 
 /// Validates `frame`, back-projects it and estimates normals; refuses a frame without a single
