@@ -607,8 +607,7 @@ pub fn plane_fit(
                     };
                     plane = second;
                 }
-                let plane = Some(plane);
-                let (zu, zv, zc) = plane.unwrap();
+                let (zu, zv, zc) = plane;
                 normal_of_plane(&k, u as f32, v as f32, zu, zv, zc).unwrap_or((raw_point, nan_n))
             })
         })
