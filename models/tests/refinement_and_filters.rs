@@ -6,6 +6,7 @@ use nalgebra::{Translation3, Unit, UnitQuaternion, Vector3};
 use ppfd_models::detector::DetectParams;
 use ppfd_models::filters::{is_consistent, silhouette_fraction, EdgeMap};
 use ppfd_models::icp::refine;
+use ppfd_models::mesh::Mesh;
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_models::parts::Part;
 use ppfd_models::render::{bounding_sphere, Renderer};
@@ -21,6 +22,37 @@ fn errors(est: &Pose, gt: &Pose) -> (f32, f32) {
     )
 }
 
+/// A generated part's mesh and model.
+fn part_model(part: Part) -> (Mesh, ObjectModel) {
+    let mesh = part.mesh();
+    let model = ObjectModel::build(
+        &mesh,
+        part.object_id(),
+        part.name(),
+        &ModelParams::default(),
+    )
+    .unwrap();
+    (mesh, model)
+}
+
+/// `truth` moved by `shift` (mm) and turned by `degrees` about `axis` through the object's own
+/// centre, so that the translation error is the shift.
+fn perturbed(truth: &Pose, mesh: &Mesh, shift: [f32; 3], axis: [f32; 3], degrees: f32) -> Pose {
+    let off = Pose::from_parts(
+        Translation3::new(shift[0], shift[1], shift[2]),
+        UnitQuaternion::from_axis_angle(
+            &Unit::new_normalize(Vector3::new(axis[0], axis[1], axis[2])),
+            degrees.to_radians(),
+        ),
+    );
+    let centre = truth * bounding_sphere(mesh).0;
+    let about = Pose::from_parts(
+        Translation3::from(centre.coords),
+        UnitQuaternion::identity(),
+    );
+    about * off * about.inverse() * truth
+}
+
 #[test]
 fn icp_reduces_pose_error() {
     let params = DetectParams::new();
@@ -28,14 +60,7 @@ fn icp_reduces_pose_error() {
     // the boss and bolt holes, so point-to-plane ICP barely constrains that angle (measured: 4° in,
     // about 4° out, translation fixed to 0.1 mm).
     for (i, part) in [Part::LBracket, Part::TPipe].into_iter().enumerate() {
-        let mesh = part.mesh();
-        let model = ObjectModel::build(
-            &mesh,
-            part.object_id(),
-            part.name(),
-            &ModelParams::default(),
-        )
-        .unwrap();
+        let (mesh, model) = part_model(part);
         let scene = SceneSpec::new(40 + i as u64)
             .object(part.object_id(), &mesh)
             .noise(Some(NoiseModel::kinect()))
@@ -43,20 +68,7 @@ fn icp_reduces_pose_error() {
             .unwrap();
         let truth = scene.ground_truth[0].1;
         let image = prepare(&scene.frame.view(), &params.scene).unwrap();
-        let off = Pose::from_parts(
-            Translation3::new(4.0, -3.0, 3.0),
-            UnitQuaternion::from_axis_angle(
-                &Unit::new_normalize(Vector3::new(0.3, 1.0, -0.2)),
-                4f32.to_radians(),
-            ),
-        );
-        // Perturb about the object's own centre so the translation error is what we set.
-        let centre = truth * bounding_sphere(&mesh).0;
-        let about = Pose::from_parts(
-            Translation3::from(centre.coords),
-            UnitQuaternion::identity(),
-        );
-        let start = about * off * about.inverse() * truth;
+        let start = perturbed(&truth, &mesh, [4.0, -3.0, 3.0], [0.3, 1.0, -0.2], 4.0);
         let (t0, r0) = errors(&start, &truth);
         let refined = refine(
             &model.surface_points(),
@@ -87,14 +99,7 @@ fn coarse_iterations_fit_a_sample_and_end_where_full_icp_ends() {
     let params = DetectParams::new();
     assert!(params.icp.coarse_iterations > 0 && params.icp.coarse_stride > 1);
     let part = Part::LBracket;
-    let mesh = part.mesh();
-    let model = ObjectModel::build(
-        &mesh,
-        part.object_id(),
-        part.name(),
-        &ModelParams::default(),
-    )
-    .unwrap();
+    let (mesh, model) = part_model(part);
     let scene = SceneSpec::new(40)
         .object(part.object_id(), &mesh)
         .noise(Some(NoiseModel::kinect()))
@@ -102,19 +107,7 @@ fn coarse_iterations_fit_a_sample_and_end_where_full_icp_ends() {
         .unwrap();
     let truth = scene.ground_truth[0].1;
     let image = prepare(&scene.frame.view(), &params.scene).unwrap();
-    let off = Pose::from_parts(
-        Translation3::new(5.0, -4.0, 4.0),
-        UnitQuaternion::from_axis_angle(
-            &Unit::new_normalize(Vector3::new(-0.4, 1.0, 0.3)),
-            5f32.to_radians(),
-        ),
-    );
-    let centre = truth * bounding_sphere(&mesh).0;
-    let about = Pose::from_parts(
-        Translation3::from(centre.coords),
-        UnitQuaternion::identity(),
-    );
-    let start = about * off * about.inverse() * truth;
+    let start = perturbed(&truth, &mesh, [5.0, -4.0, 4.0], [-0.4, 1.0, 0.3], 5.0);
     let surface = model.surface_points();
     let d = model.diameter_mm();
     let run = |icp| refine(&surface, &start, &image, d, &icp);
@@ -158,14 +151,7 @@ fn coarse_iterations_fit_a_sample_and_end_where_full_icp_ends() {
 fn filters_reject_a_planar_impostor_and_keep_the_true_pose() {
     let params = DetectParams::new();
     let part = Part::LBracket;
-    let mesh = part.mesh();
-    let model = ObjectModel::build(
-        &mesh,
-        part.object_id(),
-        part.name(),
-        &ModelParams::default(),
-    )
-    .unwrap();
+    let (mesh, model) = part_model(part);
     let d = model.diameter_mm();
     let scene = SceneSpec::new(7)
         .object(part.object_id(), &mesh)
