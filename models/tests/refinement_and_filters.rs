@@ -11,7 +11,7 @@ use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_models::parts::Part;
 use ppfd_models::render::{bounding_sphere, Renderer};
 use ppfd_models::rescoring::fit;
-use ppfd_models::scene::prepare;
+use ppfd_models::scene::{prepare, SceneImage};
 use ppfd_models::synthetic::{NoiseModel, SceneSpec};
 use ppfd_models::Pose;
 
@@ -53,6 +53,18 @@ fn perturbed(truth: &Pose, mesh: &Mesh, shift: [f32; 3], axis: [f32; 3], degrees
     about * off * about.inverse() * truth
 }
 
+/// A generated table-top view of `part` with Kinect-like noise: the true pose and the prepared
+/// scene.
+fn noisy_view(part: Part, mesh: &Mesh, seed: u64, params: &DetectParams) -> (Pose, SceneImage) {
+    let scene = SceneSpec::new(seed)
+        .object(part.object_id(), mesh)
+        .noise(Some(NoiseModel::kinect()))
+        .build()
+        .unwrap();
+    let image = prepare(&scene.frame.view(), &params.scene).unwrap();
+    (scene.ground_truth[0].1, image)
+}
+
 #[test]
 fn icp_reduces_pose_error() {
     let params = DetectParams::new();
@@ -61,13 +73,7 @@ fn icp_reduces_pose_error() {
     // about 4° out, translation fixed to 0.1 mm).
     for (i, part) in [Part::LBracket, Part::TPipe].into_iter().enumerate() {
         let (mesh, model) = part_model(part);
-        let scene = SceneSpec::new(40 + i as u64)
-            .object(part.object_id(), &mesh)
-            .noise(Some(NoiseModel::kinect()))
-            .build()
-            .unwrap();
-        let truth = scene.ground_truth[0].1;
-        let image = prepare(&scene.frame.view(), &params.scene).unwrap();
+        let (truth, image) = noisy_view(part, &mesh, 40 + i as u64, &params);
         let start = perturbed(&truth, &mesh, [4.0, -3.0, 3.0], [0.3, 1.0, -0.2], 4.0);
         let (t0, r0) = errors(&start, &truth);
         let refined = refine(
@@ -100,13 +106,7 @@ fn coarse_iterations_fit_a_sample_and_end_where_full_icp_ends() {
     assert!(params.icp.coarse_iterations > 0 && params.icp.coarse_stride > 1);
     let part = Part::LBracket;
     let (mesh, model) = part_model(part);
-    let scene = SceneSpec::new(40)
-        .object(part.object_id(), &mesh)
-        .noise(Some(NoiseModel::kinect()))
-        .build()
-        .unwrap();
-    let truth = scene.ground_truth[0].1;
-    let image = prepare(&scene.frame.view(), &params.scene).unwrap();
+    let (truth, image) = noisy_view(part, &mesh, 40, &params);
     let start = perturbed(&truth, &mesh, [5.0, -4.0, 4.0], [-0.4, 1.0, 0.3], 5.0);
     let surface = model.surface_points();
     let d = model.diameter_mm();
