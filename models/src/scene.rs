@@ -572,13 +572,13 @@ pub fn plane_fit(
                 // The window's samples with depth, gathered once for both fits.
                 window.clear();
                 let (x0, x1) = ((u - r).max(0), (u + r).min(w - 1));
-                let first = x0 + (u - r - x0).rem_euclid(stride); // on the stride grid from u − r
+                let x_start = x0 + (u - r - x0).rem_euclid(stride); // on the stride grid from u − r
                 let mut dv = -r;
                 while dv <= r {
                     let y = v + dv;
                     if y >= 0 && y < h {
                         let row = &depth[(y * w) as usize..((y + 1) * w) as usize];
-                        let mut x = first;
+                        let mut x = x_start;
                         while x <= x1 {
                             let zn = row[x as usize];
                             if !zn.is_nan() {
