@@ -109,7 +109,13 @@ impl SceneParams {
     /// `z_mm`, for focal length `fx`.
     #[inline]
     pub fn jump_mm(&self, z_mm: f32, pixels: f32, fx: f32) -> f32 {
-        (pixels * z_mm / fx * self.max_slope_deg.to_radians().tan()).max(self.min_depth_jump_mm)
+        self.jump_with_slope_mm(z_mm, pixels, fx, self.max_slope_deg.to_radians().tan())
+    }
+
+    /// [`SceneParams::jump_mm`] with `tan(max_slope_deg)` given, for loops over every pixel.
+    #[inline]
+    fn jump_with_slope_mm(&self, z_mm: f32, pixels: f32, fx: f32, tan_slope: f32) -> f32 {
+        (pixels * z_mm / fx * tan_slope).max(self.min_depth_jump_mm)
     }
 }
 
@@ -564,8 +570,7 @@ pub fn plane_fit(
                 let raw_point = k.backproject(u as f32, v as f32, z);
                 let r = params.normal_window_px(k.fx, z);
                 let stride = ((2 * r + 1) + max_samples - 1) / max_samples;
-                // `SceneParams::jump_mm(z, 1.0, fx)`, with the tangent taken once.
-                let per_pixel = (1.0 * z / k.fx * tan_slope).max(params.min_depth_jump_mm);
+                let per_pixel = params.jump_with_slope_mm(z, 1.0, k.fx, tan_slope);
                 let residual = params
                     .plane_residual_mm
                     .max(params.plane_residual_fraction * z);
