@@ -9,6 +9,7 @@
 
 use nalgebra::Point3;
 
+use crate::camera::Intrinsics;
 use crate::mesh::Mesh;
 use crate::render::{Renderer, Roi};
 use crate::rescoring::Fit;
@@ -43,6 +44,13 @@ pub struct FilterParams {
     /// rests on a table, the table meets its outline at the same depth and no edge can be
     /// seen. 0 expects an edge everywhere.
     pub contour_probe_px: u32,
+    /// Outlines are rendered at a coarser scale (every 2nd, 3rd … pixel along each axis) when
+    /// the object would span more than this many pixels: an object near the camera covers
+    /// 200 × 200 pixels and more, and re-scoring draws hundreds of outlines per object, while
+    /// the outline's agreement with the edges is a fraction that a sample of it measures as
+    /// well. Each coarse outline pixel is judged at the full-resolution pixel under its
+    /// centre. 0 always renders at full resolution.
+    pub max_outline_px: u32,
     /// The filters run on the refined poses in score order until enough pass; at most this
     /// many are examined per object.
     pub max_candidates: usize,
@@ -58,6 +66,7 @@ impl Default for FilterParams {
             edge_radius_px: 2,
             min_silhouette_fraction: 0.5,
             contour_probe_px: 3,
+            max_outline_px: 160,
             max_candidates: 50,
         }
     }
@@ -83,6 +92,7 @@ pub struct EdgeMap {
     jump_mm: f32,
     jump_fraction: f32,
     probe_px: u32,
+    max_outline_px: u32,
 }
 
 impl EdgeMap {
@@ -126,6 +136,7 @@ impl EdgeMap {
             jump_mm: params.edge_jump_mm,
             jump_fraction: params.edge_jump_fraction,
             probe_px: params.contour_probe_px,
+            max_outline_px: params.max_outline_px,
         }
     }
 }
@@ -201,16 +212,41 @@ pub fn outline_counts(
     edges: &EdgeMap,
     occlusion_tolerance_mm: f32,
 ) -> Option<OutlineCounts> {
-    let roi = Roi::around_sphere(
-        &(pose * sphere.0),
+    let centre = pose * sphere.0;
+    let full = Roi::around_sphere(
+        &centre,
         sphere.1,
         &scene.intrinsics,
         scene.width,
         scene.height,
     )?;
-    renderer
-        .render_into(mesh, pose, &scene.intrinsics, roi)
-        .ok()?;
+    // Full-resolution pixels per outline pixel along each axis.
+    let scale = match edges.max_outline_px {
+        0 => 1,
+        max => full.width.max(full.height).div_ceil(max).max(1),
+    };
+    let (intrinsics, roi) = if scale == 1 {
+        (scene.intrinsics, full)
+    } else {
+        // Coarse pixel u' covers full pixels [s·u', s·u' + s), centred on s·u' + (s − 1)/2.
+        let (s, k) = (scale as f32, &scene.intrinsics);
+        let offset = (s - 1.0) / 2.0;
+        let coarse = Intrinsics {
+            fx: k.fx / s,
+            fy: k.fy / s,
+            cx: (k.cx - offset) / s,
+            cy: (k.cy - offset) / s,
+        };
+        let roi = Roi::around_sphere(
+            &centre,
+            sphere.1,
+            &coarse,
+            scene.width.div_ceil(scale),
+            scene.height.div_ceil(scale),
+        )?;
+        (coarse, roi)
+    };
+    renderer.render_into(mesh, pose, &intrinsics, roi).ok()?;
     let depth = renderer.depth_mm();
     let (w, h) = (roi.width as i64, roi.height as i64);
     let at = |x: i64, y: i64| -> f32 {
@@ -220,6 +256,8 @@ pub fn outline_counts(
             depth[(y * w + x) as usize]
         }
     };
+    let (s, half) = (scale as i64, (scale as i64 - 1) / 2);
+    let (last_u, last_v) = (scene.width as i64 - 1, scene.height as i64 - 1);
     let mut counts = OutlineCounts::default();
     for y in 0..h {
         for x in 0..w {
@@ -232,7 +270,9 @@ pub fn outline_counts(
                 continue;
             }
             counts.total += 1;
-            let (u, v) = (x + roi.u0 as i64, y + roi.v0 as i64);
+            // The full-resolution pixel under this one's centre.
+            let u = ((x + roi.u0 as i64) * s + half).min(last_u);
+            let v = ((y + roi.v0 as i64) * s + half).min(last_v);
             if let Some(zs) = scene.depth(u, v) {
                 if zs < z - occlusion_tolerance_mm {
                     continue;

@@ -238,3 +238,76 @@ fn filters_reject_a_planar_impostor_and_keep_the_true_pose() {
     }
     assert!(tested >= 1, "no impostor placement fitted the table top");
 }
+
+/// Near the camera a part spans hundreds of pixels; its outline is then rendered at a coarser
+/// scale (`FilterParams::max_outline_px`). The agreement with the scene's edges stays what the
+/// full-resolution outline gives, and still tells the true pose from nearby wrong ones.
+#[test]
+fn near_outlines_are_measured_coarser_with_the_same_agreement() {
+    use ppfd_models::filters::{outline_counts, FilterParams};
+    let params = DetectParams::new();
+    let part = Part::LBracket;
+    let (mesh, model) = part_model(part);
+    let d = model.diameter_mm();
+    let scene = SceneSpec::new(4)
+        .object(part.object_id(), &mesh)
+        .camera_distance_mm(380.0, 420.0)
+        .noise(Some(NoiseModel::kinect()))
+        .build()
+        .unwrap();
+    let truth = scene.ground_truth[0].1;
+    let image = prepare(&scene.frame.view(), &params.scene).unwrap();
+    let sphere = bounding_sphere(&mesh);
+    let conflict = params.rescoring.conflict_mm(d);
+    let min_visible = params.rescoring.min_visible_outline;
+    let full_params = FilterParams {
+        max_outline_px: 0,
+        ..params.filters
+    };
+    let (coarse_edges, full_edges) = (
+        EdgeMap::new(&image, &params.filters),
+        EdgeMap::new(&image, &full_params),
+    );
+    let max = params.filters.max_outline_px;
+    let mut renderer = Renderer::new();
+    let mut measure = |pose: &Pose, edges: &EdgeMap| {
+        let counts =
+            outline_counts(&mut renderer, &mesh, &sphere, pose, &image, edges, conflict).unwrap();
+        let roi = renderer.roi();
+        (
+            counts.fraction_of_at_least(min_visible).unwrap(),
+            counts,
+            roi,
+        )
+    };
+    let (full, full_counts, full_roi) = measure(&truth, &full_edges);
+    let (coarse, coarse_counts, coarse_roi) = measure(&truth, &coarse_edges);
+    eprintln!("true pose: full {full:.3} {full_counts:?} {full_roi:?}; coarse {coarse:.3} {coarse_counts:?} {coarse_roi:?}");
+    assert!(
+        full_roi.width.max(full_roi.height) > max,
+        "the part must span more than {max} px for this test: {full_roi:?}"
+    );
+    assert!(
+        coarse_roi.width.max(coarse_roi.height) <= max,
+        "{coarse_roi:?}"
+    );
+    assert!(coarse_counts.total < full_counts.total);
+    assert!((full - coarse).abs() < 0.1, "full {full}, coarse {coarse}");
+    assert!(coarse >= params.filters.min_silhouette_fraction);
+    // Poses 0.1 D aside, or turned 15°, agree less at both scales.
+    for (shift, degrees) in [
+        ([0.1 * d, 0.0, 0.0], 0.0),
+        ([0.0, -0.1 * d, 0.0], 0.0),
+        ([0.0; 3], 15.0),
+    ] {
+        let wrong = perturbed(&truth, &mesh, shift, [0.3, 1.0, 0.2], degrees);
+        let (f, _, _) = measure(&wrong, &full_edges);
+        let (c, _, _) = measure(&wrong, &coarse_edges);
+        eprintln!("{shift:?} {degrees}°: full {f:.3}, coarse {c:.3}");
+        assert!(
+            f < full && c < coarse,
+            "full {f} vs {full}, coarse {c} vs {coarse}"
+        );
+        assert!((f - c).abs() < 0.1, "full {f}, coarse {c}");
+    }
+}

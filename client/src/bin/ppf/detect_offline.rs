@@ -209,6 +209,7 @@ pub fn set_param(p: &mut ppfd_models::detector::DetectParams, kv: &str) -> Resul
         "filters.edge_radius_px" => p.filters.edge_radius_px = u()? as u32,
         "filters.min_silhouette_fraction" => p.filters.min_silhouette_fraction = f()?,
         "filters.contour_probe_px" => p.filters.contour_probe_px = u()? as u32,
+        "filters.max_outline_px" => p.filters.max_outline_px = u()? as u32,
         "filters.max_candidates" => p.filters.max_candidates = u()?,
         "shared_cloud_diameter_ratio" => p.shared_cloud_diameter_ratio = f()?,
         _ => return Err(format!("unknown parameter {key:?}")),
