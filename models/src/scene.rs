@@ -384,9 +384,7 @@ impl PlaneMoments {
         let sz = s[6];
         let sxz = s[7] - uc * sz;
         let syz = s[8] - vc * sz;
-        let m = nalgebra::Matrix3::new(sxx, sxy, sx, sxy, syy, sy, sx, sy, n);
-        let rhs = nalgebra::Vector3::new(sxz, syz, sz);
-        let x = m.cholesky()?.solve(&rhs);
+        let x = solve_symmetric_3x3([sxx, sxy, sx, syy, sy, n], [sxz, syz, sz])?;
         // Residual about the mean depth keeps the subtraction well conditioned.
         let mean = sz / n;
         let szz_centred = s[9] - sz * mean;
@@ -650,11 +648,41 @@ fn fit_window(
     if n < 4.0 {
         return None;
     }
-    let a = nalgebra::Matrix3::new(uu, uv, su, uv, vv, sv, su, sv, n);
-    let x = a
-        .cholesky()
-        .map(|c| c.solve(&nalgebra::Vector3::new(uz, vz, sz)))?;
+    let x = solve_symmetric_3x3([uu, uv, su, vv, sv, n], [uz, vz, sz])?;
     Some((x[0] as f32, x[1] as f32, x[2] as f32 + z))
+}
+
+/// Solves `A x = b` for a symmetric positive definite `A` given as its upper triangle
+/// `[a00, a01, a02, a11, a12, a22]`, by Cholesky factorisation `A = L Lᵀ` written out for 3 × 3;
+/// `None` when `A` is not positive definite (a degenerate window).
+#[inline]
+fn solve_symmetric_3x3(a: [f64; 6], b: [f64; 3]) -> Option<[f64; 3]> {
+    let [a00, a01, a02, a11, a12, a22] = a;
+    if a00.is_nan() || a00 <= 0.0 {
+        return None;
+    }
+    let l00 = a00.sqrt();
+    let l10 = a01 / l00;
+    let l20 = a02 / l00;
+    let d1 = a11 - l10 * l10;
+    if d1.is_nan() || d1 <= 0.0 {
+        return None;
+    }
+    let l11 = d1.sqrt();
+    let l21 = (a12 - l20 * l10) / l11;
+    let d2 = a22 - l20 * l20 - l21 * l21;
+    if d2.is_nan() || d2 <= 0.0 {
+        return None;
+    }
+    let l22 = d2.sqrt();
+    // L y = b, then Lᵀ x = y.
+    let y0 = b[0] / l00;
+    let y1 = (b[1] - l10 * y0) / l11;
+    let y2 = (b[2] - l20 * y0 - l21 * y1) / l22;
+    let x2 = y2 / l22;
+    let x1 = (y1 - l21 * x2) / l11;
+    let x0 = (y0 - l10 * x1 - l20 * x2) / l00;
+    Some([x0, x1, x2])
 }
 
 /// Validates `frame`, back-projects it and estimates normals; refuses a frame without a single
@@ -716,6 +744,58 @@ mod tests {
             }
         }
         (depth, k)
+    }
+
+    /// The written-out 3 × 3 Cholesky solve gives what nalgebra's gives on the plane fit's
+    /// normal equations (to an f64 rounding, far below the f32 the fit returns), and refuses
+    /// what nalgebra refuses.
+    #[test]
+    fn symmetric_solve_matches_nalgebra() {
+        let mut rng = crate::rng::Rng::new(9);
+        for _ in 0..1000 {
+            // The normal equations of a 7 × 7 window with some samples left out.
+            let (mut a, mut b) = ([0f64; 6], [0f64; 3]);
+            for du in -3..=3 {
+                for dv in -3..=3 {
+                    if rng.uniform() < 0.3 {
+                        continue;
+                    }
+                    let (u, v, z) = (du as f64, dv as f64, 20.0 * (rng.uniform() - 0.5));
+                    let row = [u * u, u * v, u, v * v, v, 1.0];
+                    for k in 0..6 {
+                        a[k] += row[k];
+                    }
+                    b[0] += u * z;
+                    b[1] += v * z;
+                    b[2] += z;
+                }
+            }
+            let m = nalgebra::Matrix3::new(a[0], a[1], a[2], a[1], a[3], a[4], a[2], a[4], a[5]);
+            let expected = m
+                .cholesky()
+                .map(|c| c.solve(&nalgebra::Vector3::new(b[0], b[1], b[2])));
+            let got = solve_symmetric_3x3(a, b);
+            match (expected, got) {
+                (Some(e), Some(g)) => {
+                    for k in 0..3 {
+                        assert!(
+                            (e[k] - g[k]).abs() <= 1e-12 * e[k].abs().max(1.0),
+                            "{e} {g:?}"
+                        );
+                    }
+                }
+                (None, None) => {}
+                (e, g) => panic!("nalgebra {e:?}, written out {g:?}"),
+            }
+        }
+        // Samples on one line: no plane.
+        let line = [4.0, 4.0, 2.0, 4.0, 2.0, 2.0];
+        assert!(solve_symmetric_3x3(line, [1.0, 1.0, 1.0]).is_none());
+        assert!(
+            nalgebra::Matrix3::new(4.0, 4.0, 2.0, 4.0, 4.0, 2.0, 2.0, 2.0, 2.0)
+                .cholesky()
+                .is_none()
+        );
     }
 
     #[test]
