@@ -9,6 +9,7 @@
 //! reduced to one.
 
 use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
 
 use crate::grid::CellMap;
 
@@ -58,20 +59,76 @@ struct Cluster {
     members: u32,
 }
 
+/// Bits per voxel coordinate in a packed sort key: three of them and a 32-bit point index fill
+/// a `u128`.
+const PACKED_BITS: u32 = 21;
+
+/// Every point's voxel with its index, sorted by voxel `(x, y, z)` and then index: points
+/// grouped by voxel, each voxel's points in input order.
+///
+/// A scene frame has a few hundred thousand points; sorting them is half of subsampling.
+/// Each `(voxel, index)` becomes one `u128`, the coordinates counted from their minimum, so the
+/// sort compares plain integers (same order as the tuples; voxel spans beyond 2²¹ per axis
+/// sort the tuples), and the sort runs on every core.
+fn by_voxel(points: &OrientedPoints, inv_leaf: f32) -> Vec<(VoxelKey, u32)> {
+    let mut keyed: Vec<(VoxelKey, u32)> = points
+        .positions
+        .par_iter()
+        .enumerate()
+        .map(|(i, p)| (voxel_of(p, inv_leaf), i as u32))
+        .collect();
+    let (lo, hi) = keyed.iter().fold(
+        (
+            (i32::MAX, i32::MAX, i32::MAX),
+            (i32::MIN, i32::MIN, i32::MIN),
+        ),
+        |(lo, hi), &((x, y, z), _)| {
+            (
+                (lo.0.min(x), lo.1.min(y), lo.2.min(z)),
+                (hi.0.max(x), hi.1.max(y), hi.2.max(z)),
+            )
+        },
+    );
+    let span = |a: i32, b: i32| (b as i64 - a as i64) < (1i64 << PACKED_BITS);
+    if keyed.is_empty() || !(span(lo.0, hi.0) && span(lo.1, hi.1) && span(lo.2, hi.2)) {
+        keyed.par_sort_unstable();
+        return keyed;
+    }
+    let mask = (1u128 << PACKED_BITS) - 1;
+    let mut packed: Vec<u128> = keyed
+        .par_iter()
+        .map(|&((x, y, z), i)| {
+            let c = |v: i32, min: i32| (v as i64 - min as i64) as u128;
+            (c(x, lo.0) << (32 + 2 * PACKED_BITS))
+                | (c(y, lo.1) << (32 + PACKED_BITS))
+                | (c(z, lo.2) << 32)
+                | i as u128
+        })
+        .collect();
+    packed.par_sort_unstable();
+    packed
+        .par_iter()
+        .map(|&k| {
+            let c = |shift: u32, min: i32| (((k >> shift) & mask) as i64 + min as i64) as i32;
+            (
+                (
+                    c(32 + 2 * PACKED_BITS, lo.0),
+                    c(32 + PACKED_BITS, lo.1),
+                    c(32, lo.2),
+                ),
+                k as u32,
+            )
+        })
+        .collect()
+}
+
 /// Subsamples oriented points (normals unit length) with a voxel grid and normal clustering,
 /// then neighbour filtering. The output order is deterministic for a given input.
 pub fn subsample(points: &OrientedPoints, params: &SubsampleParams) -> OrientedPoints {
     let inv_leaf = 1.0 / params.leaf_mm;
     let cos_cluster = params.cluster_angle.cos();
 
-    // Group point indices by voxel: sort (key, index) pairs.
-    let mut keyed: Vec<(VoxelKey, u32)> = points
-        .positions
-        .iter()
-        .enumerate()
-        .map(|(i, p)| (voxel_of(p, inv_leaf), i as u32))
-        .collect();
-    keyed.sort_unstable();
+    let keyed = by_voxel(points, inv_leaf);
 
     let mut clusters: Vec<(Point3<f32>, Vector3<f32>, u32)> = Vec::new();
     let mut in_voxel: Vec<Cluster> = Vec::new();
@@ -189,6 +246,39 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The packed sort orders (voxel, index) exactly as sorting the tuples does, with negative
+    /// coordinates, and a cloud too wide to pack sorts the tuples.
+    #[test]
+    fn voxels_sort_like_their_tuples() {
+        let mut rng = crate::rng::Rng::new(3);
+        for (spread, leaf) in [(500.0f32, 5.0f32), (3000.0, 0.7), (1e9, 1e-3)] {
+            let mut pts = OrientedPoints::default();
+            for _ in 0..20_000 {
+                let p = Point3::new(
+                    rng.range(-spread, spread),
+                    rng.range(-spread, 0.2 * spread),
+                    rng.range(0.0, spread),
+                );
+                pts.push(p, Vector3::z());
+            }
+            // Repeated voxels: a few points share a voxel with an earlier one.
+            for i in 0..2_000 {
+                let p = pts.positions[i * 7];
+                pts.push(p, Vector3::x());
+            }
+            let inv = 1.0 / leaf;
+            let mut expected: Vec<(VoxelKey, u32)> = pts
+                .positions
+                .iter()
+                .enumerate()
+                .map(|(i, p)| (voxel_of(p, inv), i as u32))
+                .collect();
+            expected.sort_unstable();
+            assert_eq!(by_voxel(&pts, inv), expected, "spread {spread}, leaf {leaf}");
+        }
+        assert!(by_voxel(&OrientedPoints::default(), 1.0).is_empty());
     }
 
     #[test]
