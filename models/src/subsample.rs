@@ -276,7 +276,11 @@ mod tests {
                 .map(|(i, p)| (voxel_of(p, inv), i as u32))
                 .collect();
             expected.sort_unstable();
-            assert_eq!(by_voxel(&pts, inv), expected, "spread {spread}, leaf {leaf}");
+            assert_eq!(
+                by_voxel(&pts, inv),
+                expected,
+                "spread {spread}, leaf {leaf}"
+            );
         }
         assert!(by_voxel(&OrientedPoints::default(), 1.0).is_empty());
     }
