@@ -62,6 +62,20 @@ impl Intrinsics {
         (round(uv.x), round(uv.y))
     }
 
+    /// The same camera with pixels `scale` times larger along each axis: coarse pixel `u'`
+    /// covers full pixels `scale·u' … scale·u' + scale − 1` and its centre lies at
+    /// `scale·u' + (scale − 1)/2` of the full image. A scale of 0 counts as 1.
+    pub fn coarser(&self, scale: u32) -> Intrinsics {
+        let s = scale.max(1) as f32;
+        let offset = (s - 1.0) / 2.0;
+        Intrinsics {
+            fx: self.fx / s,
+            fy: self.fy / s,
+            cx: (self.cx - offset) / s,
+            cy: (self.cy - offset) / s,
+        }
+    }
+
     /// The camera-space point at pixel `(u, v)` with depth `z_mm`.
     #[inline]
     pub fn backproject(&self, u: f32, v: f32, z_mm: f32) -> Point3<f32> {
@@ -148,6 +162,38 @@ impl OwnedDepthFrame {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A point seen through the coarser camera lands in the coarse pixel whose block of full
+    /// pixels holds the pixel it lands in at full resolution.
+    #[test]
+    fn coarser_pixels_cover_blocks_of_full_pixels() {
+        let k = Intrinsics::LMO;
+        for scale in [1u32, 2, 3, 4] {
+            let c = k.coarser(scale);
+            for i in 0..2000 {
+                let p = Point3::new(
+                    (i % 40) as f32 * 13.1 - 260.0,
+                    (i / 40) as f32 * 9.7 - 240.0,
+                    500.0 + (i % 7) as f32 * 90.0,
+                );
+                let (u, v) = k.pixel(&p);
+                let (cu, cv) = c.pixel(&p);
+                let s = scale as i64;
+                // Within the block, or on its border where rounding may fall either way.
+                let full = k.project(&p);
+                let inside = |x: f32, q: i64| {
+                    let lo = (q * s) as f32 - 0.5;
+                    x >= lo - 1e-3 && x <= lo + s as f32 + 1e-3
+                };
+                assert!(
+                    inside(full.x, cu) && inside(full.y, cv),
+                    "scale {scale}: full ({u}, {v}) at {full:?}, coarse ({cu}, {cv})"
+                );
+            }
+        }
+        assert_eq!(k.coarser(0), k);
+        assert_eq!(k.coarser(1), k);
+    }
 
     #[test]
     fn pixel_rounds_like_the_library() {

@@ -9,7 +9,6 @@
 
 use nalgebra::Point3;
 
-use crate::camera::Intrinsics;
 use crate::mesh::Mesh;
 use crate::render::{Renderer, Roi};
 use crate::rescoring::Fit;
@@ -228,15 +227,7 @@ pub fn outline_counts(
     let (intrinsics, roi) = if scale == 1 {
         (scene.intrinsics, full)
     } else {
-        // Coarse pixel u' covers full pixels [s·u', s·u' + s), centred on s·u' + (s − 1)/2.
-        let (s, k) = (scale as f32, &scene.intrinsics);
-        let offset = (s - 1.0) / 2.0;
-        let coarse = Intrinsics {
-            fx: k.fx / s,
-            fy: k.fy / s,
-            cx: (k.cx - offset) / s,
-            cy: (k.cy - offset) / s,
-        };
+        let coarse = scene.intrinsics.coarser(scale);
         let roi = Roi::around_sphere(
             &centre,
             sphere.1,
