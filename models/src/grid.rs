@@ -32,7 +32,7 @@ pub fn cell_of(p: &Point3<f32>, inv_cell: f32) -> Cell {
 fn floor(x: f32) -> i32 {
     let t = x as i32;
     if (t as f32) > x {
-        t - 1
+        t.saturating_sub(1) // at i32::MIN the cast has saturated already
     } else {
         t
     }
@@ -89,6 +89,8 @@ mod tests {
             assert_eq!(floor(x), x.floor() as i32, "{x}");
         }
         assert_eq!(floor(1e12), i32::MAX);
+        assert_eq!(floor(-1e12), i32::MIN);
+        assert_eq!(floor(f32::NEG_INFINITY), i32::MIN);
         assert_eq!(floor(f32::NAN), 0);
     }
 
