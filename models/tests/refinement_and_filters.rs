@@ -53,11 +53,21 @@ fn perturbed(truth: &Pose, mesh: &Mesh, shift: [f32; 3], axis: [f32; 3], degrees
     about * off * about.inverse() * truth
 }
 
-/// A generated table-top view of `part` with Kinect-like noise: the true pose and the prepared
-/// scene.
-fn noisy_view(part: Part, mesh: &Mesh, seed: u64, params: &DetectParams) -> (Pose, SceneImage) {
+/// The generated scenes' default camera distance, mm.
+const WORKING_DISTANCE_MM: (f32, f32) = (600.0, 1200.0);
+
+/// A generated table-top view of `part` with Kinect-like noise, the camera `distance_mm` (a
+/// range) from it: the true pose and the prepared scene.
+fn noisy_view(
+    part: Part,
+    mesh: &Mesh,
+    seed: u64,
+    distance_mm: (f32, f32),
+    params: &DetectParams,
+) -> (Pose, SceneImage) {
     let scene = SceneSpec::new(seed)
         .object(part.object_id(), mesh)
+        .camera_distance_mm(distance_mm.0, distance_mm.1)
         .noise(Some(NoiseModel::kinect()))
         .build()
         .unwrap();
@@ -73,7 +83,7 @@ fn icp_reduces_pose_error() {
     // about 4° out, translation fixed to 0.1 mm).
     for (i, part) in [Part::LBracket, Part::TPipe].into_iter().enumerate() {
         let (mesh, model) = part_model(part);
-        let (truth, image) = noisy_view(part, &mesh, 40 + i as u64, &params);
+        let (truth, image) = noisy_view(part, &mesh, 40 + i as u64, WORKING_DISTANCE_MM, &params);
         let start = perturbed(&truth, &mesh, [4.0, -3.0, 3.0], [0.3, 1.0, -0.2], 4.0);
         let (t0, r0) = errors(&start, &truth);
         let refined = refine(
@@ -106,7 +116,7 @@ fn coarse_iterations_fit_a_sample_and_end_where_full_icp_ends() {
     assert!(params.icp.coarse_iterations > 0 && params.icp.coarse_stride > 1);
     let part = Part::LBracket;
     let (mesh, model) = part_model(part);
-    let (truth, image) = noisy_view(part, &mesh, 40, &params);
+    let (truth, image) = noisy_view(part, &mesh, 40, WORKING_DISTANCE_MM, &params);
     let start = perturbed(&truth, &mesh, [5.0, -4.0, 4.0], [-0.4, 1.0, 0.3], 5.0);
     let surface = model.surface_points();
     let d = model.diameter_mm();
@@ -249,14 +259,7 @@ fn near_outlines_are_measured_coarser_with_the_same_agreement() {
     let part = Part::LBracket;
     let (mesh, model) = part_model(part);
     let d = model.diameter_mm();
-    let scene = SceneSpec::new(4)
-        .object(part.object_id(), &mesh)
-        .camera_distance_mm(380.0, 420.0)
-        .noise(Some(NoiseModel::kinect()))
-        .build()
-        .unwrap();
-    let truth = scene.ground_truth[0].1;
-    let image = prepare(&scene.frame.view(), &params.scene).unwrap();
+    let (truth, image) = noisy_view(part, &mesh, 4, (380.0, 420.0), &params);
     let sphere = bounding_sphere(&mesh);
     let conflict = params.rescoring.conflict_mm(d);
     let min_visible = params.rescoring.min_visible_outline;
