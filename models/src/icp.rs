@@ -63,6 +63,16 @@ pub struct IcpResult {
     pub iterations: u32,
 }
 
+/// The mean of the surface points (the origin for an empty surface).
+fn surface_centroid(surface: &OrientedPoints) -> nalgebra::Point3<f32> {
+    let n = surface.positions.len().max(1) as f32;
+    let sum = surface
+        .positions
+        .iter()
+        .fold(Vector3::zeros(), |acc, p| acc + p.coords);
+    nalgebra::Point3::from(sum / n)
+}
+
 /// Refines `pose` of the model `surface` against `scene`.
 pub fn refine(
     surface: &OrientedPoints,
@@ -81,6 +91,12 @@ pub fn refine(
     let mut max_d = params.initial_distance_fraction * diameter_mm;
     let min_d = params.final_distance_fraction * diameter_mm;
     let coarse_until = params.coarse_iterations.min(params.iterations);
+    let centroid = surface_centroid(surface);
+    let radius = surface
+        .positions
+        .iter()
+        .map(|p| (p - centroid).norm())
+        .fold(0.0f32, f32::max);
     let mut it = 0;
     while it < params.iterations {
         let coarse = it < coarse_until;
@@ -95,6 +111,11 @@ pub fn refine(
         let mut sq = 0f64;
         let points = surface.positions.iter().zip(&surface.normals);
         let moved = PoseMatrix::new(&pose);
+        // The small rotation turns about the model's centre, not the camera's origin. To first
+        // order both are the same motion, but about the origin every finite turn comes with a
+        // lever of a metre and a translation that only cancels it linearly: poses 15° off slid
+        // away by up to 0.6 m instead of converging (`icp_converges_from_poses_turned_far`).
+        let centre = pose * centroid;
         for (p, n) in points.step_by(stride) {
             let Some((pc, nc, u, v)) = facing_projection(&moved, p, n, k) else {
                 continue;
@@ -106,8 +127,8 @@ pub fn refine(
             if d.norm_squared() > max_d * max_d || qn.dot(&nc) < cos_max {
                 continue;
             }
-            // r = (p × n)·ω + n·δt + (p − q)·n, linear in the small motion (ω, δt).
-            let c = pc.coords.cross(&qn);
+            // r = ((p − c) × n)·ω + n·δt + (p − q)·n, linear in the small motion (ω, δt).
+            let c = (pc - centre).cross(&qn);
             let row = Vector6::new(
                 c.x as f64,
                 c.y as f64,
@@ -136,11 +157,21 @@ pub fn refine(
         let Some(x) = ata.cholesky().map(|c| c.solve(&atb)) else {
             break;
         };
-        let omega = Vector3::new(x[0] as f32, x[1] as f32, x[2] as f32);
-        let dt = Vector3::new(x[3] as f32, x[4] as f32, x[5] as f32);
+        let mut omega = Vector3::new(x[0] as f32, x[1] as f32, x[2] as f32);
+        let mut dt = Vector3::new(x[3] as f32, x[4] as f32, x[5] as f32);
+        // No surface point moves farther in one step than its pair was allowed to lie apart:
+        // where the pairs barely constrain a motion (a cylinder's axis, say), noise must not
+        // throw the pose away. The step is shortened, its direction kept.
+        let reach = dt.norm() + omega.norm() * radius;
+        if reach > max_d {
+            let s = max_d / reach;
+            (omega, dt) = (omega * s, dt * s);
+        }
+        // x ↦ R(ω)(x − c) + c + δt
+        let rotation = UnitQuaternion::from_scaled_axis(omega);
         let update = Pose::from_parts(
-            Translation3::from(dt),
-            UnitQuaternion::from_scaled_axis(omega),
+            Translation3::from(centre.coords + dt - rotation * centre.coords),
+            rotation,
         );
         pose = update * pose;
         result.pose = pose;
