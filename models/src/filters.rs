@@ -104,7 +104,12 @@ impl EdgeMap {
                 let jump = params.edge_jump_mm.max(params.edge_jump_fraction * z);
                 let mut is_edge = false;
                 for (du, dv) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
-                    match scene.depth(u + du, v + dv) {
+                    let (un, vn) = (u + du, v + dv);
+                    // The image's border is where the view ends, not a depth edge.
+                    if un < 0 || vn < 0 || un >= w || vn >= h {
+                        continue;
+                    }
+                    match scene.depth(un, vn) {
                         Some(zn) if (zn - z).abs() <= jump => {}
                         _ => is_edge = true,
                     }
@@ -247,6 +252,16 @@ pub fn outline_counts(
             depth[(y * w + x) as usize]
         }
     };
+    // Where the image ends the object may go on: a rendered region cut by the image's border
+    // has no outline there, and the cut is neither on nor off an edge.
+    let (image_w, image_h) = (
+        scene.width.div_ceil(scale) as i64,
+        scene.height.div_ceil(scale) as i64,
+    );
+    let filled = |x: i64, y: i64| -> bool {
+        let (gx, gy) = (x + roi.u0 as i64, y + roi.v0 as i64);
+        gx < 0 || gy < 0 || gx >= image_w || gy >= image_h || at(x, y) > 0.0
+    };
     let (s, half) = (scale as i64, (scale as i64 - 1) / 2);
     let (last_u, last_v) = (scene.width as i64 - 1, scene.height as i64 - 1);
     let mut counts = OutlineCounts::default();
@@ -256,8 +271,7 @@ pub fn outline_counts(
             if z <= 0.0 {
                 continue;
             }
-            if at(x + 1, y) > 0.0 && at(x - 1, y) > 0.0 && at(x, y + 1) > 0.0 && at(x, y - 1) > 0.0
-            {
+            if filled(x + 1, y) && filled(x - 1, y) && filled(x, y + 1) && filled(x, y - 1) {
                 continue;
             }
             counts.total += 1;
@@ -275,7 +289,7 @@ pub fn outline_counts(
                 let jump = edges.jump_mm.max(edges.jump_fraction * z);
                 let mut expected = false;
                 for (dx, dy) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
-                    if at(x + dx, y + dy) > 0.0 {
+                    if filled(x + dx, y + dy) {
                         continue;
                     }
                     match scene.depth(u + dx * r, v + dy * r) {

@@ -294,6 +294,54 @@ fn filters_reject_a_planar_impostor_and_keep_the_true_pose() {
     assert!(tested >= 1, "no impostor placement fitted the table top");
 }
 
+/// The image's border is where the view ends, not a depth edge. A box 200 mm in front of a
+/// flat wall has no depth edge under its outline anywhere; placed half past the image's bottom
+/// border, the cut must not count as outline on an edge. (Counted so, a wrong pose cut by the
+/// border scored its silhouette on the border and beat a true pose.)
+#[test]
+fn the_image_border_is_no_depth_edge() {
+    use ppfd_models::camera::{Intrinsics, OwnedDepthFrame};
+    use ppfd_models::filters::outline_counts;
+    let params = DetectParams::new();
+    let (width, height) = (640u32, 480u32);
+    let wall = OwnedDepthFrame {
+        width,
+        height,
+        intrinsics: Intrinsics::LMO,
+        depth_scale_mm: 1.0,
+        depth: vec![1000; (width * height) as usize],
+    };
+    let image = prepare(&wall.view(), &params.scene).unwrap();
+    let edges = EdgeMap::new(&image, &params.filters);
+    let on_edges = edges.near_edge.iter().filter(|&&e| e).count();
+    assert_eq!(
+        on_edges, 0,
+        "a flat wall has no depth edge, not even at the border"
+    );
+
+    let mesh = ppfd_models::parts::box_mesh(Vector3::new(120.0, 120.0, 60.0));
+    let sphere = bounding_sphere(&mesh);
+    let k = Intrinsics::LMO;
+    let z = 800.0;
+    // The box's centre projects onto the image's last row: half of it lies past the border.
+    let y = (height as f32 - 1.0 - k.cy) * z / k.fy;
+    let pose = Pose::from_parts(Translation3::new(0.0, y, z), UnitQuaternion::identity());
+    let mut renderer = Renderer::new();
+    let counts = outline_counts(&mut renderer, &mesh, &sphere, &pose, &image, &edges, 15.0)
+        .expect("the box is in view");
+    eprintln!("box cut by the border: {counts:?}");
+    // The front face (at z − 30 mm) is `side` pixels wide: in view are its top side and half
+    // of the two others, 2 × side in all; the cut along the border would add one more side.
+    let side = 120.0 * k.fx / (z - 30.0);
+    assert!(counts.visible > 100, "the box's sides in view count");
+    assert!(
+        (counts.total as f32) < 2.5 * side,
+        "the cut along the border is outline: {} pixels for a {side:.0} px side",
+        counts.total
+    );
+    assert_eq!(counts.matched, 0, "the cut along the border is no match");
+}
+
 /// Near the camera a part spans hundreds of pixels; its outline is then rendered at a coarser
 /// scale (`FilterParams::max_outline_px`). The agreement with the scene's edges stays what the
 /// full-resolution outline gives, and still tells the true pose from nearby wrong ones.
