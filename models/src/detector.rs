@@ -34,8 +34,11 @@ pub struct DetectParams {
     pub rescoring: RescoringParams,
     pub icp: IcpParams,
     pub filters: FilterParams,
-    /// Multi-instance output: a hypothesis whose translation lies within this fraction of the
-    /// diameter of a better one is the same instance and suppressed.
+    /// Multi-instance output: a hypothesis that puts the model's centre (of its bounding
+    /// sphere) within this fraction of the diameter of where a better one puts it is the same
+    /// instance and suppressed. Two instances cannot overlap, so their centres lie farther
+    /// apart than this for any but thin parts stacked flat; 0 returns every hypothesis,
+    /// duplicates of one instance included.
     pub nms_distance_fraction: f32,
     /// Objects whose diameters differ by at most this ratio share one subsampled scene cloud
     /// (with the leaf of the smallest). 1.0 gives every object its own. A leaf smaller than the
@@ -52,6 +55,7 @@ impl DetectParams {
     /// The paper's settings and this project's measured defaults.
     pub fn new() -> Self {
         Self {
+            nms_distance_fraction: 0.25,
             shared_cloud_diameter_ratio: 1.1,
             clusters_kept: 10,
             ..Default::default()
@@ -369,8 +373,9 @@ impl Detector {
         let mut renderer = Renderer::new();
         let nms = p.nms_distance_fraction * d;
         let overlaps = |list: &[Hypothesis], pose: &Pose| {
+            let centre = pose * sphere.0;
             list.iter()
-                .any(|h| (h.pose.translation.vector - pose.translation.vector).norm() < nms)
+                .any(|h| (h.pose * sphere.0 - centre).norm() < nms)
         };
         let mut passed: Vec<Hypothesis> = Vec::new();
         let mut failed: Vec<Hypothesis> = Vec::new();

@@ -262,3 +262,78 @@ fn table_points_are_no_partners() {
     assert_eq!(counts.votes, expected_counts.votes);
     assert!(!with.is_empty() && !without.is_empty());
 }
+
+/// Multi-instance output: two instances of one part on the table are the two best hypotheses,
+/// and a lone part's further hypotheses are never that part again (non-maximum suppression by
+/// `DetectParams::nms_distance_fraction`).
+#[test]
+fn instances_of_a_part_are_told_apart_and_duplicates_suppressed() {
+    use ppfd_models::detector::{DetectOptions, Detector};
+    let detector = Detector::new(DetectParams::new());
+    let options = |n| DetectOptions {
+        hypotheses_per_object: n,
+        ..Default::default()
+    };
+    let mut report = String::new();
+    for part in [Part::LBracket, Part::TPipe] {
+        let (mesh, id) = (part.mesh(), part.object_id());
+        let model = ObjectModel::build(&mesh, id, part.name(), &ModelParams::default()).unwrap();
+        let d = model.diameter_mm();
+        let correct = |est: &Pose, truth: &Pose| {
+            let (dt, dr) = errors(est, truth);
+            dt < 0.1 * d && dr < 15.0
+        };
+        let centre = bounding_sphere(&mesh).0;
+
+        let pair = SceneSpec::new(21)
+            .object(id, &mesh)
+            .object(id, &mesh)
+            .noise(Some(NoiseModel::kinect()))
+            .build()
+            .unwrap();
+        let found = detector
+            .detect(&pair.frame.view(), &[&model], &options(2))
+            .unwrap();
+        let best: Vec<Pose> = found.objects[0].hypotheses.iter().map(|h| h.pose).collect();
+        for (i, (_, truth)) in pair.ground_truth.iter().enumerate() {
+            let hit = best.iter().position(|h| correct(h, truth));
+            report += &format!(
+                "{}: instance {i} ({:.0} % visible) is hypothesis {hit:?} of {}\n",
+                part.name(),
+                100.0 * pair.visible_fraction[i],
+                best.len()
+            );
+            assert!(hit.is_some(), "{report}");
+        }
+
+        let lone = SceneSpec::new(22)
+            .object(id, &mesh)
+            .noise(Some(NoiseModel::kinect()))
+            .build()
+            .unwrap();
+        let found = detector
+            .detect(&lone.frame.view(), &[&model], &options(5))
+            .unwrap();
+        let hyps = &found.objects[0].hypotheses;
+        assert!(correct(&hyps[0].pose, &lone.ground_truth[0].1), "{report}");
+        let apart: Vec<f32> = hyps[1..]
+            .iter()
+            .map(|h| (h.pose * centre - hyps[0].pose * centre).norm() / d)
+            .collect();
+        report += &format!(
+            "{}: alone, hypotheses 2-{} put its centre {apart:.2?} D from the first's\n",
+            part.name(),
+            hyps.len()
+        );
+        // No duplicate of the one instance: no later hypothesis is a correct pose of it, and
+        // none puts its centre within a fifth of the diameter of the first's.
+        assert!(
+            hyps[1..]
+                .iter()
+                .all(|h| !correct(&h.pose, &lone.ground_truth[0].1)),
+            "{report}"
+        );
+        assert!(apart.iter().all(|&a| a >= 0.2), "{report}");
+    }
+    eprintln!("{report}");
+}
