@@ -55,6 +55,7 @@ pub mod rescoring;
 pub mod rng;
 pub mod sampling;
 pub mod scene;
+pub mod settings;
 pub mod store;
 pub mod subsample;
 pub mod synthetic;

@@ -43,6 +43,10 @@ pub struct Args {
     /// Period of camera discovery and dead-process cleanup, milliseconds.
     #[arg(long)]
     pub housekeeping_ms: Option<u64>,
+    /// Set a detector parameter, `stage.field=value` (as `ppf detect --set`, e.g.
+    /// `--set voting.reference_step=4`), after the file's `[detector]` table; repeatable.
+    #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
+    pub set: Vec<String>,
 }
 
 impl Args {
@@ -66,6 +70,12 @@ impl Args {
         c.queue_capacity = self.queue_capacity.unwrap_or(c.queue_capacity);
         c.max_frame_age_ms = self.max_frame_age_ms.unwrap_or(c.max_frame_age_ms);
         c.housekeeping_ms = self.housekeeping_ms.unwrap_or(c.housekeeping_ms);
+        for assignment in &self.set {
+            let (key, value) = assignment
+                .split_once('=')
+                .ok_or_else(|| format!("--set takes stage.field=value, got {assignment:?}"))?;
+            c.detector.push((key.trim().to_string(), value.to_string()));
+        }
         c.validate()?;
         Ok(c)
     }
@@ -81,14 +91,18 @@ pub fn init_tracing() {
         .try_init();
 }
 
-/// Parses the command line and runs the daemon with `engine`. Prints one line,
-/// `ppfd ready pid=<pid> models=<n>`, on stdout once it serves (scripts wait for it).
-pub fn main(engine: Arc<dyn DetectionEngine>) -> ExitCode {
-    main_with_args(std::env::args_os(), engine)
+/// How the daemon gets its engine, from its configuration (the detector's parameters among it).
+pub type EngineFactory = dyn FnOnce(&DaemonConfig) -> Result<Arc<dyn DetectionEngine>, String>;
+
+/// Parses the command line and runs the daemon with the engine `make_engine` builds from the
+/// configuration. Prints one line, `ppfd ready pid=<pid> models=<n>`, on stdout once it
+/// serves (scripts wait for it).
+pub fn main(make_engine: Box<EngineFactory>) -> ExitCode {
+    main_with_args(std::env::args_os(), make_engine)
 }
 
 /// As [`main`], with the command line given (the first item is the program name).
-pub fn main_with_args<I, T>(args: I, engine: Arc<dyn DetectionEngine>) -> ExitCode
+pub fn main_with_args<I, T>(args: I, make_engine: Box<EngineFactory>) -> ExitCode
 where
     I: IntoIterator<Item = T>,
     T: Into<std::ffi::OsString> + Clone,
@@ -105,6 +119,16 @@ where
             return ExitCode::from(2);
         }
     };
+    let engine = match make_engine(&config) {
+        Ok(e) => e,
+        Err(e) => {
+            eprintln!("ppfd: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    for (key, value) in &config.detector {
+        tracing::info!("detector parameter {key} = {value}");
+    }
     let result = crate::daemon::run(config, engine, |ready| {
         use std::io::Write;
         let mut out = std::io::stdout().lock();
@@ -140,6 +164,23 @@ mod tests {
         let c = args.config().unwrap();
         assert_eq!(c.queue_capacity, 7);
         assert_eq!(c.max_frame_age_ms, 80);
+        std::fs::write(
+            &file,
+            "[detector]\nvoting.reference_step = 3\nvoting.peaks_per_reference = 1\n",
+        )
+        .unwrap();
+        let args = Args::parse_from([
+            "ppfd",
+            "--config",
+            file.to_str().unwrap(),
+            "--set",
+            "voting.reference_step=5",
+        ]);
+        let p = args.config().unwrap().detect_params().unwrap();
+        assert_eq!(p.voting.reference_step, 5);
+        assert_eq!(p.voting.peaks_per_reference, 1);
+        let args = Args::parse_from(["ppfd", "--set", "voting.reference_step"]);
+        assert!(args.config().unwrap_err().contains("stage.field=value"));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -10,6 +10,10 @@
 //! queue_capacity = 64               # requests waiting beyond that are refused "busy"
 //! max_frame_age_ms = 1000           # older camera frames are refused "camera stale"
 //! housekeeping_ms = 1000            # period of camera discovery and dead-peer cleanup
+//!
+//! [detector]                        # detector parameters by name (`ppf detect --set` names)
+//! voting.reference_step = 4         # e.g. half the voting time, for voting's own clusters' cost
+//! filters.min_silhouette_fraction = 0.5
 //! ```
 
 use std::path::{Path, PathBuf};
@@ -43,6 +47,53 @@ pub struct DaemonConfig {
     pub max_frame_age_ms: u64,
     /// Period of housekeeping: discovering cameras and removing resources of dead processes.
     pub housekeeping_ms: u64,
+    /// Detector parameters that differ from the defaults, as `(stage.field, value)`: the file's
+    /// `[detector]` table, then `--set stage.field=value` flags. Checked at start; an unknown
+    /// name or a bad value stops the daemon before it serves.
+    #[serde(deserialize_with = "detector_table")]
+    pub detector: Vec<(String, String)>,
+}
+
+/// The `[detector]` table, flattened: `voting.reference_step = 4` (a dotted key, or a
+/// `[detector.voting]` table) becomes `("voting.reference_step", "4")`.
+fn detector_table<'de, D>(deserializer: D) -> Result<Vec<(String, String)>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+{
+    fn flatten(
+        prefix: &str,
+        table: &toml::Table,
+        out: &mut Vec<(String, String)>,
+    ) -> Result<(), String> {
+        for (name, value) in table {
+            let key = if prefix.is_empty() {
+                name.clone()
+            } else {
+                format!("{prefix}.{name}")
+            };
+            let text = match value {
+                toml::Value::Table(t) => {
+                    flatten(&key, t, out)?;
+                    continue;
+                }
+                toml::Value::String(s) => s.clone(),
+                toml::Value::Integer(i) => i.to_string(),
+                toml::Value::Float(f) => f.to_string(),
+                toml::Value::Boolean(b) => b.to_string(),
+                other => {
+                    return Err(format!(
+                        "detector.{key}: a number, true/false or a name, got {other}"
+                    ))
+                }
+            };
+            out.push((key, text));
+        }
+        Ok(())
+    }
+    let table = toml::Table::deserialize(deserializer)?;
+    let mut out = Vec::new();
+    flatten("", &table, &mut out).map_err(serde::de::Error::custom)?;
+    Ok(out)
 }
 
 impl Default for DaemonConfig {
@@ -56,6 +107,7 @@ impl Default for DaemonConfig {
             queue_capacity: 64,
             max_frame_age_ms: 1000,
             housekeeping_ms: 1000,
+            detector: Vec::new(),
         }
     }
 }
@@ -72,8 +124,19 @@ impl DaemonConfig {
         toml::from_str(text).map_err(|e| e.to_string())
     }
 
+    /// The detector's parameters: the defaults with [`DaemonConfig::detector`] applied in
+    /// order.
+    pub fn detect_params(&self) -> Result<ppfd_models::detector::DetectParams, String> {
+        let mut p = ppfd_models::detector::DetectParams::new();
+        for (key, value) in &self.detector {
+            p.set(key, value)?;
+        }
+        Ok(p)
+    }
+
     /// Refuses settings that cannot work.
     pub fn validate(&self) -> Result<(), String> {
+        self.detect_params()?;
         if self.parallel_detections == 0 {
             return Err("parallel_detections must be at least 1".into());
         }
@@ -121,6 +184,56 @@ mod tests {
         assert_eq!(c.queue_capacity, DaemonConfig::default().queue_capacity);
         let e = DaemonConfig::from_toml("modles = \"/m\"").unwrap_err();
         assert!(e.contains("modles"), "{e}");
+    }
+
+    #[test]
+    fn detector_table_gives_named_parameters() {
+        let c = DaemonConfig::from_toml(
+            "[detector]\nvoting.reference_step = 4\nscene.normal_estimation = \"differences\"\n\
+             [detector.filters]\nmin_silhouette_fraction = 0.5\n",
+        )
+        .unwrap();
+        let p = c.detect_params().unwrap();
+        assert_eq!(p.voting.reference_step, 4);
+        assert_eq!(
+            p.scene.normal_estimation,
+            ppfd_models::scene::NormalEstimation::CentralDifferences
+        );
+        assert_eq!(p.filters.min_silhouette_fraction, 0.5);
+        assert!(c.validate().is_ok());
+        // Everything else keeps its default.
+        let mut expected = ppfd_models::detector::DetectParams::new();
+        expected.voting.reference_step = 4;
+        expected.scene.normal_estimation = p.scene.normal_estimation;
+        expected.filters.min_silhouette_fraction = 0.5;
+        assert_eq!(format!("{p:?}"), format!("{expected:?}"));
+    }
+
+    #[test]
+    fn bad_detector_parameters_are_refused_by_name() {
+        for (text, said) in [
+            (
+                "[detector]\nvoting.reference_steps = 4\n",
+                "voting.reference_steps",
+            ),
+            (
+                "[detector]\nvoting.reference_step = -4\n",
+                "voting.reference_step",
+            ),
+            (
+                "[detector]\nvoting.reference_step = [4]\n",
+                "detector.voting.reference_step",
+            ),
+            (
+                "[detector]\nfilters.min_silhouette_fraction = nan\n",
+                "finite",
+            ),
+        ] {
+            let e = DaemonConfig::from_toml(text)
+                .and_then(|c| c.validate())
+                .unwrap_err();
+            assert!(e.contains(said), "{text}: {e}");
+        }
     }
 
     #[test]

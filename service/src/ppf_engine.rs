@@ -40,6 +40,15 @@ impl PpfEngine {
             model_params,
         }
     }
+
+    /// An engine with the configuration's detector parameters and the default model
+    /// parameters.
+    pub fn from_config(config: &crate::config::DaemonConfig) -> Result<Self, String> {
+        Ok(Self::new(
+            Detector::new(config.detect_params()?),
+            ModelParams::default(),
+        ))
+    }
 }
 
 fn ext_is(path: &Path, ext: &str) -> bool {

@@ -33,24 +33,23 @@ const MAX_ROTATION_DEG: f32 = 15.0;
 /// command show the same scene.
 const SEED: u64 = 1;
 
-/// A daemon with the PPF engine over `models`, models built from meshes cached in `cache`.
-fn start_daemon(prefix: &Prefix, models: &Path, cache: &Path) -> Proc {
-    let mut d = Proc::spawn(
-        Path::new(DAEMON),
-        &[
-            "--prefix",
-            &prefix.0,
-            "--models",
-            models.to_str().unwrap(),
-            "--model-cache",
-            cache.to_str().unwrap(),
-            "--housekeeping-ms",
-            "100",
-            "--max-frame-age-ms",
-            "5000",
-        ],
-        &[],
-    );
+/// A daemon with the PPF engine over `models`, models built from meshes cached in `cache`,
+/// with `extra` flags.
+fn start_daemon(prefix: &Prefix, models: &Path, cache: &Path, extra: &[&str]) -> Proc {
+    let mut args = vec![
+        "--prefix",
+        &prefix.0,
+        "--models",
+        models.to_str().unwrap(),
+        "--model-cache",
+        cache.to_str().unwrap(),
+        "--housekeeping-ms",
+        "100",
+        "--max-frame-age-ms",
+        "5000",
+    ];
+    args.extend(extra);
+    let mut d = Proc::spawn(Path::new(DAEMON), &args, &[]);
     d.wait_line("ppfd ready", DETECTION);
     d
 }
@@ -115,7 +114,7 @@ fn generated_scene_through_the_whole_path(test: &str, seed: u64, noisy: bool) {
     let prefix = Prefix::new(test);
     let work = WorkDir::new(test);
     let diameters = write_part_models(&work.join("models"));
-    let _daemon = start_daemon(&prefix, &work.join("models"), &work.join("cache"));
+    let _daemon = start_daemon(&prefix, &work.join("models"), &work.join("cache"), &[]);
 
     let seed_arg = seed.to_string();
     let mut camera_args = vec![
@@ -300,7 +299,7 @@ fn lmo_object_built_from_its_mesh_by_the_daemon_is_found_through_the_whole_path(
         let mesh = std::fs::canonicalize(dataset.model_path(*id).unwrap()).unwrap();
         std::os::unix::fs::symlink(&mesh, models.join(mesh.file_name().unwrap())).unwrap();
     }
-    let _daemon = start_daemon(&prefix, &models, &work.join("cache"));
+    let _daemon = start_daemon(&prefix, &models, &work.join("cache"), &[]);
     let (scene_s, image_s) = (scene.to_string(), image.to_string());
     let mut cam = Proc::spawn(
         Path::new(CAMERA),
@@ -360,4 +359,118 @@ fn lmo_object_built_from_its_mesh_by_the_daemon_is_found_through_the_whole_path(
         "{:?}",
         found.counts
     );
+}
+
+/// Detector parameters given to the daemon (`--set`, or the configuration file's `[detector]`
+/// table) are the ones its engine detects with: with every fourth scene point a reference
+/// point, the daemon reports as many reference points as the detector run in this process with
+/// that setting, and fewer than with the default (every second).
+#[test]
+fn detector_parameters_given_to_the_daemon_are_the_ones_it_detects_with() {
+    use ppfd_models::detector::{DetectOptions, DetectParams, Detector};
+    use ppfd_models::model::{ModelParams, ObjectModel};
+    let test = "daemon_params";
+    let scene = parts_scene(SEED, true);
+    let part = Part::ALL[0];
+    let model = ObjectModel::build(
+        &part.mesh(),
+        part.object_id(),
+        part.name(),
+        &ModelParams::default(),
+    )
+    .unwrap();
+    let reference_points = |step: &str| {
+        let mut params = DetectParams::new();
+        params.set("voting.reference_step", step).unwrap();
+        let found = Detector::new(params)
+            .detect(&scene.frame.view(), &[&model], &DetectOptions::default())
+            .unwrap();
+        found.counts.reference_points
+    };
+    let (every_second, every_fourth) = (reference_points("2"), reference_points("4"));
+
+    let prefix = Prefix::new(test);
+    let work = WorkDir::new(test);
+    write_part_models(&work.join("models"));
+    let config = work.join("ppfd.toml");
+    // The file asks for every third point; the flag, which comes after it, for every fourth.
+    std::fs::write(&config, "[detector]\nvoting.reference_step = 3\n").unwrap();
+    let _daemon = start_daemon(
+        &prefix,
+        &work.join("models"),
+        &work.join("cache"),
+        &[
+            "--config",
+            config.to_str().unwrap(),
+            "--set",
+            "voting.reference_step=4",
+        ],
+    );
+    let seed = SEED.to_string();
+    let mut cam = Proc::spawn(
+        Path::new(CAMERA),
+        &[
+            "--prefix",
+            &prefix.0,
+            "--camera",
+            "parts",
+            "--fps",
+            "5",
+            "--parts-seed",
+            &seed,
+        ],
+        &[],
+    );
+    cam.wait_line("camera ready", STARTUP);
+    let id = part.object_id().to_string();
+    let mut client = Proc::spawn(
+        Path::new(CLIENT),
+        &[
+            "--prefix",
+            &prefix.0,
+            "--camera",
+            "parts",
+            "--objects",
+            &id,
+            "--wait-frame-ms",
+            "20000",
+            "--timeout-ms",
+            "600000",
+        ],
+        &[],
+    );
+    client.wait_line("client ready", STARTUP);
+    let ok = client.wait_line("", DETECTION);
+    let fields: Vec<&str> = ok.split(' ').collect();
+    assert_eq!(fields[0], "ok", "{ok}");
+    let served: u32 = fields[4].parse().unwrap();
+    eprintln!(
+        "reference points: daemon {served}; this process, every 4th point {every_fourth}, \
+         every 2nd {every_second}"
+    );
+    assert_eq!(served, every_fourth);
+    assert!(every_fourth < every_second);
+}
+
+/// A daemon given a detector parameter it does not know, or a bad value, says which and does
+/// not start.
+#[test]
+fn the_daemon_refuses_unknown_detector_parameters_at_start() {
+    let prefix = Prefix::new("daemon_bad_params");
+    for (flag, said) in [
+        ("voting.reference_steps=4", "voting.reference_steps"),
+        ("filters.min_silhouette_fraction=NaN", "finite"),
+    ] {
+        let out = std::process::Command::new(DAEMON)
+            .args(["--prefix", &prefix.0, "--set", flag])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{flag}: {stderr}");
+        assert!(stderr.contains(said), "{flag}: {stderr}");
+        assert!(
+            !String::from_utf8_lossy(&out.stdout).contains("ppfd ready"),
+            "{flag}"
+        );
+    }
 }

@@ -1,7 +1,7 @@
 //! A robot process for the end-to-end tests: `--requests N` detect calls on `--camera` for
 //! `--objects a,b` (`--hypotheses K` each), `--pause-ms` apart. Prints `client ready`, then per
-//! request `ok <request id> <hypotheses> <frame sequence>` or `err <status code> <value> <message>`,
-//! then `done`. With `--poses`, every `ok` line is followed by one line per hypothesis:
+//! request `ok <request id> <hypotheses> <frame sequence> <reference points>` or
+//! `err <status code> <value> <message>`, then `done`. With `--poses`, every `ok` line is followed by one line per hypothesis:
 //! `pose <object id> <rank> <score> <r00> <r01> … <r22> <tx> <ty> <tz>` (row-major rotation,
 //! translation in mm, model → camera). With `--wait-frame-ms T`, a request refused because the
 //! camera is not known yet or has no frame yet is retried for up to T ms.
@@ -78,10 +78,11 @@ fn main() {
             Ok(d) => {
                 writeln!(
                     out,
-                    "ok {} {} {}",
+                    "ok {} {} {} {}",
                     d.request_id,
                     d.hypotheses.len(),
-                    d.frame_sequence
+                    d.frame_sequence,
+                    d.counts.reference_points
                 )
                 .unwrap();
                 if poses {

@@ -5,10 +5,10 @@ use std::process::ExitCode;
 use std::sync::Arc;
 
 fn main() -> ExitCode {
-    let engine: Arc<dyn ppfd::DetectionEngine> = match std::env::var("PPFD_TEST_ENGINE").as_deref()
-    {
-        Ok("fake") => Arc::new(ppfd_tests::FakeEngine::from_env()),
-        _ => Arc::new(ppfd::ppf_engine::PpfEngine::default()),
-    };
-    ppfd::cli::main(engine)
+    ppfd::cli::main(Box::new(|config| {
+        Ok(match std::env::var("PPFD_TEST_ENGINE").as_deref() {
+            Ok("fake") => Arc::new(ppfd_tests::FakeEngine::from_env()),
+            _ => Arc::new(ppfd::ppf_engine::PpfEngine::from_config(config)?),
+        })
+    }))
 }

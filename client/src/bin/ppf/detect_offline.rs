@@ -114,107 +114,10 @@ impl DatasetDetectArgs {
             p.voting.peaks_per_reference = k;
         }
         for kv in &self.set {
-            set_param(&mut p, kv)?;
+            p.set_from(kv)?;
         }
         Ok(p)
     }
-}
-
-/// Applies one `stage.field=value` override to `p`.
-pub fn set_param(p: &mut ppfd_models::detector::DetectParams, kv: &str) -> Result<(), String> {
-    use ppfd_models::scene::NormalEstimation;
-    let (key, value) = kv
-        .split_once('=')
-        .ok_or_else(|| format!("--set needs stage.field=value, got {kv:?}"))?;
-    let f = || {
-        value
-            .parse::<f32>()
-            .map_err(|_| format!("{key}: not a number: {value:?}"))
-    };
-    let u = || {
-        value
-            .parse::<usize>()
-            .map_err(|_| format!("{key}: not a count: {value:?}"))
-    };
-    let b = || {
-        value
-            .parse::<bool>()
-            .map_err(|_| format!("{key}: not true/false: {value:?}"))
-    };
-    match key {
-        "scene.normal_radius_mm" => p.scene.normal_radius_mm = f()?,
-        "scene.normal_radius_px" => p.scene.normal_radius_px = u()? as u32,
-        "scene.max_slope_deg" => p.scene.max_slope_deg = f()?,
-        "scene.min_depth_jump_mm" => p.scene.min_depth_jump_mm = f()?,
-        "scene.smoothing_radius_px" => p.scene.smoothing_radius_px = u()? as u32,
-        "scene.plane_residual_mm" => p.scene.plane_residual_mm = f()?,
-        "scene.plane_residual_fraction" => p.scene.plane_residual_fraction = f()?,
-        "scene.plane_samples_per_axis" => p.scene.plane_samples_per_axis = u()? as u32,
-        "scene.side_window_ratio" => p.scene.side_window_ratio = f()?,
-        "scene.min_window_fill" => p.scene.min_window_fill = f()?,
-        "scene.normal_estimation" => {
-            p.scene.normal_estimation = match value {
-                "plane" => NormalEstimation::PlaneFit,
-                "differences" => NormalEstimation::CentralDifferences,
-                "best-window" => NormalEstimation::BestWindowPlaneFit,
-                _ => return Err(format!("{key}: plane or differences, got {value:?}")),
-            }
-        }
-        "plane.enabled" => p.plane.enabled = b()?,
-        "plane.tolerance_mm" => p.plane.tolerance_mm = f()?,
-        "plane.tolerance_fraction" => p.plane.tolerance_fraction = f()?,
-        "plane.max_normal_angle_deg" => p.plane.max_normal_angle_deg = f()?,
-        "plane.min_inlier_fraction" => p.plane.min_inlier_fraction = f()?,
-        "plane.min_secondary_fraction" => p.plane.min_secondary_fraction = f()?,
-        "plane.max_planes" => p.plane.max_planes = u()?,
-        "voting.reference_step" => p.voting.reference_step = u()?,
-        "voting.peaks_per_reference" => p.voting.peaks_per_reference = u()?,
-        "voting.peak_ratio" => p.voting.peak_ratio = f()?,
-        "voting.min_distance_fraction" => p.voting.min_distance_fraction = f()?,
-        "voting.neighbour_keys" => p.voting.neighbour_keys = b()?,
-        "voting.vote_once" => p.voting.vote_once = b()?,
-        "clustering.translation_fraction" => p.clustering.translation_fraction = f()?,
-        "clustering.rotation_deg" => p.clustering.rotation_deg = f()?,
-        "clustering.refine_rotation_deg" => p.clustering.refine_rotation_deg = f()?,
-        "clustering.refine_rotation_shrink" => p.clustering.refine_rotation_shrink = f()?,
-        "clustering.refine_translation_fraction" => p.clustering.refine_translation_fraction = f()?,
-        "clustering.refine_iterations" => p.clustering.refine_iterations = u()?,
-        "clustering.refine_from_densest" => p.clustering.refine_from_densest = b()?,
-        "voting.interpolate_alpha" => p.voting.interpolate_alpha = b()?,
-        "voting.plane_partners" => p.voting.plane_partners = b()?,
-        "rescoring.top_clusters" => p.rescoring.top_clusters = u()?,
-        "rescoring.tolerance_fraction" => p.rescoring.tolerance_fraction = f()?,
-        "rescoring.refined_tolerance_fraction" => p.rescoring.refined_tolerance_fraction = f()?,
-        "rescoring.min_tolerance_mm" => p.rescoring.min_tolerance_mm = f()?,
-        "rescoring.max_normal_angle_deg" => p.rescoring.max_normal_angle_deg = f()?,
-        "rescoring.conflict_fraction" => p.rescoring.conflict_fraction = f()?,
-        "rescoring.min_conflict_mm" => p.rescoring.min_conflict_mm = f()?,
-        "rescoring.silhouette_weight" => p.rescoring.silhouette_weight = f()?,
-        "rescoring.support_weight" => p.rescoring.support_weight = f()?,
-        "rescoring.min_visible_outline" => p.rescoring.min_visible_outline = f()?,
-        "rescoring.silhouette_mesh_cell_fraction" => {
-            p.rescoring.silhouette_mesh_cell_fraction = f()?
-        }
-        "icp.top_poses" => p.icp.top_poses = u()?,
-        "icp.iterations" => p.icp.iterations = u()?,
-        "icp.initial_distance_fraction" => p.icp.initial_distance_fraction = f()?,
-        "icp.final_distance_fraction" => p.icp.final_distance_fraction = f()?,
-        "icp.max_normal_angle_deg" => p.icp.max_normal_angle_deg = f()?,
-        "icp.coarse_iterations" => p.icp.coarse_iterations = u()?,
-        "icp.coarse_stride" => p.icp.coarse_stride = u()?,
-        "filters.max_see_through_fraction" => p.filters.max_see_through_fraction = f()?,
-        "filters.min_support_fraction" => p.filters.min_support_fraction = f()?,
-        "filters.edge_jump_mm" => p.filters.edge_jump_mm = f()?,
-        "filters.edge_jump_fraction" => p.filters.edge_jump_fraction = f()?,
-        "filters.edge_radius_px" => p.filters.edge_radius_px = u()? as u32,
-        "filters.min_silhouette_fraction" => p.filters.min_silhouette_fraction = f()?,
-        "filters.contour_probe_px" => p.filters.contour_probe_px = u()? as u32,
-        "filters.max_outline_px" => p.filters.max_outline_px = u()? as u32,
-        "filters.max_candidates" => p.filters.max_candidates = u()?,
-        "shared_cloud_diameter_ratio" => p.shared_cloud_diameter_ratio = f()?,
-        _ => return Err(format!("unknown parameter {key:?}")),
-    }
-    Ok(())
 }
 
 pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {

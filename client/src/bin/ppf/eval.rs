@@ -70,7 +70,7 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
     let models = dataset_models(&dataset, &ids)?;
     let mut params = ppfd_models::detector::DetectParams::new();
     for kv in &args.set {
-        crate::detect_offline::set_param(&mut params, kv)?;
+        params.set_from(kv)?;
     }
     let detector = Detector::new(params);
     let opts = DetectOptions {

@@ -61,8 +61,11 @@ enum Command {
 fn main() {
     let cli = Cli::parse();
     if let Command::Serve { args } = &cli.command {
-        let engine = std::sync::Arc::new(ppfd::ppf_engine::PpfEngine::default());
         let argv = std::iter::once("ppfd".to_owned()).chain(args.iter().cloned());
+        let engine = Box::new(|config: &ppfd::config::DaemonConfig| {
+            let engine = ppfd::ppf_engine::PpfEngine::from_config(config)?;
+            Ok(std::sync::Arc::new(engine) as std::sync::Arc<dyn ppfd::DetectionEngine>)
+        });
         std::process::exit(match ppfd::cli::main_with_args(argv, engine) {
             code if code == std::process::ExitCode::SUCCESS => 0,
             _ => 1,

@@ -57,7 +57,7 @@ pub fn run(args: ProfileArgs) -> Result<(), Box<dyn std::error::Error>> {
     let frame = dataset.depth_frame(args.scene, args.image)?;
     let mut params = DetectParams::new();
     for kv in &args.set {
-        crate::detect_offline::set_param(&mut params, kv)?;
+        params.set_from(kv)?;
     }
     let detector = Detector::new(params);
     let opts = DetectOptions {

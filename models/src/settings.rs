@@ -1,0 +1,281 @@
+//! The detector's parameters by name: `stage.field` (`voting.reference_step`,
+//! `filters.min_silhouette_fraction`, …), as `ppf detect --set` and the daemon's configuration
+//! give them.
+//!
+//! ```
+//! use ppfd_models::detector::DetectParams;
+//!
+//! let mut p = DetectParams::new();
+//! p.set("voting.reference_step", "4").unwrap();
+//! assert_eq!(p.voting.reference_step, 4);
+//! assert!(p.set("voting.reference_steps", "4").is_err());
+//! assert!(p.set("rescoring.support_weight", "NaN").is_err());
+//! ```
+
+use crate::detector::DetectParams;
+use crate::scene::NormalEstimation;
+
+/// A parameter's value as text, both ways.
+trait Value: Sized {
+    /// What the text must be, for errors.
+    const EXPECTED: &'static str;
+    fn parse(text: &str) -> Option<Self>;
+    fn show(&self) -> String;
+}
+
+impl Value for f32 {
+    const EXPECTED: &'static str = "a finite number";
+    fn parse(text: &str) -> Option<f32> {
+        text.trim().parse().ok().filter(|v: &f32| v.is_finite())
+    }
+    fn show(&self) -> String {
+        self.to_string()
+    }
+}
+
+impl Value for usize {
+    const EXPECTED: &'static str = "a count (0 or more)";
+    fn parse(text: &str) -> Option<usize> {
+        text.trim().parse().ok()
+    }
+    fn show(&self) -> String {
+        self.to_string()
+    }
+}
+
+impl Value for u32 {
+    const EXPECTED: &'static str = "a count (0 or more)";
+    fn parse(text: &str) -> Option<u32> {
+        text.trim().parse().ok()
+    }
+    fn show(&self) -> String {
+        self.to_string()
+    }
+}
+
+impl Value for bool {
+    const EXPECTED: &'static str = "true or false";
+    fn parse(text: &str) -> Option<bool> {
+        text.trim().parse().ok()
+    }
+    fn show(&self) -> String {
+        self.to_string()
+    }
+}
+
+impl Value for NormalEstimation {
+    const EXPECTED: &'static str = "plane, differences or best-window";
+    fn parse(text: &str) -> Option<NormalEstimation> {
+        match text.trim() {
+            "plane" => Some(NormalEstimation::PlaneFit),
+            "differences" => Some(NormalEstimation::CentralDifferences),
+            "best-window" => Some(NormalEstimation::BestWindowPlaneFit),
+            _ => None,
+        }
+    }
+    fn show(&self) -> String {
+        match self {
+            NormalEstimation::PlaneFit => "plane",
+            NormalEstimation::CentralDifferences => "differences",
+            NormalEstimation::BestWindowPlaneFit => "best-window",
+        }
+        .into()
+    }
+}
+
+/// One named parameter: how to set it from text and show it as text.
+struct Setting {
+    key: &'static str,
+    set: fn(&mut DetectParams, &str) -> Result<(), String>,
+    get: fn(&DetectParams) -> String,
+}
+
+fn parsed<T: Value>(key: &str, text: &str) -> Result<T, String> {
+    T::parse(text).ok_or_else(|| format!("{key}: expected {}, got {text:?}", T::EXPECTED))
+}
+
+macro_rules! settings {
+    ($($key:literal => $($field:ident).+;)*) => {
+        /// Every parameter that has a name, in the order of [`DetectParams`]' stages.
+        const SETTINGS: &[Setting] = &[$(
+            Setting {
+                key: $key,
+                set: |p, text| {
+                    p.$($field).+ = parsed($key, text)?;
+                    Ok(())
+                },
+                get: |p| Value::show(&p.$($field).+),
+            },
+        )*];
+    };
+}
+
+settings! {
+    "scene.normal_radius_mm" => scene.normal_radius_mm;
+    "scene.normal_radius_px" => scene.normal_radius_px;
+    "scene.max_slope_deg" => scene.max_slope_deg;
+    "scene.min_depth_jump_mm" => scene.min_depth_jump_mm;
+    "scene.smoothing_radius_px" => scene.smoothing_radius_px;
+    "scene.min_depth_mm" => scene.min_depth_mm;
+    "scene.max_depth_mm" => scene.max_depth_mm;
+    "scene.normal_estimation" => scene.normal_estimation;
+    "scene.plane_residual_mm" => scene.plane_residual_mm;
+    "scene.plane_residual_fraction" => scene.plane_residual_fraction;
+    "scene.plane_samples_per_axis" => scene.plane_samples_per_axis;
+    "scene.side_window_ratio" => scene.side_window_ratio;
+    "scene.min_window_fill" => scene.min_window_fill;
+    "plane.enabled" => plane.enabled;
+    "plane.tolerance_mm" => plane.tolerance_mm;
+    "plane.tolerance_fraction" => plane.tolerance_fraction;
+    "plane.max_normal_angle_deg" => plane.max_normal_angle_deg;
+    "plane.min_inlier_fraction" => plane.min_inlier_fraction;
+    "plane.min_secondary_fraction" => plane.min_secondary_fraction;
+    "plane.max_planes" => plane.max_planes;
+    "voting.reference_step" => voting.reference_step;
+    "voting.neighbour_keys" => voting.neighbour_keys;
+    "voting.vote_once" => voting.vote_once;
+    "voting.peaks_per_reference" => voting.peaks_per_reference;
+    "voting.peak_ratio" => voting.peak_ratio;
+    "voting.min_distance_fraction" => voting.min_distance_fraction;
+    "voting.interpolate_alpha" => voting.interpolate_alpha;
+    "voting.plane_partners" => voting.plane_partners;
+    "clustering.translation_fraction" => clustering.translation_fraction;
+    "clustering.rotation_deg" => clustering.rotation_deg;
+    "clustering.refine_rotation_deg" => clustering.refine_rotation_deg;
+    "clustering.refine_rotation_shrink" => clustering.refine_rotation_shrink;
+    "clustering.refine_translation_fraction" => clustering.refine_translation_fraction;
+    "clustering.refine_iterations" => clustering.refine_iterations;
+    "clustering.refine_from_densest" => clustering.refine_from_densest;
+    "rescoring.top_clusters" => rescoring.top_clusters;
+    "rescoring.tolerance_fraction" => rescoring.tolerance_fraction;
+    "rescoring.refined_tolerance_fraction" => rescoring.refined_tolerance_fraction;
+    "rescoring.min_tolerance_mm" => rescoring.min_tolerance_mm;
+    "rescoring.max_normal_angle_deg" => rescoring.max_normal_angle_deg;
+    "rescoring.conflict_fraction" => rescoring.conflict_fraction;
+    "rescoring.min_conflict_mm" => rescoring.min_conflict_mm;
+    "rescoring.support_weight" => rescoring.support_weight;
+    "rescoring.silhouette_weight" => rescoring.silhouette_weight;
+    "rescoring.min_visible_outline" => rescoring.min_visible_outline;
+    "rescoring.silhouette_mesh_cell_fraction" => rescoring.silhouette_mesh_cell_fraction;
+    "icp.top_poses" => icp.top_poses;
+    "icp.iterations" => icp.iterations;
+    "icp.initial_distance_fraction" => icp.initial_distance_fraction;
+    "icp.final_distance_fraction" => icp.final_distance_fraction;
+    "icp.max_normal_angle_deg" => icp.max_normal_angle_deg;
+    "icp.coarse_iterations" => icp.coarse_iterations;
+    "icp.coarse_stride" => icp.coarse_stride;
+    "filters.max_see_through_fraction" => filters.max_see_through_fraction;
+    "filters.min_support_fraction" => filters.min_support_fraction;
+    "filters.edge_jump_mm" => filters.edge_jump_mm;
+    "filters.edge_jump_fraction" => filters.edge_jump_fraction;
+    "filters.edge_radius_px" => filters.edge_radius_px;
+    "filters.min_silhouette_fraction" => filters.min_silhouette_fraction;
+    "filters.contour_probe_px" => filters.contour_probe_px;
+    "filters.max_outline_px" => filters.max_outline_px;
+    "filters.max_candidates" => filters.max_candidates;
+    "nms_distance_fraction" => nms_distance_fraction;
+    "shared_cloud_diameter_ratio" => shared_cloud_diameter_ratio;
+}
+
+impl DetectParams {
+    /// Sets the parameter named `key` (`stage.field`) from `value` as text. An unknown name,
+    /// or a value that is not of the parameter's kind (a number that is NaN or infinite among
+    /// them), is refused with a message that names it, and nothing changes.
+    pub fn set(&mut self, key: &str, value: &str) -> Result<(), String> {
+        let setting = SETTINGS
+            .iter()
+            .find(|s| s.key == key)
+            .ok_or_else(|| format!("unknown detector parameter {key:?}"))?;
+        (setting.set)(self, value)
+    }
+
+    /// [`DetectParams::set`] from `stage.field=value`.
+    pub fn set_from(&mut self, assignment: &str) -> Result<(), String> {
+        let (key, value) = assignment.split_once('=').ok_or_else(|| {
+            format!("a detector parameter is set as stage.field=value, got {assignment:?}")
+        })?;
+        self.set(key.trim(), value)
+    }
+
+    /// The value of the parameter named `key`, as text [`DetectParams::set`] takes.
+    pub fn get(&self, key: &str) -> Option<String> {
+        SETTINGS
+            .iter()
+            .find(|s| s.key == key)
+            .map(|s| (s.get)(self))
+    }
+
+    /// The names of all parameters [`DetectParams::set`] knows.
+    pub fn keys() -> impl Iterator<Item = &'static str> {
+        SETTINGS.iter().map(|s| s.key)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_key_reads_back_what_was_set_and_nothing_else_changes() {
+        let default = DetectParams::new();
+        for key in DetectParams::keys() {
+            let shown = default.get(key).unwrap();
+            // Another value of the same kind.
+            let other = match shown.as_str() {
+                "true" => "false".to_string(),
+                "false" => "true".to_string(),
+                "plane" => "differences".to_string(),
+                "differences" | "best-window" => "plane".to_string(),
+                text => match text.parse::<u64>() {
+                    Ok(n) => (n + 3).to_string(),
+                    Err(_) => (text.parse::<f32>().unwrap() + 0.25).to_string(),
+                },
+            };
+            let mut p = default.clone();
+            p.set(key, &other).unwrap();
+            assert_eq!(p.get(key).unwrap(), other, "{key}");
+            for other_key in DetectParams::keys().filter(|k| *k != key) {
+                assert_eq!(
+                    p.get(other_key),
+                    default.get(other_key),
+                    "{key} changed {other_key}"
+                );
+            }
+            p.set(key, &shown).unwrap();
+            assert_eq!(format!("{p:?}"), format!("{default:?}"), "{key}");
+        }
+    }
+
+    #[test]
+    fn keys_are_unique() {
+        let mut keys: Vec<_> = DetectParams::keys().collect();
+        let n = keys.len();
+        keys.sort();
+        keys.dedup();
+        assert_eq!(keys.len(), n);
+    }
+
+    #[test]
+    fn bad_names_and_values_are_refused_and_change_nothing() {
+        let mut p = DetectParams::new();
+        let before = format!("{p:?}");
+        let refused = [
+            ("voting.reference_steps", "4", "unknown detector parameter"),
+            ("voting.reference_step", "-1", "a count"),
+            ("voting.reference_step", "two", "a count"),
+            ("filters.min_silhouette_fraction", "NaN", "finite"),
+            ("filters.min_silhouette_fraction", "inf", "finite"),
+            ("voting.vote_once", "yes", "true or false"),
+            ("scene.normal_estimation", "pca", "plane, differences"),
+        ];
+        for (key, value, said) in refused {
+            let e = p.set(key, value).unwrap_err();
+            assert!(e.contains(said) && e.contains(key), "{key}={value}: {e}");
+        }
+        let e = p.set_from("voting.reference_step").unwrap_err();
+        assert!(e.contains("stage.field=value"), "{e}");
+        assert_eq!(format!("{p:?}"), before);
+        p.set_from("voting.reference_step = 4").unwrap();
+        assert_eq!(p.voting.reference_step, 4);
+    }
+}
