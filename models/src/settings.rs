@@ -177,15 +177,40 @@ settings! {
     "shared_cloud_diameter_ratio" => shared_cloud_diameter_ratio;
 }
 
+/// The error for an unknown name: it lists the names of the same stage, or the stages.
+fn unknown(key: &str) -> String {
+    let stage = key.split_once('.').map_or(key, |(stage, _)| stage);
+    let same_stage: Vec<&str> = SETTINGS
+        .iter()
+        .map(|s| s.key)
+        .filter(|k| k.split_once('.').is_some_and(|(st, _)| st == stage))
+        .collect();
+    if same_stage.is_empty() {
+        let mut stages: Vec<&str> = SETTINGS
+            .iter()
+            .map(|s| s.key.split_once('.').map_or(s.key, |(stage, _)| stage))
+            .collect();
+        stages.dedup();
+        format!(
+            "unknown detector parameter {key:?}; the stages are {}",
+            stages.join(", ")
+        )
+    } else {
+        format!(
+            "unknown detector parameter {key:?}; the {stage} parameters are {}",
+            same_stage.join(", ")
+        )
+    }
+}
+
 impl DetectParams {
     /// Sets the parameter named `key` (`stage.field`) from `value` as text. An unknown name,
     /// or a value that is not of the parameter's kind (a number that is NaN or infinite among
     /// them), is refused with a message that names it, and nothing changes.
     pub fn set(&mut self, key: &str, value: &str) -> Result<(), String> {
-        let setting = SETTINGS
-            .iter()
-            .find(|s| s.key == key)
-            .ok_or_else(|| format!("unknown detector parameter {key:?}"))?;
+        let Some(setting) = SETTINGS.iter().find(|s| s.key == key) else {
+            return Err(unknown(key));
+        };
         (setting.set)(self, value)
     }
 
@@ -272,6 +297,10 @@ mod tests {
             let e = p.set(key, value).unwrap_err();
             assert!(e.contains(said) && e.contains(key), "{key}={value}: {e}");
         }
+        let e = p.set("voting.steps", "4").unwrap_err();
+        assert!(e.contains("voting.reference_step, "), "{e}");
+        let e = p.set("votes.reference_step", "4").unwrap_err();
+        assert!(e.contains("scene, plane, voting, clustering"), "{e}");
         let e = p.set_from("voting.reference_step").unwrap_err();
         assert!(e.contains("stage.field=value"), "{e}");
         assert_eq!(format!("{p:?}"), before);
