@@ -13,7 +13,6 @@ use crate::mesh::Mesh;
 use crate::render::{Renderer, Roi};
 use crate::rescoring::Fit;
 use crate::scene::SceneImage;
-use crate::subsample::OrientedPoints;
 use crate::Pose;
 
 /// Parameters of the two filters. Defaults were measured on generated scenes and the LM-O
@@ -308,109 +307,6 @@ pub fn outline_counts(
         }
     }
     Some(counts)
-}
-
-/// Reusable buffers of [`silhouette_fraction_of_points`].
-#[derive(Clone, Debug, Default)]
-pub struct SplatBuffer {
-    /// Nearest splatted depth per pixel of the region, mm; 0 where nothing was splatted.
-    depth: Vec<f32>,
-}
-
-/// Like [`silhouette_fraction`], from the model's surface points instead of its mesh: every
-/// point (facing the camera or not: together they cover the object's whole projection) is
-/// splatted as a square of about `spacing_mm` into a depth mask around the object, and the
-/// mask's outline is compared with the scene's depth edges. Some 20–40 times cheaper than
-/// rendering a scanned mesh of tens of thousands of triangles; the outline comes out at most
-/// about half a spacing wider, which the edge map's dilation absorbs.
-pub fn silhouette_fraction_of_points(
-    buffer: &mut SplatBuffer,
-    surface: &OrientedPoints,
-    spacing_mm: f32,
-    pose: &Pose,
-    scene: &SceneImage,
-    edges: &EdgeMap,
-    occlusion_tolerance_mm: f32,
-) -> Option<f32> {
-    let k = &scene.intrinsics;
-    let (w, h) = (scene.width as i64, scene.height as i64);
-    // Project once to find the region.
-    let (mut u0, mut v0, mut u1, mut v1) = (i64::MAX, i64::MAX, i64::MIN, i64::MIN);
-    let mut any = false;
-    for p in &surface.positions {
-        let pc: Point3<f32> = pose * p;
-        if pc.z <= 1.0 {
-            continue;
-        }
-        let uv = k.project(&pc);
-        let r = (0.5 * spacing_mm * k.fx / pc.z).ceil() as i64;
-        let (u, v) = (uv.x.round() as i64, uv.y.round() as i64);
-        u0 = u0.min(u - r);
-        v0 = v0.min(v - r);
-        u1 = u1.max(u + r);
-        v1 = v1.max(v + r);
-        any = true;
-    }
-    if !any {
-        return None;
-    }
-    // One pixel of margin so that the outline test sees background around the mask.
-    let (u0, v0) = ((u0 - 1).max(0), (v0 - 1).max(0));
-    let (u1, v1) = ((u1 + 1).min(w - 1), (v1 + 1).min(h - 1));
-    if u0 > u1 || v0 > v1 {
-        return None;
-    }
-    let (rw, rh) = (u1 - u0 + 1, v1 - v0 + 1);
-    buffer.depth.clear();
-    buffer.depth.resize((rw * rh) as usize, 0.0);
-    for p in &surface.positions {
-        let pc: Point3<f32> = pose * p;
-        if pc.z <= 1.0 {
-            continue;
-        }
-        let uv = k.project(&pc);
-        let r = (0.5 * spacing_mm * k.fx / pc.z).ceil() as i64;
-        let (u, v) = (uv.x.round() as i64, uv.y.round() as i64);
-        for y in (v - r).max(v0)..=(v + r).min(v1) {
-            for x in (u - r).max(u0)..=(u + r).min(u1) {
-                let d = &mut buffer.depth[((y - v0) * rw + (x - u0)) as usize];
-                if *d == 0.0 || pc.z < *d {
-                    *d = pc.z;
-                }
-            }
-        }
-    }
-    let at = |x: i64, y: i64| -> f32 {
-        if x < 0 || y < 0 || x >= rw || y >= rh {
-            0.0
-        } else {
-            buffer.depth[(y * rw + x) as usize]
-        }
-    };
-    let (mut outline, mut matched) = (0u32, 0u32);
-    for y in 0..rh {
-        for x in 0..rw {
-            let z = at(x, y);
-            if z <= 0.0 {
-                continue;
-            }
-            if at(x + 1, y) > 0.0 && at(x - 1, y) > 0.0 && at(x, y + 1) > 0.0 && at(x, y - 1) > 0.0
-            {
-                continue;
-            }
-            let (u, v) = (x + u0, y + v0);
-            if let Some(zs) = scene.depth(u, v) {
-                if zs < z - occlusion_tolerance_mm {
-                    continue;
-                }
-            }
-            outline += 1;
-            if edges.near_edge[(v * edges.width as i64 + u) as usize] {
-                matched += 1;
-            }
-        }
-    }
-    (outline > 0).then(|| matched as f32 / outline as f32)
 }
 
 /// A coarser copy of `mesh` for silhouettes: vertices merged on a grid of `cell_mm` (each
