@@ -382,6 +382,18 @@ impl BopDataset {
             .ok_or_else(|| dataset_error(&path, format!("no image {im_id}")))
     }
 
+    /// Whether a scene has its `scene_gt_info.json` (BOP's `calc_gt_info` writes it; a
+    /// dataset of one's own may have `scene_gt.json` alone).
+    pub fn has_ground_truth_info(&self, scene_id: u32) -> bool {
+        self.scene(scene_id)
+            .is_ok_and(|s| s.dir.join("scene_gt_info.json").is_file())
+    }
+
+    /// Whether the dataset has a `models_info.json`.
+    pub fn has_models_info(&self) -> bool {
+        self.models_info_path.is_some()
+    }
+
     /// The visibility of one image's annotated instances, in the order of
     /// [`BopDataset::ground_truth`].
     pub fn ground_truth_info(&self, scene_id: u32, im_id: u32) -> Result<&[GtInfo]> {

@@ -30,6 +30,7 @@
 //! ```
 
 pub mod csv;
+pub mod gt_info;
 pub mod mspd;
 pub mod mssd;
 pub mod recall;

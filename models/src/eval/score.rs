@@ -8,6 +8,7 @@ use nalgebra::Isometry3;
 use rayon::prelude::*;
 
 use super::csv::EstimateRow;
+use super::gt_info::{image_gt_info, model_info_from_mesh, MeshCache};
 use super::mspd::mspd;
 use super::mssd::mssd;
 use super::recall::{bop19_fractions, bop19_mspd_thresholds_px, match_greedy, Tally};
@@ -204,6 +205,9 @@ pub struct ScoreReport {
     /// Of those, lines for no target (another image or object) or beyond a target's
     /// `inst_count`: not scored.
     pub estimates_ignored: usize,
+    /// What was computed because the dataset lacks it (visibility, model metadata), one line
+    /// each; empty for a complete BOP dataset.
+    pub notes: Vec<String>,
     /// Mean of the per-image times of the scored images that have one, seconds.
     pub mean_time_per_image_s: Option<f64>,
     /// Those images' total time divided by their number of targets, seconds.
@@ -246,6 +250,7 @@ where
     R: FnMut(&Mesh, &Pose, &Intrinsics, u32, u32) -> Result<Vec<f32>>,
 {
     let times = image_times(rows)?;
+    let meshes = MeshCache::default();
     let targets = match (&options.targets, dataset.test_targets()) {
         (Some(t), _) => t.clone(),
         (None, Some(t)) => t.to_vec(),
@@ -274,10 +279,14 @@ where
                 .eval_model_path(obj_id)
                 .or_else(|_| dataset.model_path(obj_id))?;
             let mesh = Mesh::from_ply_file(&path)?;
-            let info = dataset.model_info(obj_id)?;
+            let info = if dataset.has_models_info() {
+                dataset.model_info(obj_id)?.clone()
+            } else {
+                model_info_from_mesh(&mesh)
+            };
             Ok((
                 obj_id,
-                EvalObject::new(obj_id, mesh, info, options.max_sym_disc_step),
+                EvalObject::new(obj_id, mesh, &info, options.max_sym_disc_step),
             ))
         })
         .collect::<Result<BTreeMap<u32, EvalObject>>>()?;
@@ -296,7 +305,7 @@ where
         .map_init(
             &make_renderer,
             |render, (&(scene_id, im_id), image_targets)| {
-                let image = load_image(dataset, scene_id, im_id, image_targets)?;
+                let image = load_image(dataset, scene_id, im_id, image_targets, &meshes)?;
                 let estimates = rows_by_image
                     .get(&(scene_id, im_id))
                     .map(Vec::as_slice)
@@ -308,6 +317,26 @@ where
     let target_errors: Vec<TargetErrors> = per_image.into_iter().flatten().collect();
 
     let mut report = summarize(&target_errors, options);
+    let mut estimated_scenes: Vec<u32> = by_image
+        .keys()
+        .map(|&(scene_id, _)| scene_id)
+        .filter(|&scene_id| !dataset.has_ground_truth_info(scene_id))
+        .collect();
+    estimated_scenes.dedup();
+    if !estimated_scenes.is_empty() {
+        report.notes.push(format!(
+            "no scene_gt_info.json in scene(s) {estimated_scenes:?}: visibility computed as BOP's \
+             calc_gt_info does (δ {} mm)",
+            super::gt_info::VISIBILITY_TOLERANCE_MM
+        ));
+    }
+    if !dataset.has_models_info() {
+        report.notes.push(
+            "no models_info.json: diameters from the meshes, no symmetries (MSSD and MSPD count \
+             a pose turned by a symmetry as wrong)"
+                .into(),
+        );
+    }
     report.images = by_image.len();
     report.skipped_targets = skipped_targets;
     report.estimates_read = rows.len();
@@ -352,11 +381,13 @@ fn image_times(rows: &[EstimateRow]) -> Result<BTreeMap<(u32, u32), f64>> {
 }
 
 /// Targets as BOP derives them from the ground truth: in every image with depth, each object
-/// with instances at least `visib_gt_min` visible, as many as there are.
+/// with instances at least `visib_gt_min` visible, as many as there are (visibility from
+/// [`image_gt_info`]: estimated where a scene has no `scene_gt_info.json`).
 pub fn targets_from_ground_truth(
     dataset: &BopDataset,
     visib_gt_min: f32,
 ) -> Result<Vec<TestTarget>> {
+    let meshes = MeshCache::default();
     let mut targets = Vec::new();
     for scene_id in dataset.scene_ids() {
         for im_id in dataset.image_ids(scene_id)? {
@@ -364,7 +395,7 @@ pub fn targets_from_ground_truth(
                 continue;
             }
             let gt = dataset.ground_truth(scene_id, im_id)?;
-            let info = dataset.ground_truth_info(scene_id, im_id)?;
+            let info = image_gt_info(dataset, scene_id, im_id, &meshes)?;
             let mut counts: BTreeMap<u32, u32> = BTreeMap::new();
             for (g, i) in gt.iter().zip(info) {
                 if i.visib_fract >= visib_gt_min {
@@ -387,10 +418,11 @@ fn load_image(
     scene_id: u32,
     im_id: u32,
     targets: &[(u32, u32)],
+    meshes: &MeshCache,
 ) -> Result<EvalImage> {
     let frame = dataset.depth_frame(scene_id, im_id)?;
     let gt = dataset.ground_truth(scene_id, im_id)?.to_vec();
-    let info = dataset.ground_truth_info(scene_id, im_id)?;
+    let info = image_gt_info(dataset, scene_id, im_id, meshes)?;
     if info.len() != gt.len() {
         return Err(Error::Dataset {
             path: dataset.root().to_path_buf(),
@@ -752,6 +784,7 @@ pub fn summarize(targets: &[TargetErrors], options: &ScoreOptions) -> ScoreRepor
         bop18_thresholds: options.bop18_thresholds.clone(),
         images: 0,
         skipped_targets: 0,
+        notes: Vec::new(),
         estimates_read: 0,
         estimates_ignored: 0,
         mean_time_per_image_s: None,
@@ -1100,6 +1133,73 @@ mod lmo_tests {
         assert!(report.objects.iter().all(|o| o.ar == 1.0));
         assert_eq!(report.mean_time_per_image_s, Some(2.5));
         assert_eq!(report.mean_time_per_target_s, Some(2.5 / 8.0));
+    }
+
+    /// A capture of one's own: the LM-O frame with `scene_gt.json` but neither
+    /// `scene_gt_info.json` nor `models_info.json`. The ground truth still scores one, the
+    /// same eight targets are found from the computed visibility, and the report says what it
+    /// computed.
+    #[test]
+    fn a_dataset_without_visibility_or_model_info_is_scored_with_them_computed() {
+        let Some(shared) = crate::mesh::shared_test_data() else {
+            return;
+        };
+        let source = shared.join("lmo");
+        let root = std::env::temp_dir().join(format!("ppfd-score-bare-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let scene = root.join("test/000002");
+        std::fs::create_dir_all(scene.join("depth")).unwrap();
+        std::fs::create_dir_all(root.join("models")).unwrap();
+        let link = |from: std::path::PathBuf, to: std::path::PathBuf| {
+            std::os::unix::fs::symlink(from, to).unwrap()
+        };
+        for f in ["scene_camera.json", "scene_gt.json"] {
+            link(source.join("test/000002").join(f), scene.join(f));
+        }
+        link(
+            source.join("test/000002/depth/000003.png"),
+            scene.join("depth/000003.png"),
+        );
+        for entry in std::fs::read_dir(source.join("models")).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "ply") {
+                link(
+                    path.clone(),
+                    root.join("models").join(path.file_name().unwrap()),
+                );
+            }
+        }
+        let bare = BopDataset::open(&root).unwrap();
+        assert!(!bare.has_ground_truth_info(2) && !bare.has_models_info());
+
+        let targets = targets_from_ground_truth(&bare, 0.1).unwrap();
+        assert_eq!(
+            targets.len(),
+            8,
+            "all eight are at least 10 % visible: {targets:?}"
+        );
+        let rows = rows_from(bare.ground_truth(2, 3).unwrap(), |g| g.pose);
+        let report = score_results(&bare, &rows, &ScoreOptions::default()).unwrap();
+        let _ = std::fs::remove_dir_all(&root);
+        assert_eq!(report.overall.targets, 8);
+        assert_eq!(report.overall.recall_bop18, vec![1.0, 1.0]);
+        assert_eq!(report.overall.ar, 1.0);
+        assert_eq!(report.notes.len(), 2, "{:?}", report.notes);
+        assert!(
+            report.notes[0].contains("scene_gt_info.json"),
+            "{:?}",
+            report.notes
+        );
+        assert!(
+            report.notes[1].contains("models_info.json"),
+            "{:?}",
+            report.notes
+        );
+        // A complete dataset needs no note.
+        let data = lmo().unwrap();
+        let rows = rows_from(data.ground_truth(2, 3).unwrap(), |g| g.pose);
+        let report = score_results(&data, &rows, &ScoreOptions::default()).unwrap();
+        assert!(report.notes.is_empty(), "{:?}", report.notes);
     }
 
     #[test]

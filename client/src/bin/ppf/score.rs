@@ -121,6 +121,9 @@ pub fn format_report(
         time(report.mean_time_per_image_s),
         time(report.mean_time_per_target_s)
     );
+    for note in &report.notes {
+        let _ = writeln!(out, "note  {note}");
+    }
     out.push('\n');
     let [a, b] = [0, 1].map(|i| {
         report
