@@ -21,9 +21,16 @@ trait Value: Sized {
     const EXPECTED: &'static str;
     fn parse(text: &str) -> Option<Self>;
     fn show(&self) -> String;
+    /// The value as a number, for range checks; `None` for kinds that have no order.
+    fn number(&self) -> Option<f64> {
+        None
+    }
 }
 
 impl Value for f32 {
+    fn number(&self) -> Option<f64> {
+        Some(*self as f64)
+    }
     const EXPECTED: &'static str = "a finite number";
     fn parse(text: &str) -> Option<f32> {
         text.trim().parse().ok().filter(|v: &f32| v.is_finite())
@@ -34,6 +41,9 @@ impl Value for f32 {
 }
 
 impl Value for usize {
+    fn number(&self) -> Option<f64> {
+        Some(*self as f64)
+    }
     const EXPECTED: &'static str = "a count (0 or more)";
     fn parse(text: &str) -> Option<usize> {
         text.trim().parse().ok()
@@ -44,6 +54,9 @@ impl Value for usize {
 }
 
 impl Value for u32 {
+    fn number(&self) -> Option<f64> {
+        Some(*self as f64)
+    }
     const EXPECTED: &'static str = "a count (0 or more)";
     fn parse(text: &str) -> Option<u32> {
         text.trim().parse().ok()
@@ -86,22 +99,42 @@ impl Value for NormalEstimation {
 /// One named parameter: how to set it from text and show it as text.
 struct Setting {
     key: &'static str,
+    /// Smallest and largest value allowed, for numbers: beyond them a stage would do nothing
+    /// useful, or loop over windows of millions of pixels.
+    range: Option<(f64, f64)>,
     set: fn(&mut DetectParams, &str) -> Result<(), String>,
     get: fn(&DetectParams) -> String,
 }
 
-fn parsed<T: Value>(key: &str, text: &str) -> Result<T, String> {
-    T::parse(text).ok_or_else(|| format!("{key}: expected {}, got {text:?}", T::EXPECTED))
+fn parsed<T: Value>(key: &str, text: &str, range: Option<(f64, f64)>) -> Result<T, String> {
+    let value =
+        T::parse(text).ok_or_else(|| format!("{key}: expected {}, got {text:?}", T::EXPECTED))?;
+    if let (Some(x), Some((lo, hi))) = (value.number(), range) {
+        if !(lo..=hi).contains(&x) {
+            return Err(format!("{key}: {} is outside {lo}..={hi}", text.trim()));
+        }
+    }
+    Ok(value)
+}
+
+macro_rules! range {
+    () => {
+        None
+    };
+    ($lo:literal, $hi:literal) => {
+        Some(($lo as f64, $hi as f64))
+    };
 }
 
 macro_rules! settings {
-    ($($key:literal => $($field:ident).+;)*) => {
+    ($($key:literal => $($field:ident).+ $(in $lo:literal ..= $hi:literal)?;)*) => {
         /// Every parameter that has a name, in the order of [`DetectParams`]' stages.
         const SETTINGS: &[Setting] = &[$(
             Setting {
                 key: $key,
+                range: range!($($lo, $hi)?),
                 set: |p, text| {
-                    p.$($field).+ = parsed($key, text)?;
+                    p.$($field).+ = parsed($key, text, range!($($lo, $hi)?))?;
                     Ok(())
                 },
                 get: |p| Value::show(&p.$($field).+),
@@ -111,70 +144,70 @@ macro_rules! settings {
 }
 
 settings! {
-    "scene.normal_radius_mm" => scene.normal_radius_mm;
-    "scene.normal_radius_px" => scene.normal_radius_px;
-    "scene.max_slope_deg" => scene.max_slope_deg;
-    "scene.min_depth_jump_mm" => scene.min_depth_jump_mm;
-    "scene.smoothing_radius_px" => scene.smoothing_radius_px;
-    "scene.min_depth_mm" => scene.min_depth_mm;
-    "scene.max_depth_mm" => scene.max_depth_mm;
+    "scene.normal_radius_mm" => scene.normal_radius_mm in 0.5..=100.0;
+    "scene.normal_radius_px" => scene.normal_radius_px in 0..=16;
+    "scene.max_slope_deg" => scene.max_slope_deg in 0.0..=89.9;
+    "scene.min_depth_jump_mm" => scene.min_depth_jump_mm in 0.0..=1000.0;
+    "scene.smoothing_radius_px" => scene.smoothing_radius_px in 0..=16;
+    "scene.min_depth_mm" => scene.min_depth_mm in 0.0..=100000.0;
+    "scene.max_depth_mm" => scene.max_depth_mm in 0.0..=100000.0;
     "scene.normal_estimation" => scene.normal_estimation;
-    "scene.plane_residual_mm" => scene.plane_residual_mm;
-    "scene.plane_residual_fraction" => scene.plane_residual_fraction;
-    "scene.plane_samples_per_axis" => scene.plane_samples_per_axis;
-    "scene.side_window_ratio" => scene.side_window_ratio;
-    "scene.min_window_fill" => scene.min_window_fill;
+    "scene.plane_residual_mm" => scene.plane_residual_mm in 0.0..=1000.0;
+    "scene.plane_residual_fraction" => scene.plane_residual_fraction in 0.0..=1.0;
+    "scene.plane_samples_per_axis" => scene.plane_samples_per_axis in 3..=33;
+    "scene.side_window_ratio" => scene.side_window_ratio in 0.0..=1.0;
+    "scene.min_window_fill" => scene.min_window_fill in 0.0..=1.0;
     "plane.enabled" => plane.enabled;
-    "plane.tolerance_mm" => plane.tolerance_mm;
-    "plane.tolerance_fraction" => plane.tolerance_fraction;
-    "plane.max_normal_angle_deg" => plane.max_normal_angle_deg;
-    "plane.min_inlier_fraction" => plane.min_inlier_fraction;
-    "plane.min_secondary_fraction" => plane.min_secondary_fraction;
-    "plane.max_planes" => plane.max_planes;
-    "voting.reference_step" => voting.reference_step;
+    "plane.tolerance_mm" => plane.tolerance_mm in 0.0..=1000.0;
+    "plane.tolerance_fraction" => plane.tolerance_fraction in 0.0..=1.0;
+    "plane.max_normal_angle_deg" => plane.max_normal_angle_deg in 0.0..=90.0;
+    "plane.min_inlier_fraction" => plane.min_inlier_fraction in 0.0..=1.0;
+    "plane.min_secondary_fraction" => plane.min_secondary_fraction in 0.0..=1.0;
+    "plane.max_planes" => plane.max_planes in 0..=16;
+    "voting.reference_step" => voting.reference_step in 1..=1000;
     "voting.neighbour_keys" => voting.neighbour_keys;
     "voting.vote_once" => voting.vote_once;
-    "voting.peaks_per_reference" => voting.peaks_per_reference;
-    "voting.peak_ratio" => voting.peak_ratio;
-    "voting.min_distance_fraction" => voting.min_distance_fraction;
+    "voting.peaks_per_reference" => voting.peaks_per_reference in 1..=32;
+    "voting.peak_ratio" => voting.peak_ratio in 0.0..=1.0;
+    "voting.min_distance_fraction" => voting.min_distance_fraction in 0.0..=1.0;
     "voting.interpolate_alpha" => voting.interpolate_alpha;
     "voting.plane_partners" => voting.plane_partners;
-    "clustering.translation_fraction" => clustering.translation_fraction;
-    "clustering.rotation_deg" => clustering.rotation_deg;
-    "clustering.refine_rotation_deg" => clustering.refine_rotation_deg;
-    "clustering.refine_rotation_shrink" => clustering.refine_rotation_shrink;
-    "clustering.refine_translation_fraction" => clustering.refine_translation_fraction;
-    "clustering.refine_iterations" => clustering.refine_iterations;
+    "clustering.translation_fraction" => clustering.translation_fraction in 0.001..=10.0;
+    "clustering.rotation_deg" => clustering.rotation_deg in 0.0..=180.0;
+    "clustering.refine_rotation_deg" => clustering.refine_rotation_deg in 0.0..=180.0;
+    "clustering.refine_rotation_shrink" => clustering.refine_rotation_shrink in 0.0..=1.0;
+    "clustering.refine_translation_fraction" => clustering.refine_translation_fraction in 0.0..=10.0;
+    "clustering.refine_iterations" => clustering.refine_iterations in 0..=100;
     "clustering.refine_from_densest" => clustering.refine_from_densest;
-    "rescoring.top_clusters" => rescoring.top_clusters;
-    "rescoring.tolerance_fraction" => rescoring.tolerance_fraction;
-    "rescoring.refined_tolerance_fraction" => rescoring.refined_tolerance_fraction;
-    "rescoring.min_tolerance_mm" => rescoring.min_tolerance_mm;
-    "rescoring.max_normal_angle_deg" => rescoring.max_normal_angle_deg;
-    "rescoring.conflict_fraction" => rescoring.conflict_fraction;
-    "rescoring.min_conflict_mm" => rescoring.min_conflict_mm;
-    "rescoring.support_weight" => rescoring.support_weight;
-    "rescoring.silhouette_weight" => rescoring.silhouette_weight;
-    "rescoring.min_visible_outline" => rescoring.min_visible_outline;
-    "rescoring.silhouette_mesh_cell_fraction" => rescoring.silhouette_mesh_cell_fraction;
-    "icp.top_poses" => icp.top_poses;
-    "icp.iterations" => icp.iterations;
-    "icp.initial_distance_fraction" => icp.initial_distance_fraction;
-    "icp.final_distance_fraction" => icp.final_distance_fraction;
-    "icp.max_normal_angle_deg" => icp.max_normal_angle_deg;
-    "icp.coarse_iterations" => icp.coarse_iterations;
-    "icp.coarse_stride" => icp.coarse_stride;
-    "filters.max_see_through_fraction" => filters.max_see_through_fraction;
-    "filters.min_support_fraction" => filters.min_support_fraction;
-    "filters.edge_jump_mm" => filters.edge_jump_mm;
-    "filters.edge_jump_fraction" => filters.edge_jump_fraction;
-    "filters.edge_radius_px" => filters.edge_radius_px;
-    "filters.min_silhouette_fraction" => filters.min_silhouette_fraction;
-    "filters.contour_probe_px" => filters.contour_probe_px;
-    "filters.max_outline_px" => filters.max_outline_px;
-    "filters.max_candidates" => filters.max_candidates;
-    "nms_distance_fraction" => nms_distance_fraction;
-    "shared_cloud_diameter_ratio" => shared_cloud_diameter_ratio;
+    "rescoring.top_clusters" => rescoring.top_clusters in 1..=100000;
+    "rescoring.tolerance_fraction" => rescoring.tolerance_fraction in 0.0..=1.0;
+    "rescoring.refined_tolerance_fraction" => rescoring.refined_tolerance_fraction in 0.0..=1.0;
+    "rescoring.min_tolerance_mm" => rescoring.min_tolerance_mm in 0.0..=1000.0;
+    "rescoring.max_normal_angle_deg" => rescoring.max_normal_angle_deg in 0.0..=180.0;
+    "rescoring.conflict_fraction" => rescoring.conflict_fraction in 0.0..=1.0;
+    "rescoring.min_conflict_mm" => rescoring.min_conflict_mm in 0.0..=1000.0;
+    "rescoring.support_weight" => rescoring.support_weight in 0.0..=100.0;
+    "rescoring.silhouette_weight" => rescoring.silhouette_weight in 0.0..=100.0;
+    "rescoring.min_visible_outline" => rescoring.min_visible_outline in 0.0..=1.0;
+    "rescoring.silhouette_mesh_cell_fraction" => rescoring.silhouette_mesh_cell_fraction in 0.0..=1.0;
+    "icp.top_poses" => icp.top_poses in 0..=100000;
+    "icp.iterations" => icp.iterations in 0..=1000;
+    "icp.initial_distance_fraction" => icp.initial_distance_fraction in 0.0..=1.0;
+    "icp.final_distance_fraction" => icp.final_distance_fraction in 0.0..=1.0;
+    "icp.max_normal_angle_deg" => icp.max_normal_angle_deg in 0.0..=180.0;
+    "icp.coarse_iterations" => icp.coarse_iterations in 0..=1000;
+    "icp.coarse_stride" => icp.coarse_stride in 1..=1000;
+    "filters.max_see_through_fraction" => filters.max_see_through_fraction in 0.0..=1.0;
+    "filters.min_support_fraction" => filters.min_support_fraction in 0.0..=1.0;
+    "filters.edge_jump_mm" => filters.edge_jump_mm in 0.0..=1000.0;
+    "filters.edge_jump_fraction" => filters.edge_jump_fraction in 0.0..=1.0;
+    "filters.edge_radius_px" => filters.edge_radius_px in 0..=16;
+    "filters.min_silhouette_fraction" => filters.min_silhouette_fraction in 0.0..=1.0;
+    "filters.contour_probe_px" => filters.contour_probe_px in 0..=64;
+    "filters.max_outline_px" => filters.max_outline_px in 0..=100000;
+    "filters.max_candidates" => filters.max_candidates in 1..=100000;
+    "nms_distance_fraction" => nms_distance_fraction in 0.0..=10.0;
+    "shared_cloud_diameter_ratio" => shared_cloud_diameter_ratio in 1.0..=100.0;
 }
 
 /// The error for an unknown name: it lists the names of the same stage, or the stages.
@@ -230,6 +263,12 @@ impl DetectParams {
             .map(|s| (s.get)(self))
     }
 
+    /// The smallest and largest value [`DetectParams::set`] takes for the parameter named
+    /// `key`; `None` for a parameter that is no number (or an unknown name).
+    pub fn range(key: &str) -> Option<(f64, f64)> {
+        SETTINGS.iter().find(|s| s.key == key).and_then(|s| s.range)
+    }
+
     /// The names of all parameters [`DetectParams::set`] knows.
     pub fn keys() -> impl Iterator<Item = &'static str> {
         SETTINGS.iter().map(|s| s.key)
@@ -240,22 +279,42 @@ impl DetectParams {
 mod tests {
     use super::*;
 
+    /// Another value of the parameter's kind, within its range.
+    fn another_value(key: &str, shown: &str) -> String {
+        match shown {
+            "true" => return "false".into(),
+            "false" => return "true".into(),
+            "plane" => return "differences".into(),
+            "differences" | "best-window" => return "plane".into(),
+            _ => {}
+        }
+        let d: f64 = shown.parse().unwrap();
+        let (lo, hi) = DetectParams::range(key).unwrap_or_else(|| panic!("{key} has no range"));
+        assert!(
+            (lo..=hi).contains(&d),
+            "{key}: default {d} outside {lo}..={hi}"
+        );
+        let v = if d < hi {
+            (d + hi) / 2.0
+        } else {
+            (lo + d) / 2.0
+        };
+        let mut p = DetectParams::new();
+        if p.set(key, "0.5").is_err_and(|e| e.contains("a count")) {
+            // A count: a whole number between the default and a bound.
+            let v = if d < hi { v.ceil() } else { v.floor() };
+            return format!("{v}");
+        }
+        format!("{}", v as f32)
+    }
+
     #[test]
     fn every_key_reads_back_what_was_set_and_nothing_else_changes() {
         let default = DetectParams::new();
         for key in DetectParams::keys() {
             let shown = default.get(key).unwrap();
-            // Another value of the same kind.
-            let other = match shown.as_str() {
-                "true" => "false".to_string(),
-                "false" => "true".to_string(),
-                "plane" => "differences".to_string(),
-                "differences" | "best-window" => "plane".to_string(),
-                text => match text.parse::<u64>() {
-                    Ok(n) => (n + 3).to_string(),
-                    Err(_) => (text.parse::<f32>().unwrap() + 0.25).to_string(),
-                },
-            };
+            let other = another_value(key, &shown);
+            assert_ne!(other, shown, "{key}");
             let mut p = default.clone();
             p.set(key, &other).unwrap();
             assert_eq!(p.get(key).unwrap(), other, "{key}");
@@ -292,6 +351,10 @@ mod tests {
             ("filters.min_silhouette_fraction", "inf", "finite"),
             ("voting.vote_once", "yes", "true or false"),
             ("scene.normal_estimation", "pca", "plane, differences"),
+            ("scene.normal_radius_px", "1000000", "outside 0..=16"),
+            ("voting.reference_step", "0", "outside 1..=1000"),
+            ("filters.min_silhouette_fraction", "1.5", "outside 0..=1"),
+            ("clustering.rotation_deg", "-5", "outside"),
         ];
         for (key, value, said) in refused {
             let e = p.set(key, value).unwrap_err();
