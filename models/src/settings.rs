@@ -27,43 +27,28 @@ trait Value: Sized {
     }
 }
 
-impl Value for f32 {
-    fn number(&self) -> Option<f64> {
-        Some(*self as f64)
-    }
-    const EXPECTED: &'static str = "a finite number";
-    fn parse(text: &str) -> Option<f32> {
-        text.trim().parse().ok().filter(|v: &f32| v.is_finite())
-    }
-    fn show(&self) -> String {
-        self.to_string()
-    }
+/// Numbers: parsed with `FromStr` and accepted when `ok` holds.
+macro_rules! number_value {
+    ($($t:ty: $expected:literal, $ok:expr;)*) => {$(
+        impl Value for $t {
+            const EXPECTED: &'static str = $expected;
+            fn parse(text: &str) -> Option<$t> {
+                text.trim().parse().ok().filter($ok)
+            }
+            fn show(&self) -> String {
+                self.to_string()
+            }
+            fn number(&self) -> Option<f64> {
+                Some(*self as f64)
+            }
+        }
+    )*};
 }
 
-impl Value for usize {
-    fn number(&self) -> Option<f64> {
-        Some(*self as f64)
-    }
-    const EXPECTED: &'static str = "a count (0 or more)";
-    fn parse(text: &str) -> Option<usize> {
-        text.trim().parse().ok()
-    }
-    fn show(&self) -> String {
-        self.to_string()
-    }
-}
-
-impl Value for u32 {
-    fn number(&self) -> Option<f64> {
-        Some(*self as f64)
-    }
-    const EXPECTED: &'static str = "a count (0 or more)";
-    fn parse(text: &str) -> Option<u32> {
-        text.trim().parse().ok()
-    }
-    fn show(&self) -> String {
-        self.to_string()
-    }
+number_value! {
+    f32: "a finite number", |v: &f32| v.is_finite();
+    usize: "a count (0 or more)", |_: &usize| true;
+    u32: "a count (0 or more)", |_: &u32| true;
 }
 
 impl Value for bool {
@@ -96,17 +81,23 @@ impl Value for NormalEstimation {
     }
 }
 
+/// Smallest and largest value of a number, `None` for other kinds.
+type Range = Option<(f64, f64)>;
+
+/// Parses a value's text, checks it against the range and sets the field.
+type Setter = fn(&mut DetectParams, &str, Range) -> Result<(), String>;
+
 /// One named parameter: how to set it from text and show it as text.
 struct Setting {
     key: &'static str,
     /// Smallest and largest value allowed, for numbers: beyond them a stage would do nothing
     /// useful, or loop over windows of millions of pixels.
-    range: Option<(f64, f64)>,
-    set: fn(&mut DetectParams, &str) -> Result<(), String>,
+    range: Range,
+    set: Setter,
     get: fn(&DetectParams) -> String,
 }
 
-fn parsed<T: Value>(key: &str, text: &str, range: Option<(f64, f64)>) -> Result<T, String> {
+fn parsed<T: Value>(key: &str, text: &str, range: Range) -> Result<T, String> {
     let value =
         T::parse(text).ok_or_else(|| format!("{key}: expected {}, got {text:?}", T::EXPECTED))?;
     if let (Some(x), Some((lo, hi))) = (value.number(), range) {
@@ -133,8 +124,8 @@ macro_rules! settings {
             Setting {
                 key: $key,
                 range: range!($($lo, $hi)?),
-                set: |p, text| {
-                    p.$($field).+ = parsed($key, text, range!($($lo, $hi)?))?;
+                set: |p, text, range| {
+                    p.$($field).+ = parsed($key, text, range)?;
                     Ok(())
                 },
                 get: |p| Value::show(&p.$($field).+),
@@ -244,7 +235,7 @@ impl DetectParams {
         let Some(setting) = SETTINGS.iter().find(|s| s.key == key) else {
             return Err(unknown(key));
         };
-        (setting.set)(self, value)
+        (setting.set)(self, value, setting.range)
     }
 
     /// [`DetectParams::set`] from `stage.field=value`.

@@ -345,21 +345,26 @@ pub fn parts_scene(seed: u64, noisy: bool) -> SyntheticScene {
         .expect("the generated parts make a valid scene")
 }
 
-/// Builds the model of every generated part with the default parameters and saves it in `dir`
-/// as `<name>_<id>.ppfm`, the file the daemon maps; returns the models' diameters (mm) in
+/// The model of a generated part, built with the default parameters.
+pub fn part_model(part: Part) -> ObjectModel {
+    ObjectModel::build(
+        &part.mesh(),
+        part.object_id(),
+        part.name(),
+        &ModelParams::default(),
+    )
+    .unwrap()
+}
+
+/// Builds the model of every generated part ([`part_model`]) and saves it in `dir` as
+/// `<name>_<id>.ppfm`, the file the daemon maps; returns the models' diameters (mm) in
 /// [`Part::ALL`] order.
 pub fn write_part_models(dir: &Path) -> Vec<f32> {
     std::fs::create_dir_all(dir).unwrap();
     Part::ALL
         .iter()
-        .map(|part| {
-            let model = ObjectModel::build(
-                &part.mesh(),
-                part.object_id(),
-                part.name(),
-                &ModelParams::default(),
-            )
-            .unwrap();
+        .map(|&part| {
+            let model = part_model(part);
             let path = dir.join(format!("{}_{:06}.ppfm", part.name(), part.object_id()));
             ppfd_models::store::save(&model, &path).unwrap();
             model.diameter_mm()

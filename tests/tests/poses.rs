@@ -15,7 +15,9 @@ use std::time::Duration;
 use ppfd_models::bop::BopDataset;
 use ppfd_models::parts::Part;
 use ppfd_models::Pose;
-use ppfd_tests::{depth_checksum, parts_scene, write_part_models, Prefix, Proc, WorkDir};
+use ppfd_tests::{
+    depth_checksum, part_model, parts_scene, write_part_models, Prefix, Proc, WorkDir,
+};
 
 const DAEMON: &str = env!("CARGO_BIN_EXE_e2e-daemon");
 const CAMERA: &str = env!("CARGO_BIN_EXE_e2e-camera");
@@ -107,6 +109,44 @@ fn client_answers(c: &mut Proc, name: &'static str) -> Vec<Answer> {
     }
 }
 
+/// A camera process publishing the generated scene of `seed` (`ppf demo --seed`) as `parts`,
+/// with Kinect-like noise when `noisy`.
+fn parts_camera(prefix: &Prefix, seed: u64, noisy: bool) -> Proc {
+    let seed = seed.to_string();
+    let mut args = vec![
+        "--prefix",
+        &prefix.0,
+        "--camera",
+        "parts",
+        "--fps",
+        "5",
+        "--parts-seed",
+        &seed,
+    ];
+    if !noisy {
+        args.extend(["--noise", "none"]);
+    }
+    Proc::spawn(Path::new(CAMERA), &args, &[])
+}
+
+/// A client process asking camera `parts` for `objects` (`a,b`), with `extra` flags.
+fn parts_client(prefix: &Prefix, objects: &str, extra: &[&str]) -> Proc {
+    let mut args = vec![
+        "--prefix",
+        &prefix.0,
+        "--camera",
+        "parts",
+        "--objects",
+        objects,
+        "--wait-frame-ms",
+        "20000",
+        "--timeout-ms",
+        "600000",
+    ];
+    args.extend(extra);
+    Proc::spawn(Path::new(CLIENT), &args, &[])
+}
+
 /// The generated scene of `seed` through the whole path: client A asks for parts 1, 2, 3 and
 /// client B, at the same time, for parts 3 and 4; every best pose must be within the tolerances.
 fn generated_scene_through_the_whole_path(test: &str, seed: u64, noisy: bool) {
@@ -116,21 +156,7 @@ fn generated_scene_through_the_whole_path(test: &str, seed: u64, noisy: bool) {
     let diameters = write_part_models(&work.join("models"));
     let _daemon = start_daemon(&prefix, &work.join("models"), &work.join("cache"), &[]);
 
-    let seed_arg = seed.to_string();
-    let mut camera_args = vec![
-        "--prefix",
-        &prefix.0,
-        "--camera",
-        "parts",
-        "--fps",
-        "5",
-        "--parts-seed",
-        &seed_arg,
-    ];
-    if !noisy {
-        camera_args.extend(["--noise", "none"]);
-    }
-    let mut cam = Proc::spawn(Path::new(CAMERA), &camera_args, &[]);
+    let mut cam = parts_camera(&prefix, seed, noisy);
     let published = cam.wait_line("scene ", STARTUP);
     let expected = format!("scene {:016x}", depth_checksum(&scene.frame.depth));
     assert_eq!(
@@ -139,27 +165,7 @@ fn generated_scene_through_the_whole_path(test: &str, seed: u64, noisy: bool) {
     );
     cam.wait_line("camera ready", STARTUP);
 
-    let client = |objects: &str| {
-        Proc::spawn(
-            Path::new(CLIENT),
-            &[
-                "--prefix",
-                &prefix.0,
-                "--camera",
-                "parts",
-                "--objects",
-                objects,
-                "--hypotheses",
-                "1",
-                "--poses",
-                "--wait-frame-ms",
-                "20000",
-                "--timeout-ms",
-                "600000",
-            ],
-            &[],
-        )
-    };
+    let client = |objects: &str| parts_client(&prefix, objects, &["--hypotheses", "1", "--poses"]);
     let requests: [(&'static str, &[u32]); 2] = [("A", &[1, 2, 3]), ("B", &[3, 4])];
     let mut procs: Vec<Proc> = requests
         .iter()
@@ -368,17 +374,10 @@ fn lmo_object_built_from_its_mesh_by_the_daemon_is_found_through_the_whole_path(
 #[test]
 fn detector_parameters_given_to_the_daemon_are_the_ones_it_detects_with() {
     use ppfd_models::detector::{DetectOptions, DetectParams, Detector};
-    use ppfd_models::model::{ModelParams, ObjectModel};
     let test = "daemon_params";
     let scene = parts_scene(SEED, true);
     let part = Part::ALL[0];
-    let model = ObjectModel::build(
-        &part.mesh(),
-        part.object_id(),
-        part.name(),
-        &ModelParams::default(),
-    )
-    .unwrap();
+    let model = part_model(part);
     let reference_points = |step: &str| {
         let mut params = DetectParams::new();
         params.set("voting.reference_step", step).unwrap();
@@ -406,39 +405,9 @@ fn detector_parameters_given_to_the_daemon_are_the_ones_it_detects_with() {
             "voting.reference_step=4",
         ],
     );
-    let seed = SEED.to_string();
-    let mut cam = Proc::spawn(
-        Path::new(CAMERA),
-        &[
-            "--prefix",
-            &prefix.0,
-            "--camera",
-            "parts",
-            "--fps",
-            "5",
-            "--parts-seed",
-            &seed,
-        ],
-        &[],
-    );
+    let mut cam = parts_camera(&prefix, SEED, true);
     cam.wait_line("camera ready", STARTUP);
-    let id = part.object_id().to_string();
-    let mut client = Proc::spawn(
-        Path::new(CLIENT),
-        &[
-            "--prefix",
-            &prefix.0,
-            "--camera",
-            "parts",
-            "--objects",
-            &id,
-            "--wait-frame-ms",
-            "20000",
-            "--timeout-ms",
-            "600000",
-        ],
-        &[],
-    );
+    let mut client = parts_client(&prefix, &part.object_id().to_string(), &[]);
     client.wait_line("client ready", STARTUP);
     let ok = client.wait_line("", DETECTION);
     let fields: Vec<&str> = ok.split(' ').collect();
