@@ -274,12 +274,8 @@ impl Detector {
             let scene = &clouds[cloud_of[i]];
             let mut timings = StageTimings::default();
             let t = Instant::now();
-            let selection = Selection::new(
-                scene,
-                self.params.voting.reference_step,
-                &planes,
-                model.diameter_mm(),
-            );
+            let selection =
+                Selection::new(scene, &self.params.voting, &planes, model.diameter_mm());
             let (raw, counts) = vote_from(model, scene, &selection, &self.params.voting);
             timings.voting = t.elapsed();
             let t = Instant::now();

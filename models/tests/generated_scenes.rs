@@ -123,8 +123,12 @@ fn occluded_scene(mesh: &Mesh, object_id: u32, pose: Pose, seed: u64) -> Synthet
         .unwrap()
 }
 
+/// The detection issue's target: 85 % of the best clusters within 0.05 D and 5°. Measured: 35
+/// of 40 with reference points spread evenly (33 with every second point). Over seeds 12–15
+/// (160 runs) it is 134 (84 %; 130 with every second point): the rotation about a part's
+/// near-symmetry axis is the weak spot (most misses are the toothed disc, by 5–9°, about half
+/// its 15° tooth pitch).
 #[test]
-#[ignore = "target of the detection issue not reached: 33 of 40 (82 %) best clusters within 0.05 D and 5 deg (130 of 160 over seeds 12-15); the rotation about a part's near-symmetry axis is the weak spot (five of the misses are the toothed disc, four of them by 5.7-8.5 deg, about half its 15 deg tooth pitch)"]
 fn noisy_single_object_behind_two_occluders() {
     let runs = 40;
     let visible = std::cell::RefCell::new(Vec::new());
@@ -196,7 +200,7 @@ fn table_points_are_no_partners() {
     let planes = SupportingPlane::find_all(&points, &params.plane);
     assert!(!planes.is_empty(), "no table found");
     let cloud = PreparedScene::new(&points, &model.params().subsample_params(d)).unwrap();
-    let selection = Selection::new(&cloud, params.voting.reference_step, &planes, d);
+    let selection = Selection::new(&cloud, &params.voting, &planes, d);
     let on_table = selection.on_plane.iter().filter(|&&b| b).count();
     assert!(
         on_table > cloud.points.len() / 4,

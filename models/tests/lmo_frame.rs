@@ -136,12 +136,12 @@ fn detect_frame(dir: &PathBuf) -> Outcome {
     outcome
 }
 
-/// What the detector reaches on this frame today: five objects found by voting alone and five
+/// What the detector reaches on this frame today: five objects found by voting alone and six
 /// best poses after re-scoring, ICP and the filters. The ape (20 % visible) and the eggbox (half
-/// hidden) get no cluster near the truth. The glue is a toss-up: its refined true pose ranks
-/// second, a few per cent behind the glue model laid on the eggbox (0.131 against 0.137); which
-/// one wins has changed with the voxel grid's leaf and with each change to ICP. Before ICP turned
-/// poses about the model's centre (poses 15° off slid away from the truth) the glue won.
+/// hidden) get no cluster near the truth. The glue is a toss-up: its true pose ranks 95th by
+/// votes and wins after re-scoring and ICP, a few per cent ahead of the glue model laid on the
+/// eggbox; which one wins has changed with the voxel grid's leaf, with each change to ICP and
+/// with the choice of reference points (with every second scene point it came second).
 #[test]
 fn lmo_frame_objects_are_found() {
     let Some(dir) = dataset_dir() else { return };
@@ -152,14 +152,14 @@ fn lmo_frame_objects_are_found() {
         "{} of 8 in the best clusters",
         o.clusters_ok
     );
-    assert!(o.final_ok >= 5, "{} of 8 best poses correct", o.final_ok);
+    assert!(o.final_ok >= 6, "{} of 8 best poses correct", o.final_ok);
 }
 
 /// The detection issues' targets on this frame: a correct pose among the 10 best clusters for
 /// at least 6 of the 8 objects, and (as a proxy for the VSD criterion) the best pose correct for
 /// at least 7.
 #[test]
-#[ignore = "targets not reached: 5 of 8 among the 10 best clusters (the glue and the eggbox rank far below the 10th by votes), 5 of 8 best poses"]
+#[ignore = "targets not reached: 5 of 8 among the 10 best clusters (the glue and the eggbox rank far below the 10th by votes), 6 of 8 best poses"]
 fn lmo_frame_reaches_the_issue_targets() {
     let Some(dir) = dataset_dir() else { return };
     let o = detect_frame(&dir);

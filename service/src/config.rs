@@ -12,7 +12,7 @@
 //! housekeeping_ms = 1000            # period of camera discovery and dead-peer cleanup
 //!
 //! [detector]                        # detector parameters by name (`ppf detect --set` names)
-//! voting.reference_step = 4         # every 4th scene point votes: about half the voting time
+//! voting.reference_step = 2         # every 2nd evenly spread candidate votes: about half the voting time
 //! filters.min_silhouette_fraction = 0.5
 //! ```
 

@@ -368,9 +368,9 @@ fn lmo_object_built_from_its_mesh_by_the_daemon_is_found_through_the_whole_path(
 }
 
 /// Detector parameters given to the daemon (`--set`, or the configuration file's `[detector]`
-/// table) are the ones its engine detects with: with every fourth scene point a reference
-/// point, the daemon reports as many reference points as the detector run in this process with
-/// that setting, and fewer than with the default (every second).
+/// table) are the ones its engine detects with: with every fourth candidate a reference point,
+/// the daemon reports as many reference points as the detector run in this process with that
+/// setting, and fewer than with every second.
 #[test]
 fn detector_parameters_given_to_the_daemon_are_the_ones_it_detects_with() {
     use ppfd_models::detector::{DetectOptions, DetectParams, Detector};

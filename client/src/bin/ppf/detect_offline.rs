@@ -318,7 +318,7 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             )
         };
         let t = std::time::Instant::now();
-        let selection = Selection::new(&cloud, p.voting.reference_step, &planes, d);
+        let selection = Selection::new(&cloud, &p.voting, &planes, d);
         let (raw, _) = vote_from(model, &cloud, &selection, &p.voting);
         let clusters = cluster_poses(&raw, d, &p.clustering);
         let vote_ms = t.elapsed().as_secs_f64() * 1e3;
