@@ -22,8 +22,9 @@ use crate::Pose;
 pub struct VotingParams {
     /// Reference points are spread evenly over the scene: it is cut into cubes of this side, a
     /// fraction of the model diameter, and in each cube the first subsampled point off the
-    /// large planes (see [`Selection`]) is a candidate. The subsampled cloud lists the points
-    /// that stand for the most pixels first, so that is the cube's best-supported point. 0:
+    /// large planes (see [`Selection`]) is a candidate. After neighbour filtering (on for
+    /// every model by default) the subsampled cloud lists the points that stand for the most
+    /// pixels first, so that is the cube's best-supported point. 0:
     /// every point is a candidate. Taking every n-th point instead leaves gaps and clumps
     /// where the cloud's order puts them; an even spread covers a small or occluded object
     /// with fewer points. See [`VotingParams::reference_step`] for the measurements.
@@ -32,7 +33,10 @@ pub struct VotingParams {
     /// point. Drost et al. use every 5th subsampled point. Measured on generated views (best
     /// clusters of voting alone within 0.05 D and 5°; noise-free seed 11, 50 runs; noise and
     /// two occluders, seeds 12–15, 160 runs; noise-free seed 21, 200 runs), reference points
-    /// summed over them all:
+    /// summed over them all (the test
+    /// `evenly_spread_reference_points_find_more_best_clusters_than_every_second_point` in
+    /// `models/tests/generated_scenes.rs` prints the first and the fifth row; the others are
+    /// the same runs with the parameters changed):
     ///
     /// | selection | noise-free | noisy | noise-free (200) | reference points |
     /// |---|---:|---:|---:|---:|
