@@ -29,7 +29,6 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::sample::Sample;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
-use iceoryx2::waitset::WaitSetRunResult;
 
 use ppfd_protocol::clock::{instant_of, monotonic_now_ns};
 use ppfd_protocol::control::{ControlCommand, ControlRequest, ControlResponseHeader, ModelInfo};
@@ -46,6 +45,7 @@ use crate::housekeeper::Housekeeper;
 use crate::registry::Registry;
 use crate::responder::{self, ControlActive, DetectActive, Ipc, Outcome, Responder, Served};
 use crate::stats::Stats;
+use crate::termination::{block_termination_signals, TerminationSignals};
 use crate::wakeup::{Signaller, Wakeup};
 
 type DetectServer = Server<Ipc, [u16], DetectRequestHeader, [PoseHypothesis], DetectResponseHeader>;
@@ -71,19 +71,6 @@ pub fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::Config, 
             .map_err(|e| DaemonError(format!("iceoryx2 prefix {prefix:?}: {e:?}")))?;
     }
     Ok(config)
-}
-
-/// Blocks SIGINT/SIGTERM on the calling thread, so they reach the I/O thread, whose WaitSet
-/// turns them into a clean shutdown.
-fn block_termination_signals() {
-    // SAFETY: plain libc signal-mask calls on a zeroed sigset_t local to this function.
-    unsafe {
-        let mut set: libc::sigset_t = std::mem::zeroed();
-        libc::sigemptyset(&mut set);
-        libc::sigaddset(&mut set, libc::SIGINT);
-        libc::sigaddset(&mut set, libc::SIGTERM);
-        libc::pthread_sigmask(libc::SIG_BLOCK, &set, std::ptr::null_mut());
-    }
 }
 
 /// Depth values in shared memory that a worker reads. Valid while the sample (held by the I/O
@@ -197,11 +184,14 @@ pub fn run(
     on_ready: impl FnOnce(&ReadyInfo),
 ) -> Result<(), DaemonError> {
     config.validate().map_err(DaemonError)?;
+    // Before any thread starts: every thread the daemon starts inherits the blocked signals.
+    let termination =
+        TerminationSignals::new().map_err(fail("cannot open a signalfd for SIGINT and SIGTERM"))?;
     let iox = iceoryx_config(config.prefix.as_deref())?;
     let node = NodeBuilder::new()
         .name(&NodeName::new("ppfd").map_err(fail("node name"))?)
         .config(&iox)
-        .signal_handling_mode(SignalHandlingMode::HandleTerminationRequests)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Ipc>()
         .map_err(fail("cannot create the iceoryx2 node"))?;
     let cleaned = node.try_cleanup_dead_nodes();
@@ -224,7 +214,7 @@ pub fn run(
 
     let mut daemon = Daemon::new(config, engine, node, wakeup.signaller())?;
     let waitset = WaitSetBuilder::new()
-        .signal_handling_mode(SignalHandlingMode::HandleTerminationRequests)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Ipc>()
         .map_err(fail("cannot create the WaitSet"))?;
     let _wake_guard = waitset
@@ -232,6 +222,9 @@ pub fn run(
         .map_err(fail("WaitSet"))?;
     let _done_guard = waitset
         .attach_notification(&wakeup)
+        .map_err(fail("WaitSet"))?;
+    let _termination_guard = waitset
+        .attach_notification(&termination)
         .map_err(fail("WaitSet"))?;
     let _tick_guard = waitset
         .attach_interval(Duration::from_millis(daemon.config.housekeeping_ms))
@@ -250,16 +243,13 @@ pub fn run(
 
     loop {
         let outcome = waitset.wait_and_process_once(|_| CallbackProgression::Continue);
-        match outcome {
-            Ok(WaitSetRunResult::TerminationRequest) => break,
-            Ok(WaitSetRunResult::Interrupt) => {
-                // Any signal interrupts the wait; only SIGINT/SIGTERM stop the daemon.
-                if daemon.node.wait(Duration::ZERO).is_err() {
-                    break;
-                }
-            }
-            Ok(_) => {}
-            Err(e) => return Err(DaemonError(format!("WaitSet failed: {e:?}"))),
+        if let Err(e) = outcome {
+            return Err(DaemonError(format!("WaitSet failed: {e:?}")));
+        }
+        // Whatever woke the wait (another signal only interrupts it), SIGINT and SIGTERM wait
+        // in the signalfd until read here.
+        if termination.requested() {
+            break;
         }
         let mut events = Vec::new();
         if let Err(e) = wake_listener.try_wait(|a| events.push(a.id)) {
@@ -748,7 +738,15 @@ impl Daemon {
             let m = format!("unknown control command {}", request.command);
             return self.control_answer(active, Status::InvalidRequest, &m, &[]);
         };
-        tracing::info!(?command, object_id = request.object_id, path = %request.path(), "control request");
+        // Reads (listing, statistics) are polled by monitors: only changes go into the log.
+        if matches!(
+            command,
+            ControlCommand::LoadModel | ControlCommand::DropModel
+        ) {
+            tracing::info!(?command, object_id = request.object_id, path = %request.path(), "control request");
+        } else {
+            tracing::debug!(?command, "control request");
+        }
         match command {
             ControlCommand::ListModels => {
                 let infos = self.registry.infos();

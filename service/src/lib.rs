@@ -22,6 +22,7 @@ pub mod ppf_engine;
 pub mod registry;
 pub mod responder;
 pub mod stats;
+pub mod termination;
 pub mod wakeup;
 
 pub use config::DaemonConfig;

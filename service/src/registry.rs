@@ -33,9 +33,23 @@ impl Registry {
             .collect();
         files.sort();
         let mut failures = Vec::new();
+        let mut loaded_from: BTreeMap<u32, PathBuf> = BTreeMap::new();
         for path in engine.select(files) {
             match engine.load(&path, None, cache_dir) {
+                Ok(model) if loaded_from.contains_key(&model.info.object_id) => {
+                    let id = model.info.object_id;
+                    let e = EngineError::new(
+                        Status::ModelError,
+                        format!(
+                            "object id {id} is already loaded from {}: one model per id (the first file by name is kept)",
+                            loaded_from[&id].display()
+                        ),
+                    );
+                    tracing::error!(path = %path.display(), error = %e, "model not loaded");
+                    failures.push((path, e));
+                }
                 Ok(model) => {
+                    loaded_from.insert(model.info.object_id, path.clone());
                     tracing::info!(
                         object_id = model.info.object_id,
                         name = %model.info.name(),

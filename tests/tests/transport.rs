@@ -114,6 +114,23 @@ fn refusal(r: ppfd_client::Result<ppfd_client::Detections>) -> (ppfd_client::Sta
     }
 }
 
+/// Two files of one object id at start: the first by name is kept and the second is reported,
+/// rather than the later file silently replacing the earlier one.
+#[test]
+fn a_second_model_file_with_a_loaded_id_is_refused_at_start() {
+    let prefix = Prefix::new("dupid");
+    let models = fake_model_dir("dupid", &[1, 2]);
+    // `dup.fake` sorts before `obj_000001.fake`.
+    std::fs::write(models.join("dup.fake"), "1 dup\n").unwrap();
+    let _d = daemon(&prefix, &models, &[], "0");
+    let listed = connect(&prefix).models().expect("models listed");
+    let names: Vec<(u32, String)> = listed
+        .iter()
+        .map(|m| (m.object_id, m.name().to_string()))
+        .collect();
+    assert_eq!(names, [(1, "dup".to_string()), (2, "part2".to_string())]);
+}
+
 #[test]
 fn a_camera_that_stops_is_reported_stale_with_the_age_of_its_last_frame() {
     use ppfd_client::{DetectOptions, Status};

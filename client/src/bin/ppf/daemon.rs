@@ -23,11 +23,14 @@ pub struct ModelsArgs {
 pub fn models(args: ModelsArgs) -> Result<(), String> {
     let client = args.connect.client()?;
     if let Some(path) = &args.load {
+        let before = client.models().map_err(|e| e.to_string())?;
         let m = client
             .load_model(path, args.id)
             .map_err(|e| e.to_string())?;
+        let replaced = before.iter().any(|b| b.object_id == m.object_id);
         println!(
-            "loaded object {} ({}): {} points, {} bytes",
+            "{} object {} ({}): {} points, {} bytes",
+            if replaced { "replaced" } else { "loaded" },
             m.object_id,
             m.name(),
             m.point_count,
