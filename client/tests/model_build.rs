@@ -69,3 +69,39 @@ fn each_mesh_reports_its_model_or_why_it_failed_without_a_terminal() {
     assert!(stderr.contains("1 of 2 meshes failed"));
     assert!(!out.join("obj_000004.ppfm").exists());
 }
+
+/// Output into a pipe whose reader has gone (`ppf model info … | head -1`): the command ends
+/// quietly, as other command-line tools do, instead of panicking on the next print.
+#[test]
+fn a_closed_output_pipe_ends_the_command_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    let scratch = Scratch::new("closed-pipe");
+    let mesh = scratch.0.join("obj_000003.ply");
+    std::fs::write(&mesh, Part::ALL[0].mesh().to_ply_ascii()).unwrap();
+    let built = Command::new(env!("CARGO_BIN_EXE_ppf"))
+        .args(["model", "build"])
+        .arg(&mesh)
+        .arg("--out")
+        .arg(&scratch.0)
+        .output()
+        .unwrap();
+    assert!(built.status.success(), "{built:?}");
+
+    // The reader is closed before the command starts: its first print meets a broken pipe.
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let run = Command::new(env!("CARGO_BIN_EXE_ppf"))
+        .args(["model", "info"])
+        .arg(scratch.0.join("obj_000003.ppfm"))
+        .stdout(writer)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(
+        run.status.signal(),
+        Some(13),
+        "ended by SIGPIPE: {:?}",
+        run.status
+    );
+}

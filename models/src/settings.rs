@@ -261,6 +261,18 @@ impl DetectParams {
         SETTINGS.iter().find(|s| s.key == key).and_then(|s| s.range)
     }
 
+    /// Refuses parameters that are each within range but cannot work together, naming them.
+    pub fn check(&self) -> Result<(), String> {
+        let scene = &self.scene;
+        if scene.min_depth_mm >= scene.max_depth_mm {
+            return Err(format!(
+                "scene.min_depth_mm ({}) must be below scene.max_depth_mm ({}): no depth would be kept",
+                scene.min_depth_mm, scene.max_depth_mm
+            ));
+        }
+        Ok(())
+    }
+
     /// The names of all parameters [`DetectParams::set`] knows.
     pub fn keys() -> impl Iterator<Item = &'static str> {
         SETTINGS.iter().map(|s| s.key)
@@ -270,6 +282,20 @@ impl DetectParams {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_depth_range_that_keeps_nothing_is_refused() {
+        let mut p = DetectParams::new();
+        assert!(p.check().is_ok());
+        p.set("scene.min_depth_mm", "6000").unwrap();
+        let e = p.check().unwrap_err();
+        assert!(
+            e.contains("scene.min_depth_mm") && e.contains("scene.max_depth_mm"),
+            "{e}"
+        );
+        p.set("scene.max_depth_mm", "7000").unwrap();
+        assert!(p.check().is_ok());
+    }
 
     /// Another value of the parameter's kind, within its range.
     fn another_value(key: &str, shown: &str) -> String {

@@ -20,6 +20,10 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+/// The most worker threads, and detections at once, a configuration may ask for; far more than
+/// cores any one machine has.
+pub const MAX_THREADS: usize = 256;
+
 /// The daemon's settings.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -131,6 +135,7 @@ impl DaemonConfig {
         for (key, value) in &self.detector {
             p.set(key, value)?;
         }
+        p.check()?;
         Ok(p)
     }
 
@@ -139,6 +144,12 @@ impl DaemonConfig {
         self.detect_params()?;
         if self.parallel_detections == 0 {
             return Err("parallel_detections must be at least 1".into());
+        }
+        if self.workers > MAX_THREADS || self.parallel_detections > MAX_THREADS {
+            return Err(format!(
+                "workers ({}) and parallel_detections ({}) may be at most {MAX_THREADS}: each is a thread or a detection's scratch memory",
+                self.workers, self.parallel_detections
+            ));
         }
         if self.queue_capacity == 0 {
             return Err("queue_capacity must be at least 1".into());
@@ -248,6 +259,19 @@ mod tests {
             ..Default::default()
         };
         assert!(c.validate().is_err());
+        for (workers, parallel_detections) in [(100_000, 1), (0, 1_000_000)] {
+            let c = DaemonConfig {
+                workers,
+                parallel_detections,
+                ..Default::default()
+            };
+            assert!(c.validate().unwrap_err().contains("at most 256"));
+        }
+        let c = DaemonConfig {
+            detector: vec![("scene.min_depth_mm".into(), "6000".into())],
+            ..Default::default()
+        };
+        assert!(c.validate().unwrap_err().contains("scene.max_depth_mm"));
         assert!(DaemonConfig::default().validate().is_ok());
     }
 }

@@ -182,7 +182,7 @@ struct Daemon(Child);
 impl Drop for Daemon {
     fn drop(&mut self) {
         // SAFETY: signals our own child.
-        unsafe { libc_kill(self.0.id() as i32, 15) };
+        unsafe { libc::kill(self.0.id() as i32, libc::SIGTERM) };
         let end = Instant::now() + Duration::from_secs(5);
         while Instant::now() < end {
             if let Ok(Some(_)) = self.0.try_wait() {
@@ -193,11 +193,6 @@ impl Drop for Daemon {
         let _ = self.0.kill();
         let _ = self.0.wait();
     }
-}
-
-extern "C" {
-    #[link_name = "kill"]
-    fn libc_kill(pid: i32, sig: i32) -> i32;
 }
 
 fn start_daemon(

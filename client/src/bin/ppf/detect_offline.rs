@@ -116,6 +116,7 @@ impl DatasetDetectArgs {
         for kv in &self.set {
             p.set_from(kv)?;
         }
+        p.check()?;
         Ok(p)
     }
 }

@@ -44,6 +44,8 @@ pub struct EvalArgs {
 
 pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
     let dataset = BopDataset::open(&args.dataset)?;
+    // Refuse an unwritable results file now rather than after the detections.
+    std::fs::File::create(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
     let mut images = Vec::new();
     for scene in dataset.scene_ids() {
         if args.scene.is_some_and(|s| s != scene) {
@@ -72,6 +74,7 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
     for kv in &args.set {
         params.set_from(kv)?;
     }
+    params.check()?;
     let detector = Detector::new(params);
     let opts = DetectOptions {
         hypotheses_per_object: args.hypotheses.max(1),
@@ -103,10 +106,31 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
             bar.inc(1);
             continue;
         }
-        let frame = dataset.depth_frame(scene, im)?;
-        let t = Instant::now();
-        let det = detector.detect(&frame.view(), &refs, &opts)?;
-        let time_s = t.elapsed().as_secs_f32();
+        // The time is the detection's alone, without reading the image.
+        let mut time_s = 0.0;
+        let detected = dataset
+            .depth_frame(scene, im)
+            .map_err(|e| e.to_string())
+            .and_then(|frame| {
+                let t = Instant::now();
+                let det = detector.detect(&frame.view(), &refs, &opts);
+                time_s = t.elapsed().as_secs_f32();
+                det.map_err(|e| e.to_string())
+            });
+        let det = match detected {
+            Ok(det) => det,
+            Err(e) => {
+                // Keep what the images before it gave.
+                bar.finish_and_clear();
+                write_results_file(&args.out, &rows)?;
+                return Err(format!(
+                    "scene {scene} image {im}: {e} (the {} estimates of the images before it are in {})",
+                    rows.len(),
+                    args.out.display()
+                )
+                .into());
+            }
+        };
         for o in &det.objects {
             for h in &o.hypotheses {
                 rows.push(EstimateRow {

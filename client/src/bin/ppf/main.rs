@@ -71,6 +71,11 @@ fn main() {
             _ => 1,
         });
     }
+    // Like other command-line tools, end quietly when the reader of the output goes away
+    // (`ppf model info … | head -1`) instead of failing on the next print. Not for `serve`
+    // above: a daemon outlives whoever read its first line.
+    // SAFETY: sets the default disposition of one signal before any thread is started.
+    unsafe { libc::signal(libc::SIGPIPE, libc::SIG_DFL) };
     let result = match cli.command {
         Command::Model(cmd) => model::run(cmd),
         Command::Profile(args) => profile::run(args),

@@ -59,6 +59,7 @@ pub fn run(args: ProfileArgs) -> Result<(), Box<dyn std::error::Error>> {
     for kv in &args.set {
         params.set_from(kv)?;
     }
+    params.check()?;
     let detector = Detector::new(params);
     let opts = DetectOptions {
         hypotheses_per_object: 1,
