@@ -10,9 +10,10 @@ pub struct ModelsArgs {
     /// Load a model file (`.ppfm`) or build one from a PLY mesh, as the daemon sees the path.
     #[arg(long)]
     pub load: Option<String>,
-    /// Object id for `--load` (default: from the file).
-    #[arg(long, default_value_t = 0)]
-    pub id: u32,
+    /// Object id for `--load`; without it, the id the file gives (a `.ppfm` file's own, or the
+    /// digits ending a PLY file's name).
+    #[arg(long, requires = "load", value_parser = clap::value_parser!(u32).range(1..))]
+    pub id: Option<u32>,
     /// Drop the model with this object id.
     #[arg(long)]
     pub drop: Option<u32>,
@@ -25,7 +26,7 @@ pub fn models(args: ModelsArgs) -> Result<(), String> {
     if let Some(path) = &args.load {
         let before = client.models().map_err(|e| e.to_string())?;
         let m = client
-            .load_model(path, args.id)
+            .load_model(path, args.id.unwrap_or(0))
             .map_err(|e| e.to_string())?;
         let replaced = before.iter().any(|b| b.object_id == m.object_id);
         println!(

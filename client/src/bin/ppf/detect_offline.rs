@@ -27,28 +27,32 @@ pub struct DetectCommand {
     /// Object ids, comma separated (with --dataset: default those in the image's ground truth).
     #[arg(long, value_delimiter = ',')]
     pub objects: Vec<u32>,
-    /// Hypotheses per object.
-    #[arg(long, default_value_t = 1)]
+    /// Hypotheses per object, 1 to 16.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=16))]
     pub hypotheses: u32,
     /// Give up after this long, milliseconds (with --camera; a cluttered VGA frame takes
     /// seconds per object on a 2-core machine).
-    #[arg(long, default_value_t = 30_000)]
+    #[arg(long, default_value_t = 30_000, conflicts_with = "dataset",
+          value_parser = clap::value_parser!(u64).range(1..))]
     pub timeout_ms: u64,
     /// Print the answer as JSON (with --camera).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "dataset")]
     pub json: bool,
     /// With --dataset: instead of detecting, print the rank of the first correct pose after
     /// each stage.
     #[arg(long)]
     pub diagnose: bool,
-    /// With --dataset, override: every n-th subsampled scene point is a reference point.
+    /// With --dataset, override: every n-th evenly spread candidate is a reference point
+    /// (`--set voting.reference_step=N`).
     #[arg(long)]
     pub reference_step: Option<usize>,
-    /// With --dataset, override: accumulator peaks per reference point.
+    /// With --dataset, override: accumulator peaks per reference point
+    /// (`--set voting.peaks_per_reference=K`).
     #[arg(long)]
     pub peaks: Option<usize>,
     /// With --dataset: override any detector parameter, e.g. `--set scene.normal_radius_mm=8`
-    /// (repeatable; see `set_param` for the names).
+    /// (repeatable; an unknown name is answered with the names of its stage). The daemon's
+    /// parameters are set when it starts (`ppfd --set`).
     #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
     pub set: Vec<String>,
     #[command(flatten)]
@@ -71,9 +75,28 @@ impl DetectCommand {
                 diagnose: self.diagnose,
                 reference_step: self.reference_step,
                 peaks: self.peaks,
-                top: self.hypotheses.max(1) as usize,
+                top: self.hypotheses as usize,
                 set: self.set,
             }));
+        }
+        let offline_only = [
+            ("--scene", self.scene.is_some()),
+            ("--image", self.image.is_some()),
+            ("--diagnose", self.diagnose),
+            ("--reference-step", self.reference_step.is_some()),
+            ("--peaks", self.peaks.is_some()),
+            ("--set", !self.set.is_empty()),
+        ];
+        let given: Vec<&str> = offline_only
+            .iter()
+            .filter(|(_, on)| *on)
+            .map(|(flag, _)| *flag)
+            .collect();
+        if !given.is_empty() {
+            return Err(format!(
+                "{} work with --dataset only; through the daemon (--camera) the detector's parameters are the daemon's, set when it starts (`ppfd --set`)",
+                given.join(", ")
+            ));
         }
         if self.objects.is_empty() {
             return Err("--camera needs --objects".into());

@@ -134,4 +134,74 @@ mod tests {
             Cli::try_parse_from(&args).unwrap_or_else(|e| panic!("{args:?}: {e}"));
         }
     }
+
+    /// A flag of the other mode is refused with its name, not dropped.
+    #[test]
+    fn detect_refuses_the_flags_of_the_other_mode() {
+        let target = |args: &[&str]| {
+            let cli = Cli::try_parse_from(args).map_err(|e| e.to_string())?;
+            match cli.command {
+                Command::Detect(a) => a.into_target().map(|_| ()),
+                other => panic!("{other:?}"),
+            }
+        };
+        let camera = ["ppf", "detect", "--camera", "k", "--objects", "8"];
+        assert!(target(&camera).is_ok());
+        for extra in [
+            &["--set", "voting.reference_step=2"][..],
+            &["--diagnose"],
+            &["--peaks", "3"],
+            &["--reference-step", "4"],
+            &["--scene", "2"],
+        ] {
+            let args: Vec<&str> = camera.iter().chain(extra).copied().collect();
+            let e = target(&args).unwrap_err();
+            assert!(e.contains(extra[0]) && e.contains("--dataset only"), "{e}");
+        }
+        let dataset = [
+            "ppf",
+            "detect",
+            "--dataset",
+            "/d",
+            "--scene",
+            "2",
+            "--image",
+            "3",
+        ];
+        assert!(target(&dataset).is_ok());
+        for extra in [&["--json"][..], &["--timeout-ms", "100"]] {
+            let args: Vec<&str> = dataset.iter().chain(extra).copied().collect();
+            let e = target(&args).unwrap_err();
+            assert!(e.contains("cannot be used with"), "{e}");
+        }
+        // The daemon's limit holds offline too.
+        for n in ["0", "17"] {
+            let args: Vec<&str> = dataset.iter().copied().chain(["--hypotheses", n]).collect();
+            assert!(target(&args).unwrap_err().contains("1..=16"));
+        }
+    }
+
+    #[test]
+    fn rates_and_counts_that_cannot_work_are_refused() {
+        for args in [
+            &["ppf", "replay", "/d", "--camera", "k", "--fps", "0"][..],
+            &["ppf", "replay", "/d", "--camera", "k", "--fps", "NaN"],
+            &[
+                "ppf",
+                "profile",
+                "--dataset",
+                "/d",
+                "--scene",
+                "1",
+                "--image",
+                "1",
+                "--repeat",
+                "0",
+            ],
+        ] {
+            assert!(Cli::try_parse_from(args).is_err(), "{args:?}");
+        }
+        let ok = ["ppf", "replay", "/d", "--camera", "k", "--fps", "0.5"];
+        Cli::try_parse_from(ok).unwrap();
+    }
 }

@@ -15,16 +15,18 @@ pub struct ProfileArgs {
     /// A BOP dataset directory.
     #[arg(long)]
     pub dataset: PathBuf,
+    /// Scene id in the dataset.
     #[arg(long)]
     pub scene: u32,
+    /// Image id in the scene.
     #[arg(long)]
     pub image: u32,
     /// Object ids (comma separated); default: the image's ground truth.
     #[arg(long, value_delimiter = ',')]
     pub objects: Vec<u32>,
-    /// Runs; the table shows medians.
-    #[arg(long, default_value_t = 5)]
-    pub repeat: usize,
+    /// Runs (at least 1); the table shows medians.
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..))]
+    pub repeat: u32,
     /// Override a detector parameter, `stage.field=value` (as `ppf detect --set`); repeatable.
     #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
     pub set: Vec<String>,
@@ -65,7 +67,7 @@ pub fn run(args: ProfileArgs) -> Result<(), Box<dyn std::error::Error>> {
         hypotheses_per_object: 1,
         deadline: None,
     };
-    let repeat = args.repeat.max(1);
+    let repeat = args.repeat;
     let mut per_object: Vec<Vec<StageTimings>> = vec![Vec::new(); refs.len()];
     let mut frame_runs = Vec::new();
     for _ in 0..repeat {

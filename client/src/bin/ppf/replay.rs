@@ -20,8 +20,8 @@ pub struct ReplayArgs {
     /// Camera name to publish as.
     #[arg(long)]
     pub camera: String,
-    /// Frames per second.
-    #[arg(long, default_value_t = 10.0)]
+    /// Frames per second, 0.01 to 1000.
+    #[arg(long, default_value_t = 10.0, value_parser = parse_fps)]
     pub fps: f64,
     /// Start again after the last frame, until interrupted.
     #[arg(long = "loop")]
@@ -91,7 +91,7 @@ pub fn run(args: ReplayArgs) -> Result<(), String> {
         args.fps,
         if args.repeat { ", looping" } else { "" }
     );
-    let period = Duration::from_secs_f64(1.0 / args.fps.max(0.01));
+    let period = Duration::from_secs_f64(1.0 / args.fps);
     // When looping, frames are decoded once and kept (up to a memory budget): a camera driver
     // only copies a frame into shared memory, so the replayed camera should not spend ~1.5 ms
     // of CPU decoding a PNG per frame beside the daemon it feeds.
@@ -146,5 +146,15 @@ pub fn run(args: ReplayArgs) -> Result<(), String> {
         if !args.repeat {
             return Ok(());
         }
+    }
+}
+
+/// A frame rate from 0.01 to 1000 frames per second (NaN and infinity refused).
+fn parse_fps(text: &str) -> Result<f64, String> {
+    let fps: f64 = text.parse().map_err(|e| format!("{text:?}: {e}"))?;
+    if (0.01..=1000.0).contains(&fps) {
+        Ok(fps)
+    } else {
+        Err(format!("{fps} fps: give 0.01 to 1000"))
     }
 }
