@@ -75,14 +75,30 @@ pub fn print_hypotheses(d: &Detections) {
         println!(
             "{:>6} {:>4} {:>7.3} {:>6} {:>6}  {:<28} [{:.3} {:.3} {:.3}; {:.3} {:.3} {:.3}; {:.3} {:.3} {:.3}]",
             h.object_id,
-            h.instance_rank,
+            h.instance_rank + 1,
             h.score,
             h.votes,
-            format!("{:04b}", h.checks),
+            checks_letters(h.checks),
             format!("{:.1} {:.1} {:.1}", t[0], t[1], t[2]),
             r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8]
         );
     }
+}
+
+/// The checks a hypothesis passed as `ppf detect --dataset` shows them: R re-scored, I refined
+/// by ICP, C consistent, S silhouette on the scene's edges.
+pub fn checks_letters(bits: u32) -> String {
+    use ppfd_client::protocol::detect::checks;
+    [
+        (checks::RESCORED, 'R'),
+        (checks::REFINED, 'I'),
+        (checks::CONSISTENT, 'C'),
+        (checks::SILHOUETTE, 'S'),
+    ]
+    .iter()
+    .filter(|(bit, _)| bits & bit != 0)
+    .map(|(_, letter)| *letter)
+    .collect()
 }
 
 pub fn millis(ms: u64) -> Duration {

@@ -345,7 +345,7 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
                     h.score,
                     dt,
                     dr,
-                    format!("{:04b}", h.checks)
+                    crate::common::checks_letters(h.checks)
                 );
             }
             None => println!("{id:>6}      - (no hypothesis)"),

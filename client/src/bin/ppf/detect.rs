@@ -38,7 +38,7 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
             .iter()
             .map(|h| {
                 serde_json::json!({
-                    "object_id": h.object_id, "rank": h.instance_rank, "score": h.score, "votes": h.votes,
+                    "object_id": h.object_id, "rank": h.instance_rank + 1, "score": h.score, "votes": h.votes,
                     "checks": h.checks, "rotation": h.rotation, "translation_mm": h.translation_mm,
                 })
             })
@@ -46,7 +46,10 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
         let l = &found.latency;
         let latency: serde_json::Map<String, serde_json::Value> = crate::common::stages(&l.daemon)
             .iter()
-            .map(|(n, v)| (format!("{}_ns", n.replace([' ', '-'], "_")), (*v).into()))
+            .map(|(n, v)| {
+                let key = n.to_lowercase().replace([' ', '-'], "_");
+                (format!("{key}_ns"), (*v).into())
+            })
             .chain([
                 ("detection_ns".to_owned(), l.daemon.detection_ns.into()),
                 (

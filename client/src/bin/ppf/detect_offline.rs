@@ -35,7 +35,8 @@ pub struct DetectCommand {
     #[arg(long, default_value_t = 30_000, conflicts_with = "dataset",
           value_parser = clap::value_parser!(u64).range(1..))]
     pub timeout_ms: u64,
-    /// Print the answer as JSON (with --camera).
+    /// Print the answer as JSON (with --camera): ranks from 1 like the table, `checks` as the
+    /// protocol's bits (1 re-scored, 2 refined, 4 consistent, 8 silhouette), times in ns.
     #[arg(long, conflicts_with = "dataset")]
     pub json: bool,
     /// With --dataset: instead of detecting, print the rank of the first correct pose after

@@ -204,4 +204,20 @@ mod tests {
         let ok = ["ppf", "replay", "/d", "--camera", "k", "--fps", "0.5"];
         Cli::try_parse_from(ok).unwrap();
     }
+
+    #[test]
+    fn camera_answers_show_checks_as_the_dataset_table_does() {
+        use ppfd_client::protocol::detect::checks;
+        assert_eq!(common::checks_letters(0), "");
+        assert_eq!(
+            common::checks_letters(
+                checks::RESCORED | checks::REFINED | checks::CONSISTENT | checks::SILHOUETTE
+            ),
+            "RICS"
+        );
+        assert_eq!(
+            common::checks_letters(checks::RESCORED | checks::SILHOUETTE),
+            "RS"
+        );
+    }
 }
