@@ -28,19 +28,19 @@ pub struct Args {
     /// see each other.
     #[arg(long)]
     pub prefix: Option<String>,
-    /// Detection worker threads (0: one per core).
+    /// Detection worker threads, 0 to 256 (0: one per core) [default: 0].
     #[arg(long)]
     pub workers: Option<usize>,
-    /// Detections running at once.
+    /// Detections running at once, 1 to 256 [default: 1].
     #[arg(long)]
     pub parallel_detections: Option<usize>,
-    /// Waiting requests beyond which new ones are refused "busy".
+    /// Waiting requests beyond which new ones are refused "busy" [default: 64].
     #[arg(long)]
     pub queue_capacity: Option<usize>,
-    /// Camera frames older than this are refused "camera stale", milliseconds.
+    /// Camera frames older than this are refused "camera stale", milliseconds [default: 1000].
     #[arg(long)]
     pub max_frame_age_ms: Option<u64>,
-    /// Period of camera discovery and dead-process cleanup, milliseconds.
+    /// Period of camera discovery and dead-process cleanup, milliseconds [default: 1000].
     #[arg(long)]
     pub housekeeping_ms: Option<u64>,
     /// Set a detector parameter, `stage.field=value` (as `ppf detect --set`, e.g.
@@ -149,6 +149,33 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The defaults the help names are the configuration's.
+    #[test]
+    fn help_names_the_defaults() {
+        use clap::CommandFactory;
+        let d = DaemonConfig::default();
+        let mut command = Args::command();
+        let help = command.render_help().to_string();
+        for (flag, value) in [
+            ("--workers", d.workers as u64),
+            ("--parallel-detections", d.parallel_detections as u64),
+            ("--queue-capacity", d.queue_capacity as u64),
+            ("--max-frame-age-ms", d.max_frame_age_ms),
+            ("--housekeeping-ms", d.housekeeping_ms),
+        ] {
+            let at = help
+                .find(flag)
+                .unwrap_or_else(|| panic!("{flag} in {help}"));
+            let rest = &help[at..];
+            let next = rest[2..].find("--").map_or(rest.len(), |i| i + 2);
+            assert!(
+                rest[..next].contains(&format!("[default: {value}]")),
+                "{flag}: {}",
+                &rest[..next]
+            );
+        }
+    }
 
     #[test]
     fn flags_override_the_file() {

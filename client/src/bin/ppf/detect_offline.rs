@@ -67,6 +67,13 @@ pub enum DetectTarget {
 
 impl DetectCommand {
     pub fn into_target(self) -> Result<DetectTarget, String> {
+        if let Some(id) = (1..self.objects.len()).find_map(|i| {
+            self.objects[..i]
+                .contains(&self.objects[i])
+                .then_some(self.objects[i])
+        }) {
+            return Err(format!("--objects lists object {id} twice"));
+        }
         if let Some(dataset) = self.dataset {
             return Ok(DetectTarget::Dataset(DatasetDetectArgs {
                 dataset,

@@ -174,6 +174,10 @@ mod tests {
             let e = target(&args).unwrap_err();
             assert!(e.contains("cannot be used with"), "{e}");
         }
+        for args in [&dataset[..], &camera] {
+            let args: Vec<&str> = args.iter().copied().chain(["--objects", "5,6,5"]).collect();
+            assert!(target(&args).unwrap_err().contains("object 5 twice"));
+        }
         // The daemon's limit holds offline too.
         for n in ["0", "17"] {
             let args: Vec<&str> = dataset.iter().copied().chain(["--hypotheses", n]).collect();
