@@ -435,7 +435,14 @@ impl Client {
 
     /// The daemon's statistics.
     pub fn stats(&self) -> Result<DaemonStats> {
-        Ok(self.control(ControlCommand::Statistics, 0, "")?.0.stats)
+        Ok(self.statistics()?.0)
+    }
+
+    /// The daemon's statistics, and the detector parameters it runs with as text
+    /// (`detector: defaults`, or `detector: voting.reference_step=2 …`).
+    pub fn statistics(&self) -> Result<(DaemonStats, String)> {
+        let (h, _) = self.control(ControlCommand::Statistics, 0, "")?;
+        Ok((h.stats, h.message().into_owned()))
     }
 }
 

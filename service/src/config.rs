@@ -171,6 +171,37 @@ impl DaemonConfig {
         Ok(())
     }
 
+    /// The detector parameters the daemon runs with, as the statistics' message: `detector:` and
+    /// the parameters set (by the file, then the flags; the last of a repeated name), or
+    /// `defaults` when none is, cut to at most `max_bytes` with a pointer to the start-up log,
+    /// which lists them all.
+    pub fn detector_summary(&self, max_bytes: usize) -> String {
+        let mut last: Vec<(&str, &str)> = Vec::new();
+        for (key, value) in &self.detector {
+            last.retain(|(k, _)| k != key);
+            last.push((key, value));
+        }
+        if last.is_empty() {
+            return "detector: defaults".into();
+        }
+        let mut out = String::from("detector:");
+        for (i, (key, value)) in last.iter().enumerate() {
+            let item = format!(" {key}={value}");
+            let more = format!(" (+{} more in the start-up log)", last.len() - i);
+            let room_after = if i + 1 == last.len() {
+                0
+            } else {
+                more.len() + 1
+            };
+            if out.len() + item.len() + room_after > max_bytes {
+                out.push_str(&more);
+                return out;
+            }
+            out.push_str(&item);
+        }
+        out
+    }
+
     /// Worker threads to start.
     pub fn worker_threads(&self) -> usize {
         if self.workers > 0 {
@@ -245,6 +276,36 @@ mod tests {
                 .unwrap_err();
             assert!(e.contains(said), "{text}: {e}");
         }
+    }
+
+    #[test]
+    fn the_detector_summary_names_the_settings_and_fits_its_message() {
+        let with = |pairs: &[(&str, &str)]| DaemonConfig {
+            detector: pairs
+                .iter()
+                .map(|(k, v)| (k.to_string(), v.to_string()))
+                .collect(),
+            ..Default::default()
+        };
+        assert_eq!(with(&[]).detector_summary(192), "detector: defaults");
+        let c = with(&[
+            ("voting.reference_step", "3"),
+            ("icp.iterations", "5"),
+            ("voting.reference_step", "2"),
+        ]);
+        assert_eq!(
+            c.detector_summary(192),
+            "detector: icp.iterations=5 voting.reference_step=2"
+        );
+        let names: Vec<String> = (0..40).map(|i| format!("stage.field_{i}")).collect();
+        let pairs: Vec<(&str, &str)> = names.iter().map(|n| (n.as_str(), "1")).collect();
+        let m = with(&pairs).detector_summary(192);
+        assert!(m.len() <= 192, "{m}");
+        assert!(m.ends_with("more in the start-up log)"), "{m}");
+        assert!(
+            m.starts_with("detector: stage.field_0=1 stage.field_1=1"),
+            "{m}"
+        );
     }
 
     #[test]

@@ -753,7 +753,13 @@ impl Daemon {
                 let shown = &infos[..infos.len().min(limits::MAX_LISTED_MODELS)];
                 self.control_answer(active, Status::Ok, "", shown);
             }
-            ControlCommand::Statistics => self.control_answer(active, Status::Ok, "", &[]),
+            ControlCommand::Statistics => {
+                // The message field holds MESSAGE_BYTES - 1 bytes and a NUL.
+                let m = self
+                    .config
+                    .detector_summary(ppfd_protocol::MESSAGE_BYTES - 1);
+                self.control_answer(active, Status::Ok, &m, &[])
+            }
             ControlCommand::DropModel => match self.registry.remove(request.object_id) {
                 Some(model) => {
                     let m = format!(

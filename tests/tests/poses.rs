@@ -419,6 +419,15 @@ fn detector_parameters_given_to_the_daemon_are_the_ones_it_detects_with() {
     );
     assert_eq!(served, every_fourth);
     assert!(every_fourth < every_second);
+    // The daemon says which parameters it runs with: the flag's value, which won.
+    let (_, detector) = ppfd_client::Client::connect_with(&ppfd_client::ClientOptions {
+        prefix: Some(prefix.0.clone()),
+        ..Default::default()
+    })
+    .unwrap()
+    .statistics()
+    .expect("statistics");
+    assert_eq!(detector, "detector: voting.reference_step=4");
 }
 
 /// A daemon given a detector parameter it does not know, or a bad value, says which and does

@@ -73,15 +73,22 @@ pub struct StatsArgs {
 
 pub fn stats(args: StatsArgs) -> Result<(), String> {
     let client = args.connect.client()?;
-    let s = client.stats().map_err(|e| e.to_string())?;
+    let (s, detector) = client.statistics().map_err(|e| e.to_string())?;
+    let detector = detector
+        .strip_prefix("detector:")
+        .unwrap_or(&detector)
+        .trim();
     if args.json {
+        let mut json = stats_json(&s);
+        json["detector"] = detector.into();
         println!(
             "{}",
-            serde_json::to_string_pretty(&stats_json(&s)).map_err(|e| e.to_string())?
+            serde_json::to_string_pretty(&json).map_err(|e| e.to_string())?
         );
         return Ok(());
     }
     println!("uptime            {:.1} s", s.uptime_ns as f64 / 1e9);
+    println!("detector          {detector}");
     println!(
         "requests          {} received, {} served, {} refused ({} past deadline), {} abandoned",
         s.requests_received,
