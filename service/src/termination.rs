@@ -2,11 +2,11 @@
 //!
 //! With iceoryx2's own handling, a handler writes the last signal into one process-wide slot,
 //! and the slot is also read and reset by other code: every node's termination check consumes
-//! it, and iceoryx2 resets it before it zeroes a new shared-memory segment. A daemon was
-//! seen to serve on after a SIGTERM (twice in about 220 stops; not reproduced on demand), which
-//! a supervisor can only end with SIGKILL. Instead the daemon blocks both signals in every thread and reads them from a
-//! `signalfd`: a blocked signal stays pending in the kernel until this module reads it,
-//! whatever the threads are doing when it arrives.
+//! it, and iceoryx2 resets it before it zeroes a new shared-memory segment. A daemon was seen to
+//! serve on after a SIGTERM (twice in about 220 stops; not reproduced on demand), which a
+//! supervisor can only end with SIGKILL. Instead the daemon blocks both signals in every thread
+//! and reads them from a `signalfd`: a blocked signal stays pending in the kernel until this
+//! module reads it, whatever the threads are doing when it arrives.
 
 use std::cell::Cell;
 use std::os::fd::RawFd;
