@@ -170,9 +170,9 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
         }
         _ => dataset.object_ids().to_vec(),
     };
+    let detector = Detector::new(args.params()?);
     let models = dataset_models(&dataset, &ids)?;
     let frame = dataset.depth_frame(args.scene, args.image)?;
-    let detector = Detector::new(args.params()?);
     let refs: Vec<_> = models.iter().collect();
     let opts = DetectOptions {
         hypotheses_per_object: args.top.max(10),
@@ -282,9 +282,9 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
     } else {
         args.objects.clone()
     };
+    let p = args.params()?;
     let models = dataset_models(&dataset, &ids)?;
     let frame = dataset.depth_frame(args.scene, args.image)?;
-    let p = args.params()?;
     let scene = prepare(&frame.view(), &p.scene)?;
     let points = scene.oriented_points();
     let planes = SupportingPlane::find_all(&points, &p.plane);

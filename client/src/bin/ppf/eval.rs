@@ -44,8 +44,6 @@ pub struct EvalArgs {
 
 pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
     let dataset = BopDataset::open(&args.dataset)?;
-    // Refuse an unwritable results file now rather than after the detections.
-    std::fs::File::create(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
     let mut images = Vec::new();
     for scene in dataset.scene_ids() {
         if args.scene.is_some_and(|s| s != scene) {
@@ -69,12 +67,15 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
     } else {
         args.objects.clone()
     };
-    let models = dataset_models(&dataset, &ids)?;
+    // Parameters before models: a mistyped name fails at once, not after the builds.
     let mut params = ppfd_models::detector::DetectParams::new();
     for kv in &args.set {
         params.set_from(kv)?;
     }
     params.check()?;
+    // Refuse an unwritable results file now rather than after the detections.
+    std::fs::File::create(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
+    let models = dataset_models(&dataset, &ids)?;
     let detector = Detector::new(params);
     let opts = DetectOptions {
         hypotheses_per_object: args.hypotheses.max(1),

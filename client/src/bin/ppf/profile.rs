@@ -54,14 +54,15 @@ pub fn run(args: ProfileArgs) -> Result<(), Box<dyn std::error::Error>> {
     } else {
         args.objects.clone()
     };
-    let models = dataset_models(&dataset, &ids)?;
-    let refs: Vec<_> = models.iter().collect();
-    let frame = dataset.depth_frame(args.scene, args.image)?;
+    // Parameters before models: a mistyped name fails at once, not after the builds.
     let mut params = DetectParams::new();
     for kv in &args.set {
         params.set_from(kv)?;
     }
     params.check()?;
+    let models = dataset_models(&dataset, &ids)?;
+    let refs: Vec<_> = models.iter().collect();
+    let frame = dataset.depth_frame(args.scene, args.image)?;
     let detector = Detector::new(params);
     let opts = DetectOptions {
         hypotheses_per_object: 1,
