@@ -178,6 +178,11 @@ pub struct Daemon {
 }
 
 /// Runs a daemon until SIGINT or SIGTERM. `on_ready` is called once it serves.
+///
+/// Call it before the process starts other threads, or block SIGINT and SIGTERM in them
+/// ([`crate::termination::block_termination_signals`]): the daemon reads both from a
+/// `signalfd`, which gets a signal only when every thread blocks it (otherwise the kernel
+/// hands it to a thread that does not).
 pub fn run(
     config: DaemonConfig,
     engine: Arc<dyn DetectionEngine>,
