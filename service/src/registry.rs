@@ -41,7 +41,7 @@ impl Registry {
                     let e = EngineError::new(
                         Status::ModelError,
                         format!(
-                            "object id {id} is already loaded from {}: one model per id (the first file by name is kept)",
+                            "object id {id} is already loaded from {}: one model per id (the first loaded is kept)",
                             loaded_from[&id].display()
                         ),
                     );

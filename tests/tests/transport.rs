@@ -114,8 +114,8 @@ fn refusal(r: ppfd_client::Result<ppfd_client::Detections>) -> (ppfd_client::Sta
     }
 }
 
-/// Two files of one object id at start: the first by name is kept and the second is reported,
-/// rather than the later file silently replacing the earlier one.
+/// Two files of one object id at start: the first loaded (here by name) is kept and the other
+/// is reported, rather than the later file silently replacing the earlier one.
 #[test]
 fn a_second_model_file_with_a_loaded_id_is_refused_at_start() {
     let prefix = Prefix::new("dupid");
