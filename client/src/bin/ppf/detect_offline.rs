@@ -217,7 +217,7 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
                 rank + 1,
                 h.score,
                 h.votes,
-                checks_text(h.checks)
+                crate::common::checks_letters(h.checks.0)
             );
         }
     }
@@ -245,23 +245,6 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
 
 fn ms(d: std::time::Duration) -> f64 {
     d.as_secs_f64() * 1e3
-}
-
-/// `rescored,refined,consistent,silhouette` for the bits set.
-pub fn checks_text(c: ppfd_models::detector::Checks) -> String {
-    use ppfd_models::detector::Checks;
-    let names = [
-        (Checks::RESCORED, "R"),
-        (Checks::REFINED, "I"),
-        (Checks::CONSISTENT, "C"),
-        (Checks::SILHOUETTE, "S"),
-    ];
-    names
-        .iter()
-        .filter(|(b, _)| c.has(*b))
-        .map(|(_, n)| *n)
-        .collect::<Vec<_>>()
-        .join("")
 }
 
 /// Runs the stages one by one for each object and prints where the first correct pose (within
