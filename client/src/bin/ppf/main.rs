@@ -223,5 +223,21 @@ mod tests {
             common::checks_letters(checks::RESCORED | checks::SILHOUETTE),
             "RS"
         );
+        // The offline table passes the detector's bits straight in, as the daemon sends them.
+        use ppfd_models::detector::Checks;
+        assert_eq!(
+            [
+                Checks::RESCORED,
+                Checks::REFINED,
+                Checks::CONSISTENT,
+                Checks::SILHOUETTE
+            ],
+            [
+                checks::RESCORED,
+                checks::REFINED,
+                checks::CONSISTENT,
+                checks::SILHOUETTE
+            ]
+        );
     }
 }
