@@ -13,6 +13,14 @@
 //! on synth-lmo-dev recall went from 0.926 to 0.931 ([`crate::voting::VotingParams::plane_partners`]
 //! keeps them).
 //!
+//! An object resting on the supporting plane lies on the camera's side of it. Points behind it
+//! (the floor beyond the table's edge, shelves and clutter below it) are taken neither as
+//! reference points nor as partners ([`PlaneParams::exclude_behind`]). On the LM-O frame half of
+//! the duck's reference points lay there: 6.8 s instead of 10.9 s for the eight objects, the same
+//! six of eight best poses correct, synth-lmo-dev's recall unchanged (its scenes have nothing
+//! behind the table). A cell whose objects may lie below the dominant plane (a camera seeing a
+//! large table, the objects on a lower shelf beyond it) turns this off.
+//!
 //! A plane narrower than an object's diameter may be one of that object's own faces (a box's
 //! top): for that object its points stay reference points. Objects whose coplanar faces together
 //! span more than their diameter (boxes side by side, tops at one height) would still count as a
@@ -40,6 +48,11 @@ pub struct PlaneParams {
     /// scene lies on them.
     pub min_secondary_fraction: f32,
     pub max_planes: usize,
+    /// Points behind the dominant plane (farther from the camera, beyond the plane's
+    /// tolerance) are neither reference points nor partners: an object resting on the plane
+    /// lies on the camera's side of it. Only the dominant plane: behind a wall or a box's side
+    /// lie the table and the objects on it.
+    pub exclude_behind: bool,
     /// RANSAC: planes tried, and scene points sampled to judge them.
     pub iterations: u32,
     pub samples: u32,
@@ -57,6 +70,7 @@ impl Default for PlaneParams {
             min_inlier_fraction: 0.15,
             min_secondary_fraction: 0.05,
             max_planes: 3,
+            exclude_behind: true,
             iterations: 300,
             samples: 3000,
             seed: 0x5EED_F1A7,
@@ -78,6 +92,9 @@ pub struct SupportingPlane {
     tolerance_mm: f32,
     tolerance_fraction: f32,
     cos_normal: f32,
+    /// Points behind it are excluded too (the dominant plane, when
+    /// [`PlaneParams::exclude_behind`]).
+    excludes_behind: bool,
 }
 
 impl SupportingPlane {
@@ -99,6 +116,14 @@ impl SupportingPlane {
     pub fn holds(&self, p: &Point3<f32>, n: &Vector3<f32>) -> bool {
         self.distance(p).abs() <= self.tolerance_mm + self.tolerance_fraction * p.z.abs()
             && self.normal.dot(n).abs() >= self.cos_normal
+    }
+
+    /// Whether `p` lies behind the plane, seen from the camera, farther than its tolerance, and
+    /// the plane excludes such points (see [`PlaneParams::exclude_behind`]).
+    #[inline]
+    pub fn hides(&self, p: &Point3<f32>) -> bool {
+        self.excludes_behind
+            && self.distance(p) < -(self.tolerance_mm + self.tolerance_fraction * p.z.abs())
     }
 
     /// The dominant plane of `points`, or `None` when no plane holds `min_inlier_fraction` of
@@ -142,6 +167,7 @@ impl SupportingPlane {
                 break;
             }
             sample.retain(|&i| !plane.holds(&points.positions[i], &points.normals[i]));
+            plane.excludes_behind = planes.is_empty() && params.exclude_behind;
             planes.push(plane);
             if sample.len() < 3 {
                 break;
@@ -165,6 +191,7 @@ impl SupportingPlane {
             tolerance_mm: params.tolerance_mm,
             tolerance_fraction: params.tolerance_fraction,
             cos_normal: params.max_normal_angle_deg.to_radians().cos(),
+            excludes_behind: false,
         };
         let inliers_of = |plane: &SupportingPlane| -> Vec<usize> {
             sample
@@ -345,6 +372,47 @@ mod tests {
             ..Default::default()
         };
         assert_eq!(SupportingPlane::find_all(&points, &one).len(), 1);
+    }
+
+    /// A box standing on the table is in front of it; a second box 300 mm below the table's
+    /// surface (on a shelf beyond its edge) is behind it and hidden, unless
+    /// `exclude_behind` is off. A floor found as a second plane hides nothing.
+    #[test]
+    fn points_behind_the_table_are_hidden() {
+        let (mut points, up, on_table) = table_with_box(1.0);
+        let in_front = points.len();
+        let tilt = nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), 0.6);
+        let (ex, ey) = (tilt * Vector3::x(), tilt * Vector3::y());
+        let below = Point3::new(0.0, 0.0, 800.0) - up * 300.0 + ex * 400.0;
+        for i in 0..20 {
+            for j in 0..20 {
+                let (a, b) = (i as f32 * 5.0 - 50.0, j as f32 * 5.0 - 50.0);
+                points.push(below + ex * a + ey * b + up * 100.0, up);
+            }
+        }
+        // Points 5 mm below the surface (within the tolerance at 800 mm) are not hidden.
+        let sunk = Point3::new(0.0, 0.0, 800.0) - up * 5.0;
+        let planes = SupportingPlane::find_all(&points, &PlaneParams::default());
+        let table = &planes[0];
+        assert!(table.normal.dot(&up) > 0.999, "{table:?}");
+        assert!(!table.hides(&sunk));
+        for (i, p) in points.positions.iter().enumerate() {
+            let behind = i >= in_front;
+            assert_eq!(
+                table.hides(p),
+                behind,
+                "point {i} at {p:?}, on table {:?}",
+                on_table.get(i)
+            );
+            // Only the dominant plane hides.
+            assert!(planes[1..].iter().all(|pl| !pl.hides(p)));
+        }
+        let keep = PlaneParams {
+            exclude_behind: false,
+            ..Default::default()
+        };
+        let planes = SupportingPlane::find_all(&points, &keep);
+        assert!(points.positions.iter().all(|p| !planes[0].hides(p)));
     }
 
     #[test]

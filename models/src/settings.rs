@@ -155,6 +155,7 @@ settings! {
     "plane.min_inlier_fraction" => plane.min_inlier_fraction in 0.0..=1.0;
     "plane.min_secondary_fraction" => plane.min_secondary_fraction in 0.0..=1.0;
     "plane.max_planes" => plane.max_planes in 0..=16;
+    "plane.exclude_behind" => plane.exclude_behind;
     "voting.reference_spacing_fraction" => voting.reference_spacing_fraction in 0.0..=10.0;
     "voting.reference_step" => voting.reference_step in 1..=1000;
     "voting.neighbour_keys" => voting.neighbour_keys;

@@ -22,7 +22,7 @@ use crate::Pose;
 pub struct VotingParams {
     /// Reference points are spread evenly over the scene: it is cut into cubes of this side, a
     /// fraction of the model diameter, and in each cube the first subsampled point off the
-    /// large planes (see [`Selection`]) is a candidate. After neighbour filtering (on for
+    /// large planes and in front of the supporting one (see [`Selection`]) is a candidate. After neighbour filtering (on for
     /// every model by default) the subsampled cloud lists the points that stand for the most
     /// pixels first, so that is the cube's best-supported point. 0:
     /// every point is a candidate. Taking every n-th point instead leaves gaps and clumps
@@ -66,8 +66,8 @@ pub struct VotingParams {
     /// Refine a peak's α inside its bin by a parabola through the votes of the bin and its two
     /// neighbours: a 12° bin alone leaves up to 6° of rotation error in every hypothesis.
     pub interpolate_alpha: bool,
-    /// Points on the large planes that hold no reference points (see [`Selection`]) still pair
-    /// with reference points. Off by default: they cannot be model points, so their pairs only
+    /// Points on the large planes (and behind the supporting one) that hold no reference points
+    /// (see [`Selection`]) still pair with reference points. Off by default: they cannot be model points, so their pairs only
     /// add votes for wrong poses (measured: LM-O frame unchanged at VSD recall 0.750 in 0.93 of
     /// the time, synth-lmo-dev 0.926 → 0.931).
     pub plane_partners: bool,
@@ -144,20 +144,21 @@ pub fn vote(
     vote_from(model, scene, &selection, params)
 }
 
-/// Which scene points an object's voting uses: its reference points, and which points lie on a
-/// large plane (see [`crate::plane`]).
+/// Which scene points an object's voting uses: its reference points, and which points are left
+/// out: those on a large plane, and those behind the supporting plane (see [`crate::plane`]).
 #[derive(Clone, Debug, Default)]
 pub struct Selection {
     /// Indices into the scene's points.
     pub references: Vec<usize>,
-    /// Per scene point: on one of the planes too large to be a face of the object.
-    pub on_plane: Vec<bool>,
+    /// Per scene point: on one of the planes too large to be a face of the object, or behind
+    /// the supporting plane ([`crate::plane::PlaneParams::exclude_behind`]).
+    pub excluded: Vec<bool>,
 }
 
 impl Selection {
     /// For an object of diameter `diameter_mm`: the reference points `params` spread over the
     /// scene points that lie on none of the given planes too large to be the object's own
-    /// faces (see [`VotingParams::reference_spacing_fraction`] and
+    /// faces, nor behind the first of them (see [`VotingParams::reference_spacing_fraction`] and
     /// [`VotingParams::reference_step`]).
     pub fn new(
         scene: &PreparedScene,
@@ -170,20 +171,21 @@ impl Selection {
             .iter()
             .filter(|pl| pl.excludes_for(diameter_mm))
             .collect();
-        let on_plane: Vec<bool> = (0..points.len())
+        let excluded: Vec<bool> = (0..points.len())
             .map(|i| {
-                planes
-                    .iter()
-                    .any(|pl| pl.holds(&points.positions[i], &points.normals[i]))
+                planes.iter().any(|pl| {
+                    pl.holds(&points.positions[i], &points.normals[i])
+                        || pl.hides(&points.positions[i])
+                })
             })
             .collect();
-        let off_plane = (0..points.len()).filter(|&i| !on_plane[i]);
+        let admitted = (0..points.len()).filter(|&i| !excluded[i]);
         let step = params.reference_step.max(1);
         let spacing = params.reference_spacing_fraction * diameter_mm;
         let references = if spacing > 0.0 {
             let inverse = 1.0 / spacing;
             let mut taken: CellMap<()> = CellMap::default();
-            off_plane
+            admitted
                 .filter(|&i| {
                     taken
                         .insert(cell_of(&points.positions[i], inverse), ())
@@ -192,11 +194,11 @@ impl Selection {
                 .step_by(step)
                 .collect()
         } else {
-            off_plane.step_by(step).collect()
+            admitted.step_by(step).collect()
         };
         Selection {
             references,
-            on_plane,
+            excluded,
         }
     }
 }
@@ -212,7 +214,7 @@ pub fn vote_from(
 ) -> (Vec<Hypothesis>, VotingCounts) {
     let references = &selection.references[..];
     let skip_partner =
-        |i: usize| !params.plane_partners && selection.on_plane.get(i).copied().unwrap_or(false);
+        |i: usize| !params.plane_partners && selection.excluded.get(i).copied().unwrap_or(false);
     let data = model.data();
     let n_model = model.point_count();
     let alpha_bins = data.params.alpha_bins.to_native();
@@ -480,7 +482,7 @@ mod tests {
         for r in (0..pts.len()).step_by(7).take(25) {
             let one = Selection {
                 references: vec![r],
-                on_plane: Vec::new(),
+                excluded: Vec::new(),
             };
             let (hyps, counts) = vote_from(&model, &scene, &one, &params);
 

@@ -265,13 +265,13 @@ fn table_points_are_no_partners() {
     assert!(!planes.is_empty(), "no table found");
     let cloud = PreparedScene::new(&points, &model.params().subsample_params(d)).unwrap();
     let selection = Selection::new(&cloud, &params.voting, &planes, d);
-    let on_table = selection.on_plane.iter().filter(|&&b| b).count();
+    let on_table = selection.excluded.iter().filter(|&&b| b).count();
     assert!(
         on_table > cloud.points.len() / 4,
         "{on_table} of {} points on the table",
         cloud.points.len()
     );
-    assert!(selection.references.iter().all(|&r| !selection.on_plane[r]));
+    assert!(selection.references.iter().all(|&r| !selection.excluded[r]));
 
     let (with, with_counts) = vote_from(
         &model,
@@ -293,7 +293,7 @@ fn table_points_are_no_partners() {
     // The same scene with the table's points taken out, the same reference points.
     let mut kept = OrientedPoints::default();
     for i in 0..cloud.points.len() {
-        if !selection.on_plane[i] {
+        if !selection.excluded[i] {
             kept.push(cloud.points.positions[i], cloud.points.normals[i]);
         }
     }
@@ -322,13 +322,66 @@ fn table_points_are_no_partners() {
             .iter()
             .map(|&r| index[&bits(&cloud.points.positions[r])])
             .collect(),
-        on_plane: vec![false; kept.len()],
+        excluded: vec![false; kept.len()],
     };
     // (The hypotheses themselves may differ at bin borders: subsampling renormalises normals.)
     let (_, expected_counts) = vote_from(&model, &bare, &bare_selection, &params.voting);
     assert_eq!(counts.pairs, expected_counts.pairs);
     assert_eq!(counts.votes, expected_counts.votes);
     assert!(!with.is_empty() && !without.is_empty());
+}
+
+/// What lies behind the table (a copy of the part 300 mm below its surface, as on a shelf
+/// beyond its edge) gives no reference points and no partners; with `plane.exclude_behind` off
+/// it does.
+#[test]
+fn points_behind_the_table_are_neither_references_nor_partners() {
+    use ppfd_models::plane::{PlaneParams, SupportingPlane};
+    use ppfd_models::voting::Selection;
+    let part = Part::LBracket;
+    let mesh = part.mesh();
+    let model = ObjectModel::build(&mesh, 1, part.name(), &ModelParams::default()).unwrap();
+    let d = model.diameter_mm();
+    let scene = SceneSpec::new(3)
+        .object(1, &mesh)
+        .camera_distance_mm(700.0, 800.0)
+        .build()
+        .unwrap();
+    let params = DetectParams::new();
+    let image = prepare(&scene.frame.view(), &params.scene).unwrap();
+    let seen = image.oriented_points();
+    let table = SupportingPlane::find(&seen, &params.plane).expect("no table found");
+    // The scene, and a copy of what stands on the table moved 300 mm behind it.
+    let mut points = seen.clone();
+    for (p, n) in seen.positions.iter().zip(&seen.normals) {
+        if table.distance(p) > 10.0 {
+            points.push(p - table.normal * 300.0, *n);
+        }
+    }
+    let copies = points.len() - seen.len();
+    assert!(copies > 100, "{copies} points on the part");
+    let cloud = PreparedScene::new(&points, &model.params().subsample_params(d)).unwrap();
+    let behind = |i: usize| table.distance(&cloud.points.positions[i]) < -100.0;
+    let select = |plane: &PlaneParams| {
+        let planes = SupportingPlane::find_all(&points, plane);
+        Selection::new(&cloud, &params.voting, &planes, d)
+    };
+
+    let selection = select(&params.plane);
+    let hidden = (0..cloud.points.len()).filter(|&i| behind(i)).count();
+    assert!(hidden > 20, "{hidden} subsampled points behind the table");
+    assert!((0..cloud.points.len())
+        .filter(|&i| behind(i))
+        .all(|i| selection.excluded[i]));
+    assert!(selection.references.iter().all(|&r| !behind(r)));
+    assert!(!selection.references.is_empty());
+
+    let kept = select(&PlaneParams {
+        exclude_behind: false,
+        ..params.plane
+    });
+    let behind_references = kept.references.iter().filter(|&&r| behind(r)).count();
+    assert!(behind_references > 5, "{behind_references}");
 }
 
 /// Multi-instance output: two instances of one part on the table are the two best hypotheses,
