@@ -1,4 +1,5 @@
-//! `ppf eval` refuses a results file it cannot write before it detects anything (a run over a
+//! `ppf eval` refuses a results file it cannot write before it detects anything, and leaves the
+//! file as it was when it fails before the first image (a run over a
 //! dataset takes minutes to hours). Reads `../shared/data/lmo`; runs whenever the data is there,
 //! and always under `CI=true`.
 #![cfg(feature = "cli")]
@@ -52,4 +53,45 @@ fn an_unwritable_results_file_is_refused_before_any_detection() {
         "nothing was detected: {stderr}"
     );
     assert!(!cache.exists(), "no model was built before the refusal");
+}
+
+/// A run that fails before its first image (here: an object the dataset has no model of) leaves
+/// no results file behind, and an existing one as it was.
+#[test]
+fn a_run_that_fails_before_any_image_leaves_the_results_file_as_it_was() {
+    let Some(dataset) = lmo() else { return };
+    let dir = std::env::temp_dir().join(format!("ppf-eval-early-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let eval = |out: &PathBuf, extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_ppf"))
+            .arg("eval")
+            .arg(&dataset)
+            .arg("--out")
+            .arg(out)
+            .args(extra)
+            .env("PPFD_CACHE", dir.join("cache"))
+            .output()
+            .unwrap()
+    };
+    let fresh = dir.join("fresh.csv");
+    let run = eval(&fresh, &["--objects", "999"]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success());
+    assert!(stderr.contains("999"), "{stderr}");
+    assert!(!fresh.exists(), "an empty results file was left behind");
+
+    let kept = dir.join("kept.csv");
+    let before = "scene_id,im_id,obj_id,score,R,t,time\n2,3,8,0.5,1 0 0 0 1 0 0 0 1,0 0 1000,1.0\n";
+    std::fs::write(&kept, before).unwrap();
+    let run = eval(&kept, &["--objects", "999"]);
+    assert!(!run.status.success());
+    assert_eq!(std::fs::read_to_string(&kept).unwrap(), before);
+
+    // Zero hypotheses per object is refused by name, before anything else.
+    let run = eval(&kept, &["--hypotheses", "0"]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success());
+    assert!(stderr.contains("--hypotheses"), "{stderr}");
+    assert_eq!(std::fs::read_to_string(&kept).unwrap(), before);
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -24,10 +24,10 @@ pub struct EvalArgs {
     /// or every model when an image has none.
     #[arg(long, value_delimiter = ',')]
     pub objects: Vec<u32>,
-    /// Hypotheses written per object and image (more than one only helps multi-instance
-    /// targets).
-    #[arg(long, default_value_t = 1)]
-    pub hypotheses: usize,
+    /// Hypotheses written per object and image, at least 1 (more than one only helps
+    /// multi-instance targets).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    pub hypotheses: u32,
     /// The results CSV to write.
     #[arg(long, default_value = "results.csv")]
     pub out: PathBuf,
@@ -73,12 +73,23 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
         params.set_from(kv)?;
     }
     params.check()?;
-    // Refuse an unwritable results file now rather than after the detections.
-    std::fs::File::create(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
-    let models = dataset_models(&dataset, &ids)?;
+    // Refuse an unwritable results file now rather than after the detections, without
+    // truncating one that is there: until the first image's results it keeps what it had, and
+    // a file this run created is removed again if the models fail to load.
+    let existed = args.out.exists();
+    std::fs::OpenOptions::new()
+        .append(true)
+        .create(true)
+        .open(&args.out)
+        .map_err(|e| format!("{}: {e}", args.out.display()))?;
+    let models = dataset_models(&dataset, &ids).inspect_err(|_| {
+        if !existed {
+            let _ = std::fs::remove_file(&args.out);
+        }
+    })?;
     let detector = Detector::new(params);
     let opts = DetectOptions {
-        hypotheses_per_object: args.hypotheses.max(1),
+        hypotheses_per_object: args.hypotheses as usize,
         deadline: None,
     };
     let bar = ProgressBar::new(images.len() as u64);
