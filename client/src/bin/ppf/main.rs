@@ -46,8 +46,9 @@ enum Command {
     Stats(daemon::StatsArgs),
     /// Start a daemon, publish a generated scene, detect, compare with the truth, stop.
     Demo(demo::DemoArgs),
-    /// Run the ppfd daemon in this process, with ppfd's flags (what `ppf demo` starts).
-    #[command(hide = true)]
+    /// Run the ppfd daemon in this process, with ppfd's flags (what `ppf demo` starts);
+    /// `ppf serve --help` prints ppfd's help.
+    #[command(hide = true, disable_help_flag = true)]
     Serve {
         #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
         args: Vec<String>,
@@ -102,6 +103,15 @@ fn main() {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn serve_passes_help_on_to_the_daemon() {
+        let cli = Cli::try_parse_from(["ppf", "serve", "--help"]).unwrap();
+        match cli.command {
+            Command::Serve { args } => assert_eq!(args, ["--help"]),
+            other => panic!("{other:?}"),
+        }
+    }
 
     #[test]
     fn daemon_subcommands_parse() {
