@@ -190,6 +190,30 @@ fn clusters_as_poses(clusters: &[crate::clustering::PoseCluster]) -> Vec<(Pose, 
     clusters.iter().map(|c| (c.pose, c.votes)).collect()
 }
 
+/// Which subsampled scene clouds a detection of `models` builds, and which of them each model
+/// votes on: models sorted by diameter, a model whose diameter is at most
+/// `diameter_ratio` times the first of the current group's joins it (with that one's leaf),
+/// and any other starts a new group (see [`DetectParams::shared_cloud_diameter_ratio`]).
+pub fn shared_clouds(
+    models: &[&ObjectModel],
+    diameter_ratio: f32,
+) -> (Vec<SubsampleParams>, Vec<usize>) {
+    let mut order: Vec<usize> = (0..models.len()).collect();
+    order.sort_by(|&a, &b| models[a].diameter_mm().total_cmp(&models[b].diameter_mm()));
+    let mut cloud_of = vec![0usize; models.len()];
+    let mut groups: Vec<SubsampleParams> = Vec::new();
+    let mut group_start_diameter = f32::NAN;
+    for &i in &order {
+        let d = models[i].diameter_mm();
+        if groups.is_empty() || d > group_start_diameter * diameter_ratio {
+            group_start_diameter = d;
+            groups.push(models[i].params().subsample_params(d));
+        }
+        cloud_of[i] = groups.len() - 1;
+    }
+    (groups, cloud_of)
+}
+
 /// Runs detections; holds only parameters, so one detector serves any set of models.
 #[derive(Clone, Debug)]
 pub struct Detector {
@@ -241,27 +265,7 @@ impl Detector {
         out.timings.scene_preparation = t.elapsed();
         out.counts.scene_points = points.len() as u32;
 
-        // Group objects by diameter so that similar sizes share one subsampled cloud.
-        let mut order: Vec<usize> = (0..models.len()).collect();
-        order.sort_by(|&a, &b| models[a].diameter_mm().total_cmp(&models[b].diameter_mm()));
-        let mut cloud_of = vec![0usize; models.len()];
-        let mut groups: Vec<SubsampleParams> = Vec::new();
-        let mut group_start_diameter = f32::NAN;
-        for &i in &order {
-            let d = models[i].diameter_mm();
-            if groups.is_empty()
-                || d > group_start_diameter * self.params.shared_cloud_diameter_ratio
-            {
-                group_start_diameter = d;
-                let p = models[i].params();
-                groups.push(SubsampleParams {
-                    leaf_mm: p.leaf_fraction * d,
-                    cluster_angle: p.cluster_angle_deg.to_radians(),
-                    neighbour_filtering: p.neighbour_filtering,
-                });
-            }
-            cloud_of[i] = groups.len() - 1;
-        }
+        let (groups, cloud_of) = shared_clouds(models, self.params.shared_cloud_diameter_ratio);
         // The groups' clouds are independent: build them side by side.
         check_deadline(start)?;
         let t = Instant::now();
@@ -432,5 +436,65 @@ impl Detector {
         }
         timings.filters += t.elapsed();
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::ModelParams;
+    use crate::parts::Part;
+
+    #[test]
+    fn objects_share_a_cloud_only_within_the_diameter_ratio() {
+        let build = |part: Part, id: u32| {
+            ObjectModel::build(&part.mesh(), id, part.name(), &ModelParams::default()).unwrap()
+        };
+        let models = [
+            build(Part::LBracket, 1),
+            build(Part::ToothedDisc, 2),
+            build(Part::LBracket, 3),
+            build(Part::TPipe, 4),
+        ];
+        let refs: Vec<&ObjectModel> = models.iter().collect();
+        let d: Vec<f32> = models.iter().map(|m| m.diameter_mm()).collect();
+        let leaf = |m: &ObjectModel| m.params().leaf_fraction * m.diameter_mm();
+
+        // Equal diameters share even at 1.0; different ones do not.
+        let (groups, cloud_of) = shared_clouds(&refs, 1.0);
+        let distinct = {
+            let mut v = d.clone();
+            v.sort_by(f32::total_cmp);
+            v.dedup();
+            v.len()
+        };
+        assert_eq!(groups.len(), distinct, "{d:?}");
+        assert_eq!(cloud_of[0], cloud_of[2]);
+        for (i, m) in models.iter().enumerate() {
+            assert_eq!(groups[cloud_of[i]].leaf_mm, leaf(m), "{i}");
+        }
+
+        // A ratio above every pair's: one cloud, with the smallest object's leaf.
+        let (groups, cloud_of) = shared_clouds(&refs, 100.0);
+        assert_eq!(groups.len(), 1);
+        assert!(cloud_of.iter().all(|&g| g == 0));
+        let smallest = models
+            .iter()
+            .min_by(|a, b| a.diameter_mm().total_cmp(&b.diameter_mm()))
+            .unwrap();
+        assert_eq!(groups[0].leaf_mm, leaf(smallest));
+
+        // Just below the ratio of the two closest distinct diameters: they stay apart.
+        let mut sorted = d.clone();
+        sorted.sort_by(f32::total_cmp);
+        sorted.dedup();
+        let closest = sorted
+            .windows(2)
+            .map(|w| w[1] / w[0])
+            .fold(f32::INFINITY, f32::min);
+        let (apart, _) = shared_clouds(&refs, closest * 0.999);
+        let (together, _) = shared_clouds(&refs, closest * 1.001);
+        assert_eq!(apart.len(), distinct);
+        assert_eq!(together.len(), distinct - 1);
     }
 }

@@ -251,6 +251,7 @@ fn ms(d: std::time::Duration) -> f64 {
 /// 0.1 D and 15° of the ground truth) ranks after each.
 pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
     use ppfd_models::clustering::cluster_poses;
+    use ppfd_models::detector::shared_clouds;
     use ppfd_models::filters::{simplified_mesh, EdgeMap};
     use ppfd_models::icp::refine;
     use ppfd_models::plane::SupportingPlane;
@@ -283,10 +284,17 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
         );
     }
     let edges = EdgeMap::new(&scene, &p.filters);
+    // The clouds the detector would build for these objects together.
+    let model_refs: Vec<&ppfd_models::model::ObjectModel> = models.iter().collect();
+    let (groups, cloud_of) = shared_clouds(&model_refs, p.shared_cloud_diameter_ratio);
+    let clouds: Vec<PreparedScene> = groups
+        .iter()
+        .map(|sub| PreparedScene::new(&points, sub))
+        .collect::<Result<_, _>>()?;
     println!("| object | cloud points | on object | normal error (median °) | clusters | rank by votes | after re-scoring | after ICP + re-scoring | best cluster t err (mm) | R err (°) | voting + clustering (ms) |");
     println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     let (mut in_top10, mut first_after_icp) = (0, 0);
-    for model in &models {
+    for (model, &group) in models.iter().zip(&cloud_of) {
         let d = model.diameter_mm();
         let truth = gt
             .iter()
@@ -307,8 +315,7 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
                 .position(&ok)
                 .map_or("-".to_string(), |r| (r + 1).to_string())
         };
-        let mp = model.params();
-        let cloud = PreparedScene::new(&points, &mp.subsample_params(d))?;
+        let cloud = &clouds[group];
         // Scene normals against the ground truth: cloud points within 3 mm of the model surface
         // placed at the true pose.
         let on_object = {
@@ -333,8 +340,8 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             )
         };
         let t = std::time::Instant::now();
-        let selection = Selection::new(&cloud, &p.voting, &planes, d);
-        let (raw, _) = vote_from(model, &cloud, &selection, &p.voting);
+        let selection = Selection::new(cloud, &p.voting, &planes, d);
+        let (raw, _) = vote_from(model, cloud, &selection, &p.voting);
         let clusters = cluster_poses(&raw, d, &p.clustering);
         let vote_ms = t.elapsed().as_secs_f64() * 1e3;
         let first_correct = |poses: &[ppfd_models::Pose]| poses.iter().position(&ok);
