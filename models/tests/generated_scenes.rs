@@ -242,17 +242,16 @@ fn model_points_moved_by_a_pose_vote_for_that_pose() {
     assert!(hits >= 19, "{hits}/20");
 }
 
-/// Points on the table cannot be model points: with `plane_partners` off they pair with no
-/// reference point, and voting gives exactly what it gives on the scene without them.
-#[test]
-fn table_points_are_no_partners() {
-    use ppfd_models::plane::SupportingPlane;
-    use ppfd_models::subsample::OrientedPoints;
-    use ppfd_models::voting::{vote_from, Selection};
+/// The angle bracket's model, and the oriented points of a generated view of it on the table,
+/// with the default parameters that prepared them.
+fn bracket_on_table() -> (
+    ObjectModel,
+    ppfd_models::subsample::OrientedPoints,
+    DetectParams,
+) {
     let part = Part::LBracket;
     let mesh = part.mesh();
     let model = ObjectModel::build(&mesh, 1, part.name(), &ModelParams::default()).unwrap();
-    let d = model.diameter_mm();
     let scene = SceneSpec::new(3)
         .object(1, &mesh)
         .camera_distance_mm(700.0, 800.0)
@@ -260,7 +259,18 @@ fn table_points_are_no_partners() {
         .unwrap();
     let params = DetectParams::new();
     let image = prepare(&scene.frame.view(), &params.scene).unwrap();
-    let points = image.oriented_points();
+    (model, image.oriented_points(), params)
+}
+
+/// Points on the table cannot be model points: with `plane_partners` off they pair with no
+/// reference point, and voting gives exactly what it gives on the scene without them.
+#[test]
+fn table_points_are_no_partners() {
+    use ppfd_models::plane::SupportingPlane;
+    use ppfd_models::subsample::OrientedPoints;
+    use ppfd_models::voting::{vote_from, Selection};
+    let (model, points, params) = bracket_on_table();
+    let d = model.diameter_mm();
     let planes = SupportingPlane::find_all(&points, &params.plane);
     assert!(!planes.is_empty(), "no table found");
     let cloud = PreparedScene::new(&points, &model.params().subsample_params(d)).unwrap();
@@ -338,18 +348,8 @@ fn table_points_are_no_partners() {
 fn points_behind_the_table_are_neither_references_nor_partners() {
     use ppfd_models::plane::{PlaneParams, SupportingPlane};
     use ppfd_models::voting::Selection;
-    let part = Part::LBracket;
-    let mesh = part.mesh();
-    let model = ObjectModel::build(&mesh, 1, part.name(), &ModelParams::default()).unwrap();
+    let (model, seen, params) = bracket_on_table();
     let d = model.diameter_mm();
-    let scene = SceneSpec::new(3)
-        .object(1, &mesh)
-        .camera_distance_mm(700.0, 800.0)
-        .build()
-        .unwrap();
-    let params = DetectParams::new();
-    let image = prepare(&scene.frame.view(), &params.scene).unwrap();
-    let seen = image.oriented_points();
     let table = SupportingPlane::find(&seen, &params.plane).expect("no table found");
     // The scene, and a copy of what stands on the table moved 300 mm behind it.
     let mut points = seen.clone();
