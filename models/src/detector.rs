@@ -46,8 +46,8 @@ pub struct DetectParams {
     /// frame, 1.25 cast 16 % more votes than 1.0), and it changes what an object votes on:
     /// so only near-equal diameters share. On that frame 1.1 (three pairs of objects share)
     /// took as long as 1.0 (6.84 s and 6.79 s, medians of 3) and lost the glue's best pose to
-    /// a wrong one on the egg box (re-scored 0.134 against the true pose's 0.131); its
-    /// diameters differ by 5.5 to 7 %, so 1.05 shares nothing there.
+    /// a wrong one on the egg box (re-scored 0.134 against the true pose's 0.131); the
+    /// three closest pairs of its diameters differ by 6.3 to 6.8 %, so 1.05 shares nothing there.
     pub shared_cloud_diameter_ratio: f32,
     /// How many of the best pose clusters (before re-scoring) each object's result keeps in
     /// [`ObjectDetections::clusters`], for diagnostics and the voting stage's own measure.
