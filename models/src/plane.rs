@@ -20,8 +20,12 @@
 //! (`ppf profile`, both in one run; the slower one also shared clouds between diameters 10 %
 //! apart, as the detector did until this change, see
 //! [`crate::detector::DetectParams::shared_cloud_diameter_ratio`]), the same six of eight best
-//! poses correct; synth-lmo-dev's recall stayed 0.935 in 0.85 of the time. A cell whose objects may lie below the dominant plane (a camera seeing a
-//! large table, the objects on a lower shelf beyond it) turns this off.
+//! poses correct; synth-lmo-dev's recall stayed 0.935 in 0.85 of the time.
+//!
+//! This takes the dominant plane for the support. Where it need not be, a cell turns the
+//! exclusion off (`plane.exclude_behind=false`): objects on a lower shelf beyond a large table,
+//! or a large flat item whose top outweighs the table in view, with smaller objects beside it
+//! (the table and those objects lie behind the top's plane).
 //!
 //! A plane narrower than an object's diameter may be one of that object's own faces (a box's
 //! top): for that object its points stay reference points. Objects whose coplanar faces together
