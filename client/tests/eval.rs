@@ -4,23 +4,11 @@
 //! and always under `CI=true`.
 #![cfg(feature = "cli")]
 
+mod common;
+
+use common::lmo;
 use std::path::PathBuf;
 use std::process::Command;
-
-fn lmo() -> Option<PathBuf> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/lmo");
-    if dir.join("test").is_dir() {
-        return Some(dir);
-    }
-    if std::env::var("CI").as_deref() == Ok("true") {
-        panic!("CI=true but the LM-O data is missing at {}", dir.display());
-    }
-    eprintln!(
-        "skipped: no LM-O data at {} (the test runs when it is there)",
-        dir.display()
-    );
-    None
-}
 
 #[test]
 fn an_unwritable_results_file_is_refused_before_any_detection() {

@@ -1,0 +1,81 @@
+//! `ppf detect --diagnose` on the real LM-O frame: per object, the scene's points on it and how
+//! many of its reference points propose a correct pose, consistent with each other and with the
+//! rank the object's right pose reaches. Reads `../shared/data/lmo`; runs whenever the data is
+//! there, and always under `CI=true`.
+#![cfg(feature = "cli")]
+
+mod common;
+
+use common::lmo;
+use std::process::Command;
+
+#[test]
+fn diagnose_counts_the_reference_points_that_propose_the_right_pose() {
+    let Some(dataset) = lmo() else { return };
+    let cache = std::env::temp_dir().join(format!("ppf-diagnose-cache-{}", std::process::id()));
+    let run = Command::new(env!("CARGO_BIN_EXE_ppf"))
+        .args(["detect", "--dataset"])
+        .arg(&dataset)
+        .args([
+            "--scene",
+            "2",
+            "--image",
+            "3",
+            "--diagnose",
+            "--objects",
+            "8,11",
+        ])
+        .env("PPFD_CACHE", &cache)
+        .output()
+        .unwrap();
+    let _ = std::fs::remove_dir_all(&cache);
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let header: Vec<&str> = stdout
+        .lines()
+        .find(|l| l.starts_with("| object"))
+        .expect("a table")
+        .split('|')
+        .map(str::trim)
+        .collect();
+    let column = |name: &str| {
+        header
+            .iter()
+            .position(|h| *h == name)
+            .unwrap_or_else(|| panic!("no column {name:?} in {header:?}"))
+    };
+    let (object, on_object, normal_error, references, proposing, rank) = (
+        column("object"),
+        column("on object"),
+        column("normal error (median °)"),
+        column("reference points on object"),
+        column("proposing a correct pose"),
+        column("after ICP + re-scoring"),
+    );
+    let rows: Vec<Vec<&str>> = stdout
+        .lines()
+        .filter(|l| l.starts_with("| ") && !l.starts_with("| object"))
+        .map(|l| l.split('|').map(str::trim).collect())
+        .collect();
+    assert_eq!(rows.len(), 2, "{stdout}");
+    for row in &rows {
+        let n = |c: usize| row[c].parse::<f64>().unwrap_or_else(|_| panic!("{row:?}"));
+        // Every reference point on the object is one of the cloud's points on it, and only
+        // reference points on it can propose its pose.
+        assert!(n(references) <= n(on_object), "{row:?}");
+        assert!(n(proposing) <= n(references), "{row:?}");
+        assert!(n(references) > 0.0, "{row:?}");
+        // Normals against the side of the model facing the camera: a median beyond 45° would
+        // mean they are compared with the wrong surface.
+        assert!(n(normal_error) < 45.0, "{row:?}");
+        // The driller's pose ranks first on this frame: some reference point proposed it.
+        if row[object] == "8" {
+            assert_eq!(row[rank], "1", "{stdout}");
+            assert!(n(proposing) > 0.0, "{row:?}");
+        }
+    }
+}
