@@ -5,9 +5,10 @@
 //!   camera process publishes the scene `ppf demo --seed <seed>` shows (all four parts on a
 //!   table, Kinect-like noise), and two client processes ask for overlapping sets of parts; every
 //!   best pose must be near the truth.
-//! - An LM-O object (`../shared/data/synth-lmo-dev`, runs when `CI=true`): the daemon builds the
-//!   model from the object's PLY mesh itself (its mesh → model → cache path, which the generated
-//!   test skips by handing it model files) and finds it in a frame rendered by another tool.
+//! - An LM-O object (`../shared/data/synth-lmo-dev`; runs whenever it is there, and must find it
+//!   under `CI=true`): the daemon builds the model from the object's PLY mesh itself (its mesh →
+//!   model → cache path, which the generated test skips by handing it model files) and finds it
+//!   in a frame rendered by another tool.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;
