@@ -184,6 +184,9 @@ pub struct Detections {
     /// Per requested object, its own stage timings (scene preparation is shared and counted once
     /// in `timings`).
     pub per_object_timings: Vec<StageTimings>,
+    /// Per requested object, its own counts (`scene_points` is its subsampled cloud's size,
+    /// shared with objects of near-equal diameter; `counts.scene_points` is the frame's).
+    pub per_object_counts: Vec<Counts>,
 }
 
 fn clusters_as_poses(clusters: &[crate::clustering::PoseCluster]) -> Vec<(Pose, u32)> {
@@ -288,10 +291,18 @@ impl Detector {
             let t = Instant::now();
             let clusters = cluster_poses(&raw, model.diameter_mm(), &self.params.clustering);
             timings.clustering = t.elapsed();
-            out.counts.reference_points += counts.reference_points;
-            out.counts.pairs += counts.pairs;
-            out.counts.votes += counts.votes;
-            out.counts.hypotheses += raw.len() as u32;
+            let own = Counts {
+                scene_points: scene.points.len() as u32,
+                reference_points: counts.reference_points,
+                pairs: counts.pairs,
+                votes: counts.votes,
+                hypotheses: raw.len() as u32,
+            };
+            out.counts.reference_points += own.reference_points;
+            out.counts.pairs += own.pairs;
+            out.counts.votes += own.votes;
+            out.counts.hypotheses += own.hypotheses;
+            out.per_object_counts.push(own);
             let clusters = clusters_as_poses(&clusters);
             let hypotheses =
                 self.after_voting(model, &clusters, &scene_image, &edges, opts, &mut timings);

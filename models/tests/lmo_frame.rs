@@ -83,6 +83,24 @@ fn detect_frame(dir: &PathBuf) -> Outcome {
         )
         .unwrap();
     assert!(clusters_kept >= 10);
+    // Each object's own counts, in request order, add up to the frame's.
+    assert_eq!(det.per_object_counts.len(), models.len());
+    let sum = |f: fn(&ppfd_models::detector::Counts) -> u64| -> u64 {
+        det.per_object_counts.iter().map(f).sum()
+    };
+    assert_eq!(
+        sum(|c| c.reference_points as u64),
+        det.counts.reference_points as u64
+    );
+    assert_eq!(sum(|c| c.pairs), det.counts.pairs);
+    assert_eq!(sum(|c| c.votes), det.counts.votes);
+    assert_eq!(sum(|c| c.hypotheses as u64), det.counts.hypotheses as u64);
+    for c in &det.per_object_counts {
+        // An object's cloud is the frame's points subsampled with its leaf.
+        assert!(c.scene_points > 0 && c.scene_points < det.counts.scene_points);
+        assert!(c.reference_points > 0 && c.reference_points <= c.scene_points);
+        assert!(c.votes > c.pairs, "{c:?}");
+    }
 
     println!(
         "| object | D (mm) | visible | correct cluster rank (of 10) | best pose t err (mm) | R err (°) | correct |"

@@ -71,29 +71,39 @@ pub fn run(args: ProfileArgs) -> Result<(), Box<dyn std::error::Error>> {
     let repeat = args.repeat;
     let mut per_object: Vec<Vec<StageTimings>> = vec![Vec::new(); refs.len()];
     let mut frame_runs = Vec::new();
+    // The same frame and parameters give the same counts every run: the last run's are shown.
+    let mut counts = Vec::new();
     for _ in 0..repeat {
         let det = detector.detect(&frame.view(), &refs, &opts)?;
         for (i, t) in det.per_object_timings.iter().enumerate() {
             per_object[i].push(*t);
         }
         frame_runs.push(det.timings);
+        counts = det.per_object_counts;
     }
-    println!("medians of {repeat} runs, ms");
-    println!("| object | voting | clustering | voting + clustering | re-scoring | ICP | filters | object total |");
-    println!("|---:|---:|---:|---:|---:|---:|---:|---:|");
-    for (m, runs) in models.iter().zip(&per_object) {
+    println!("medians of {repeat} runs, ms; what voting did (the same every run)");
+    println!("| object | voting | clustering | voting + clustering | re-scoring | ICP | filters | object total | cloud points | reference points | pairs | votes | ns per vote |");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for ((m, runs), c) in models.iter().zip(&per_object).zip(&counts) {
         let col =
             |f: &dyn Fn(&StageTimings) -> Duration| median(runs.iter().map(|t| ms(f(t))).collect());
+        let voting = col(&|t| t.voting);
         println!(
-            "| {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} |",
+            "| {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {} | {:.2} M | {:.1} M | {:.1} |",
             m.object_id(),
-            col(&|t| t.voting),
+            voting,
             col(&|t| t.clustering),
             col(&|t| t.voting + t.clustering),
             col(&|t| t.rescoring),
             col(&|t| t.icp),
             col(&|t| t.filters),
             col(&|t| t.total()),
+            c.scene_points,
+            c.reference_points,
+            c.pairs as f64 / 1e6,
+            c.votes as f64 / 1e6,
+            // Wall time over votes: both cores together, the pairs' features and look-ups included.
+            voting * 1e6 / (c.votes.max(1) as f64),
         );
     }
     let col = |f: &dyn Fn(&StageTimings) -> Duration| {
