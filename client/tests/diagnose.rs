@@ -79,3 +79,35 @@ fn diagnose_counts_the_reference_points_that_propose_the_right_pose() {
         }
     }
 }
+
+/// An object the frame's ground truth does not hold is refused by name, before any model is
+/// built (the diagnosis judges every stage against the truth).
+#[test]
+fn diagnose_refuses_an_object_without_ground_truth_before_building_models() {
+    let Some(dataset) = lmo() else { return };
+    let cache = std::env::temp_dir().join(format!("ppf-diagnose-none-{}", std::process::id()));
+    // Object 2 has no model file in LM-O either: without the check, the run fails on that
+    // instead, after building the driller's model.
+    let run = Command::new(env!("CARGO_BIN_EXE_ppf"))
+        .args(["detect", "--dataset"])
+        .arg(&dataset)
+        .args([
+            "--scene",
+            "2",
+            "--image",
+            "3",
+            "--diagnose",
+            "--objects",
+            "8,2",
+        ])
+        .env("PPFD_CACHE", &cache)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success());
+    assert!(
+        stderr.contains("object 2 has no ground truth in scene 2 image 3"),
+        "{stderr}"
+    );
+    assert!(!cache.exists(), "no model was built before the refusal");
+}

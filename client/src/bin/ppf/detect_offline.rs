@@ -267,6 +267,18 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
         args.objects.clone()
     };
     let p = args.params()?;
+    // Every stage is judged against the ground truth: refuse an object without one before
+    // building anything.
+    if let Some(missing) = ids.iter().find(|&&id| !gt.iter().any(|g| g.obj_id == id)) {
+        let present: Vec<String> = gt.iter().map(|g| g.obj_id.to_string()).collect();
+        return Err(format!(
+            "object {missing} has no ground truth in scene {} image {} (it has {}); --diagnose needs it",
+            args.scene,
+            args.image,
+            present.join(", ")
+        )
+        .into());
+    }
     let models = dataset_models(&dataset, &ids)?;
     let frame = dataset.depth_frame(args.scene, args.image)?;
     let scene = prepare(&frame.view(), &p.scene)?;
@@ -300,7 +312,7 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             .iter()
             .find(|g| g.obj_id == model.object_id())
             .map(|g| g.pose)
-            .ok_or("no ground truth")?;
+            .ok_or("no ground truth")?; // checked above
         let syms = dataset
             .model_info(model.object_id())
             .map(|i| i.symmetries_discrete.clone())
