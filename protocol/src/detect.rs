@@ -216,13 +216,15 @@ pub struct LatencyBreakdown {
 #[type_name("ppfd::DetectCounts")]
 #[repr(C)]
 pub struct DetectCounts {
-    /// Oriented scene points after subsampling.
+    /// Oriented points back-projected from the depth frame (pixels with depth and a normal),
+    /// before each object's subsampling.
     pub scene_points: u32,
-    /// Scene reference points that voted.
+    /// Scene reference points that voted, summed over the requested objects.
     pub reference_points: u32,
-    /// Point pairs examined in voting.
+    /// Point pairs that voted, summed over the requested objects.
     pub pairs: u64,
-    /// Pose hypotheses that came out of clustering (before the verification stages).
+    /// Pose hypotheses out of voting (accumulator peaks, before clustering), summed over the
+    /// requested objects.
     pub hypotheses: u32,
     /// Hypotheses in this response's payload.
     pub returned: u32,
