@@ -7,27 +7,27 @@
 mod common;
 
 use common::lmo;
-use std::process::Command;
+use std::path::Path;
+use std::process::{Command, Output};
+
+/// `ppf detect --dataset <dataset> --scene 2 --image 3 --diagnose --objects <objects>`, building
+/// models into `cache`.
+fn diagnose(dataset: &Path, objects: &str, cache: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_ppf"))
+        .args(["detect", "--dataset"])
+        .arg(dataset)
+        .args(["--scene", "2", "--image", "3", "--diagnose", "--objects"])
+        .arg(objects)
+        .env("PPFD_CACHE", cache)
+        .output()
+        .unwrap()
+}
 
 #[test]
 fn diagnose_counts_the_reference_points_that_propose_the_right_pose() {
     let Some(dataset) = lmo() else { return };
     let cache = std::env::temp_dir().join(format!("ppf-diagnose-cache-{}", std::process::id()));
-    let run = Command::new(env!("CARGO_BIN_EXE_ppf"))
-        .args(["detect", "--dataset"])
-        .arg(&dataset)
-        .args([
-            "--scene",
-            "2",
-            "--image",
-            "3",
-            "--diagnose",
-            "--objects",
-            "8,11",
-        ])
-        .env("PPFD_CACHE", &cache)
-        .output()
-        .unwrap();
+    let run = diagnose(&dataset, "8,11", &cache);
     let _ = std::fs::remove_dir_all(&cache);
     let stdout = String::from_utf8_lossy(&run.stdout);
     assert!(
@@ -88,21 +88,7 @@ fn diagnose_refuses_an_object_without_ground_truth_before_building_models() {
     let cache = std::env::temp_dir().join(format!("ppf-diagnose-none-{}", std::process::id()));
     // Object 2 has no model file in LM-O either: without the check, the run fails on that
     // instead, after building the driller's model.
-    let run = Command::new(env!("CARGO_BIN_EXE_ppf"))
-        .args(["detect", "--dataset"])
-        .arg(&dataset)
-        .args([
-            "--scene",
-            "2",
-            "--image",
-            "3",
-            "--diagnose",
-            "--objects",
-            "8,2",
-        ])
-        .env("PPFD_CACHE", &cache)
-        .output()
-        .unwrap();
+    let run = diagnose(&dataset, "8,2", &cache);
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(!run.status.success());
     assert!(
