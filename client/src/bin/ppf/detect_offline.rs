@@ -337,22 +337,24 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             .map(|(q, n)| (truth * q, truth * n))
             .filter(|(q, n)| n.dot(&q.coords) < 0.0)
             .collect();
-        let surface_normal_at = |q: &nalgebra::Point3<f32>| {
-            front
-                .iter()
-                .filter(|(m, _)| (m - q).norm() < 3.0)
-                .min_by(|a, b| (a.0 - q).norm().total_cmp(&(b.0 - q).norm()))
-                .map(|(_, n)| *n)
-        };
+        // Per cloud point, once: the nearest such surface point's normal, if it is on the object.
+        let surface_normals: Vec<Option<nalgebra::Vector3<f32>>> = cloud
+            .points
+            .positions
+            .iter()
+            .map(|q| {
+                front
+                    .iter()
+                    .filter(|(m, _)| (m - q).norm() < 3.0)
+                    .min_by(|a, b| (a.0 - q).norm().total_cmp(&(b.0 - q).norm()))
+                    .map(|(_, n)| *n)
+            })
+            .collect();
         let on_object = {
-            let mut errs: Vec<f32> = cloud
-                .points
-                .positions
+            let mut errs: Vec<f32> = surface_normals
                 .iter()
                 .zip(&cloud.points.normals)
-                .filter_map(|(q, n)| {
-                    surface_normal_at(q).map(|mn| n.dot(&mn).clamp(-1.0, 1.0).acos().to_degrees())
-                })
+                .filter_map(|(mn, n)| mn.map(|mn| n.dot(&mn).clamp(-1.0, 1.0).acos().to_degrees()))
                 .collect();
             errs.sort_by(f32::total_cmp);
             (
@@ -370,12 +372,17 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
         let references_on_object: Vec<u32> = selection
             .references
             .iter()
-            .filter(|&&r| surface_normal_at(&cloud.points.positions[r]).is_some())
+            .filter(|&&r| surface_normals[r].is_some())
             .map(|&r| r as u32)
+            .collect();
+        let proposing: std::collections::HashSet<u32> = raw
+            .iter()
+            .filter(|h| ok(&h.pose))
+            .map(|h| h.scene_point)
             .collect();
         let references_right = references_on_object
             .iter()
-            .filter(|&&r| raw.iter().any(|h| h.scene_point == r && ok(&h.pose)))
+            .filter(|r| proposing.contains(r))
             .count();
         let first_correct = |poses: &[ppfd_models::Pose]| poses.iter().position(&ok);
         let cluster_poses_list: Vec<_> = clusters.iter().map(|c| c.pose).collect();
