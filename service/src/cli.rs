@@ -34,7 +34,7 @@ pub struct Args {
     /// Detections running at once, 1 to 256 [default: 1].
     #[arg(long)]
     pub parallel_detections: Option<usize>,
-    /// Waiting requests beyond which new ones are refused "busy" [default: 64].
+    /// Waiting requests beyond which new ones are refused "busy", 1 to 4096 [default: 64].
     #[arg(long)]
     pub queue_capacity: Option<usize>,
     /// Camera frames older than this are refused "camera stale", milliseconds [default: 1000].

@@ -7,7 +7,7 @@
 //! prefix = "ppfd_"                  # iceoryx2 resource prefix (isolates daemons)
 //! workers = 0                       # detection threads; 0 = one per core
 //! parallel_detections = 1           # detections running at once
-//! queue_capacity = 64               # requests waiting beyond that are refused "busy"
+//! queue_capacity = 64               # requests waiting beyond that are refused "busy" (1 to 4096)
 //! max_frame_age_ms = 1000           # older camera frames are refused "camera stale"
 //! housekeeping_ms = 1000            # period of camera discovery and dead-peer cleanup
 //!
@@ -23,6 +23,10 @@ use serde::Deserialize;
 /// The most worker threads, and detections at once, a configuration may ask for; far more than
 /// cores any one machine has.
 pub const MAX_THREADS: usize = 256;
+
+/// The largest request queue the daemon accepts (each queued request keeps its client's
+/// request memory borrowed).
+pub const MAX_QUEUE_CAPACITY: usize = 4096;
 
 /// The daemon's settings.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -151,8 +155,11 @@ impl DaemonConfig {
                 self.workers, self.parallel_detections
             ));
         }
-        if self.queue_capacity == 0 {
-            return Err("queue_capacity must be at least 1".into());
+        if self.queue_capacity == 0 || self.queue_capacity > MAX_QUEUE_CAPACITY {
+            return Err(format!(
+                "queue_capacity must be 1 to {MAX_QUEUE_CAPACITY} (was {})",
+                self.queue_capacity
+            ));
         }
         if self.housekeeping_ms == 0 {
             return Err("housekeeping_ms must be at least 1".into());
@@ -327,6 +334,16 @@ mod tests {
                 ..Default::default()
             };
             assert!(c.validate().unwrap_err().contains("at most 256"));
+        }
+        for queue_capacity in [0, MAX_QUEUE_CAPACITY + 1] {
+            let c = DaemonConfig {
+                queue_capacity,
+                ..Default::default()
+            };
+            assert!(c
+                .validate()
+                .unwrap_err()
+                .contains("queue_capacity must be 1 to 4096"));
         }
         let c = DaemonConfig {
             detector: vec![("scene.min_depth_mm".into(), "6000".into())],

@@ -43,7 +43,7 @@ use crate::config::DaemonConfig;
 use crate::engine::{DetectOptions, DetectionEngine, EngineError, FrameView, LoadedModel};
 use crate::housekeeper::Housekeeper;
 use crate::registry::Registry;
-use crate::responder::{self, ControlActive, DetectActive, Ipc, Outcome, Responder, Served};
+use crate::responder::{self, ControlActive, DetectActive, Ipc, Outcome, Port, Responder, Served};
 use crate::stats::Stats;
 use crate::termination::{block_termination_signals, TerminationSignals};
 use crate::wakeup::{Signaller, Wakeup};
@@ -71,6 +71,18 @@ pub fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::Config, 
             .map_err(|e| DaemonError(format!("iceoryx2 prefix {prefix:?}: {e:?}")))?;
     }
     Ok(config)
+}
+
+/// How many connections of dead clients the daemon's servers keep while the daemon still holds
+/// one of their requests (iceoryx2 panics beyond it). What the daemon holds of dead clients:
+/// queued requests (until the next housekeeping round drops them), running detections, and the
+/// abandoned requests the responder keeps back (see [`Responder::release_one_abandoned`]).
+fn expired_connection_buffer(config: &DaemonConfig) -> usize {
+    let held = config.queue_capacity
+        + config.parallel_detections
+        + responder::MAX_ABANDONED_HELD
+        + limits::MAX_CLIENTS;
+    held.max(128)
 }
 
 /// Depth values in shared memory that a worker reads. Valid while the sample (held by the I/O
@@ -192,7 +204,10 @@ pub fn run(
     // Before any thread starts: every thread the daemon starts inherits the blocked signals.
     let termination =
         TerminationSignals::new().map_err(fail("cannot open a signalfd for SIGINT and SIGTERM"))?;
-    let iox = iceoryx_config(config.prefix.as_deref())?;
+    let mut iox = iceoryx_config(config.prefix.as_deref())?;
+    iox.defaults
+        .request_response
+        .server_expired_connection_buffer = expired_connection_buffer(&config);
     let node = NodeBuilder::new()
         .name(&NodeName::new("ppfd").map_err(fail("node name"))?)
         .config(&iox)
@@ -405,6 +420,36 @@ impl Daemon {
             self.stats.frames_received += camera.refresh(name);
         }
         self.responder.trim();
+        self.drop_dead_clients_requests();
+        while let Some(port) = self.responder.release_one_abandoned() {
+            // The receive lets iceoryx2 forget the dead client's connection (and takes any
+            // request that came in meanwhile).
+            match port {
+                Port::Detect => self.take_detect_requests(),
+                Port::Control => self.take_control_requests(),
+            }
+        }
+        let held = self.responder.abandoned_held();
+        if held > 0 {
+            tracing::debug!(held, "requests of dead clients not yet released");
+        }
+    }
+
+    /// Takes the queued requests of clients that died off the queue: while queued, each keeps
+    /// the dead client's connection (and its shared memory) alive.
+    fn drop_dead_clients_requests(&mut self) {
+        if self.queue.is_empty() {
+            return;
+        }
+        let queued = std::mem::take(&mut self.queue);
+        for q in queued {
+            if self.responder.detect_client_alive(&q.active) {
+                self.queue.push_back(q);
+            } else {
+                let outcome = self.responder.abandon(q.active, q.header.request_id);
+                self.count(outcome);
+            }
+        }
     }
 
     // ---------------------------------------------------------------- cameras
@@ -523,7 +568,7 @@ impl Daemon {
                 break;
             };
             if !self.responder.detect_client_alive(&q.active) {
-                let outcome = responder::abandon(q.active, q.header.request_id);
+                let outcome = self.responder.abandon(q.active, q.header.request_id);
                 self.count(outcome);
                 continue;
             }
@@ -869,7 +914,7 @@ impl Daemon {
     ) {
         if !self.responder.control_client_alive(&active) {
             // As for detect requests: never touch a dead client's possibly reused channel.
-            std::mem::forget(active);
+            self.responder.abandon_control(active);
             return;
         }
         let mut stats = self.stats.snapshot();

@@ -31,6 +31,13 @@ pub type DetectActive =
 /// A control request taken off the port, until it is answered.
 pub type ControlActive = ActiveRequest<Ipc, ControlRequest, (), [ModelInfo], ControlResponseHeader>;
 
+/// The daemon's request ports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Port {
+    Detect,
+    Control,
+}
+
 /// What became of a request once answered (or not), for the statistics.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Outcome {
@@ -64,6 +71,19 @@ pub struct Responder {
     detect_service: DetectService<Ipc>,
     control_service: ControlService<Ipc>,
     wake: Mutex<Wake>,
+    abandoned: Mutex<Abandoned>,
+}
+
+/// At most this many requests of dead clients are held back (see
+/// [`Responder::release_one_abandoned`]).
+pub const MAX_ABANDONED_HELD: usize = limits::MAX_CLIENTS;
+
+/// Requests of clients that died before their answer, held until releasing them cannot touch
+/// another client's channel (see [`Responder::release_one_abandoned`]).
+#[derive(Default)]
+struct Abandoned {
+    detect: Vec<DetectActive>,
+    control: Vec<ControlActive>,
 }
 
 struct Wake {
@@ -85,6 +105,7 @@ impl Responder {
                 notifier,
                 keys: HashMap::new(),
             }),
+            abandoned: Mutex::new(Abandoned::default()),
         }
     }
 
@@ -96,7 +117,7 @@ impl Responder {
         result: Result<EngineOutput, EngineError>,
     ) -> Outcome {
         if !self.detect_client_alive(&active) {
-            return abandon(active, job.header.request_id);
+            return self.abandon(active, job.header.request_id);
         }
         if !active.is_connected() {
             tracing::debug!(
@@ -157,7 +178,7 @@ impl Responder {
         e: EngineError,
     ) -> Outcome {
         if !self.detect_client_alive(&active) {
-            return abandon(active, request.request_id);
+            return self.abandon(active, request.request_id);
         }
         tracing::debug!(request = request.request_id, status = %e.status, reason = %e.message, "request refused");
         let mut response = DetectResponseHeader {
@@ -176,8 +197,8 @@ impl Responder {
 
     /// Whether the client that sent `active` still exists. A dead client's connection slot may
     /// already serve a new client (iceoryx2 reuses it once the dead node is cleaned up, which any
-    /// process may do): answering or even dropping the old request would then touch the new
-    /// client's channel.
+    /// process may do): answering the old request would then touch the new client's channel,
+    /// and so may dropping it (see [`Responder::abandon`]).
     pub fn detect_client_alive(&self, active: &DetectActive) -> bool {
         let origin = active.origin();
         listed(
@@ -289,13 +310,92 @@ fn listed(
     alive
 }
 
-/// Lets go of a dead client's request without touching its (possibly reused) channel: the
-/// request's chunk in the dead client's memory is not returned (a few bytes per client that
-/// died mid-request).
-pub fn abandon(active: DetectActive, request_id: u64) -> Outcome {
-    tracing::debug!(request = request_id, "client died before its answer");
-    std::mem::forget(active);
-    Outcome::Abandoned
+impl Responder {
+    /// Takes a dead client's request without answering it; [`Responder::release_one_abandoned`]
+    /// lets go of it later.
+    ///
+    /// Dropping a request does two things: it returns the request's memory to its client's
+    /// connection (iceoryx2 checks that the connection is still that client's), and it closes
+    /// the response channel at the client's slot if the channel still waits for this request's
+    /// id. The slot is an index that a new client may already hold, and request ids start at 0
+    /// in every client, so a new client's first request can wait on that very channel under the
+    /// same id: dropping the old request now could cut the new client off. Never dropping it
+    /// is no better: the request's memory stays borrowed, iceoryx2 keeps the dead client's
+    /// connection (its shared memory mapped, file descriptors open), and once more than its
+    /// expired-connection buffer (128) of such connections pile up it panics, taking the
+    /// daemon down.
+    pub fn abandon(&self, active: DetectActive, request_id: u64) -> Outcome {
+        tracing::debug!(request = request_id, "client died before its answer");
+        self.lock_abandoned().detect.push(active);
+        Outcome::Abandoned
+    }
+
+    /// As [`Responder::abandon`], for a control request.
+    pub fn abandon_control(&self, active: ControlActive) {
+        self.lock_abandoned().control.push(active);
+    }
+
+    /// Drops one abandoned request whose response channel no longer waits for it: the slot is
+    /// empty (the daemon's ports saw the dead client go) or its channel serves another request
+    /// id. Those still waiting stay for a later call: the daemon has not yet seen the dead
+    /// client removed, or a new client's request waits on the same channel under the same id
+    /// (until it is answered). Beyond [`MAX_ABANDONED_HELD`] the oldest is dropped all the
+    /// same: a new client might lose its request's answer (it times out), but the daemon stays
+    /// up. Returns which port's request was dropped, if any.
+    ///
+    /// One at a time, because of how iceoryx2 (0.10) forgets a dead client's connection: the
+    /// next `receive` on the port removes the connections that no longer hold borrowed
+    /// requests, but when two or more become free at once behind one that still holds a request,
+    /// it takes the wrong one off its list and keeps that client's connection (its shared
+    /// memory mapped, a slot of a fixed-size store taken) for good. So the I/O thread calls
+    /// this, then `receive` on the port named, until nothing is left to drop.
+    pub fn release_one_abandoned(&self) -> Option<Port> {
+        let mut abandoned = self.lock_abandoned();
+        if let Some(i) = abandoned.detect.iter().position(|a| !a.is_connected()) {
+            drop(abandoned.detect.remove(i));
+            return Some(Port::Detect);
+        }
+        if let Some(i) = abandoned.control.iter().position(|a| !a.is_connected()) {
+            drop(abandoned.control.remove(i));
+            return Some(Port::Control);
+        }
+        if abandoned.detect.len() + abandoned.control.len() > MAX_ABANDONED_HELD {
+            tracing::warn!(
+                "released a request of a dead client whose channel may serve a new client"
+            );
+            if !abandoned.control.is_empty() {
+                drop(abandoned.control.remove(0));
+                return Some(Port::Control);
+            }
+            drop(abandoned.detect.remove(0));
+            return Some(Port::Detect);
+        }
+        None
+    }
+
+    /// How many requests of dead clients are held.
+    pub fn abandoned_held(&self) -> usize {
+        let abandoned = self.lock_abandoned();
+        abandoned.detect.len() + abandoned.control.len()
+    }
+
+    fn lock_abandoned(&self) -> std::sync::MutexGuard<'_, Abandoned> {
+        self.abandoned.lock().unwrap_or_else(|p| p.into_inner())
+    }
+}
+
+impl Drop for Responder {
+    /// What is still held is left as it is: the process exits next, which releases it without
+    /// touching another client's channel.
+    fn drop(&mut self) {
+        let abandoned = std::mem::take(&mut *self.lock_abandoned());
+        for active in abandoned.detect {
+            std::mem::forget(active);
+        }
+        for active in abandoned.control {
+            std::mem::forget(active);
+        }
+    }
 }
 
 #[cfg(test)]

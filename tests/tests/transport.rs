@@ -285,6 +285,74 @@ fn a_client_killed_mid_request_does_not_stall_the_next_one() {
     assert!(other.iter_mut().all(|l| l.starts_with("ok")), "{other:?}");
 }
 
+/// While the daemon holds a request of a client that died, iceoryx2 keeps the connection to
+/// that client (its shared memory mapped, file descriptors open), and it panics once more than
+/// its buffer of such connections (128) pile up. Requests of dead clients were held forever,
+/// so the 129th client killed mid-request took the daemon down.
+#[test]
+fn clients_killed_mid_request_by_the_hundred_leave_the_daemon_serving() {
+    let prefix = Prefix::new("killings");
+    let models = fake_model_dir("killings", &[1]);
+    let d = daemon(&prefix, &models, &[], "300");
+    let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let observer = connect(&prefix);
+    let pid = d.child.id();
+    let open_files = || {
+        std::fs::read_dir(format!("/proc/{pid}/fd"))
+            .expect("the daemon runs")
+            .count()
+    };
+    let files_before = open_files();
+    let wanted = 140; // more than iceoryx2's 128
+    let mut batches = 0;
+    let mut stats = observer.stats().expect("statistics");
+    while stats.requests_abandoned < wanted {
+        batches += 1;
+        assert!(batches <= 20, "too few requests abandoned: {stats:?}");
+        // 20 clients, each sends a request (most wait in the queue behind the 300 ms
+        // detection) and is killed.
+        let mut victims: Vec<Proc> = (0..20)
+            .map(|_| client(&prefix, &["--camera", "cam0", "--objects", "1"]))
+            .collect();
+        for v in &mut victims {
+            v.wait_line("client ready", STARTUP);
+        }
+        std::thread::sleep(Duration::from_millis(50));
+        for v in &mut victims {
+            v.signal(libc::SIGKILL);
+            v.wait_exit(Duration::from_secs(5)).expect("victim died");
+        }
+        // Until the daemon has let go of the batch: nothing queued or running.
+        let deadline = std::time::Instant::now() + Duration::from_secs(30);
+        loop {
+            stats = observer.stats().expect("the daemon still answers");
+            if stats.queued == 0 && stats.in_flight == 0 {
+                break;
+            }
+            assert!(std::time::Instant::now() < deadline, "{stats:?}");
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+    let found = observer
+        .detect("cam0", &[1], &ppfd_client::DetectOptions::default())
+        .expect("a live client is served");
+    assert_eq!(found.hypotheses.len(), 1);
+    // The dead clients' connections are let go: the files that stay open are the live
+    // client's (about three per dead client were left open before, one per batch when several
+    // requests of dead clients were released at once).
+    std::thread::sleep(Duration::from_millis(300)); // a few housekeeping rounds
+    let files_after = open_files();
+    eprintln!(
+        "{} requests abandoned in {batches} batches; daemon's open files {files_before} before, {files_after} after",
+        stats.requests_abandoned
+    );
+    assert!(
+        files_after <= files_before + 15,
+        "{files_before} files open before, {files_after} after"
+    );
+}
+
 fn client_proc_served(prefix: &Prefix) -> Vec<String> {
     let mut c = client(
         prefix,
