@@ -405,10 +405,11 @@ impl Daemon {
         }
         self.take_control_requests();
         self.take_detect_requests();
-        self.dispatch();
         if self.last_housekeeping.elapsed() >= Duration::from_millis(self.config.housekeeping_ms) {
+            // Before dispatching: it drops dead clients' queued requests and may take new ones.
             self.housekeeping();
         }
+        self.dispatch();
     }
 
     /// The I/O thread's share of housekeeping (cleanup and discovery run on the
