@@ -43,7 +43,9 @@ use crate::config::DaemonConfig;
 use crate::engine::{DetectOptions, DetectionEngine, EngineError, FrameView, LoadedModel};
 use crate::housekeeper::Housekeeper;
 use crate::registry::Registry;
-use crate::responder::{self, ControlActive, DetectActive, Ipc, Outcome, Port, Responder, Served};
+use crate::responder::{
+    self, ControlActive, DetectActive, Ipc, Outcome, Port, Release, Responder, Served,
+};
 use crate::stats::Stats;
 use crate::termination::{block_termination_signals, TerminationSignals};
 use crate::wakeup::{Signaller, Wakeup};
@@ -422,13 +424,22 @@ impl Daemon {
         }
         self.responder.trim();
         self.drop_dead_clients_requests();
-        while let Some(port) = self.responder.release_one_abandoned() {
+        let mut forced = 0;
+        while let Some((port, release)) = self.responder.release_one_abandoned() {
+            forced += usize::from(release == Release::Forced);
             // The receive lets iceoryx2 forget the dead client's connection (and takes any
             // request that came in meanwhile).
             match port {
                 Port::Detect => self.take_detect_requests(),
                 Port::Control => self.take_control_requests(),
             }
+        }
+        if forced > 0 {
+            tracing::warn!(
+                released = forced,
+                "released requests of dead clients whose channels may serve new clients (more than {} held)",
+                responder::MAX_ABANDONED_HELD
+            );
         }
         let held = self.responder.abandoned_held();
         if held > 0 {

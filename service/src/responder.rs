@@ -38,6 +38,15 @@ pub enum Port {
     Control,
 }
 
+/// How an abandoned request was let go (see [`Responder::release_one_abandoned`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Release {
+    /// Its response channel no longer waited for it.
+    Safe,
+    /// Beyond [`MAX_ABANDONED_HELD`]: its channel may have served a new client's request.
+    Forced,
+}
+
 /// What became of a request once answered (or not), for the statistics.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Outcome {
@@ -341,7 +350,7 @@ impl Responder {
     /// client removed, or a new client's request waits on the same channel under the same id
     /// (until it is answered). Beyond [`MAX_ABANDONED_HELD`] the oldest is dropped all the
     /// same: a new client might lose its request's answer (it times out), but the daemon stays
-    /// up. Returns which port's request was dropped, if any.
+    /// up. Returns which port's request was dropped, if any, and whether it was one of those.
     ///
     /// One at a time, because of how iceoryx2 (0.10) forgets a dead client's connection: the
     /// next `receive` on the port removes the connections that no longer hold borrowed
@@ -349,26 +358,23 @@ impl Responder {
     /// it takes the wrong one off its list and keeps that client's connection (its shared
     /// memory mapped, a slot of a fixed-size store taken) for good. So the I/O thread calls
     /// this, then `receive` on the port named, until nothing is left to drop.
-    pub fn release_one_abandoned(&self) -> Option<Port> {
+    pub fn release_one_abandoned(&self) -> Option<(Port, Release)> {
         let mut abandoned = self.lock_abandoned();
         if let Some(i) = abandoned.detect.iter().position(|a| !a.is_connected()) {
             drop(abandoned.detect.remove(i));
-            return Some(Port::Detect);
+            return Some((Port::Detect, Release::Safe));
         }
         if let Some(i) = abandoned.control.iter().position(|a| !a.is_connected()) {
             drop(abandoned.control.remove(i));
-            return Some(Port::Control);
+            return Some((Port::Control, Release::Safe));
         }
         if abandoned.detect.len() + abandoned.control.len() > MAX_ABANDONED_HELD {
-            tracing::warn!(
-                "released a request of a dead client whose channel may serve a new client"
-            );
             if !abandoned.control.is_empty() {
                 drop(abandoned.control.remove(0));
-                return Some(Port::Control);
+                return Some((Port::Control, Release::Forced));
             }
             drop(abandoned.detect.remove(0));
-            return Some(Port::Detect);
+            return Some((Port::Detect, Release::Forced));
         }
         None
     }
