@@ -330,9 +330,9 @@ impl Responder {
     /// in every client, so a new client's first request can wait on that very channel under the
     /// same id: dropping the old request now could cut the new client off. Never dropping it
     /// is no better: the request's memory stays borrowed, iceoryx2 keeps the dead client's
-    /// connection (its shared memory mapped, file descriptors open), and once more than its
-    /// expired-connection buffer (128) of such connections pile up it panics, taking the
-    /// daemon down.
+    /// connection (its shared memory mapped, file descriptors open), and once more such
+    /// connections pile up than its expired-connection buffer holds (128 by default) it
+    /// panics, taking the daemon down.
     pub fn abandon(&self, active: DetectActive, request_id: u64) -> Outcome {
         tracing::debug!(request = request_id, "client died before its answer");
         self.lock_abandoned().detect.push(active);
