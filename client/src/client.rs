@@ -23,6 +23,10 @@ use ppfd_protocol::text;
 
 use crate::{iceoryx_config, transport, Error, Result};
 
+/// How often a client waiting for an answer checks that the daemon still holds its request (an
+/// answer wakes it at once; a request let go of does not).
+const HELD_CHECK_PERIOD: Duration = Duration::from_millis(50);
+
 type Ipc = ipc::Service;
 type DetectPort =
     IoxClient<Ipc, [u16], DetectRequestHeader, [PoseHypothesis], DetectResponseHeader>;
@@ -340,22 +344,27 @@ impl Client {
         let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
         let deadline = Instant::now() + timeout;
         loop {
-            if let Some(response) = pending
+            // Whether the daemon still holds the request, read before looking for the answer:
+            // it answers before it lets go, so an answer sent before is found below.
+            let held = pending.is_connected();
+            while let Some(response) = pending
                 .receive()
                 .map_err(transport("cannot receive the response"))?
             {
                 let received_ns = monotonic_now_ns();
                 let h = *response.user_header();
-                if h.request_id != request_id {
-                    continue;
+                if h.request_id == request_id {
+                    return decode_detect(&h, response.payload(), send_ns, received_ns);
                 }
-                return decode_detect(&h, response.payload(), send_ns, received_ns);
+            }
+            if !held {
+                return Err(Error::Dropped);
             }
             let left = deadline.saturating_duration_since(Instant::now());
             if left.is_zero() {
                 return Err(Error::Timeout(timeout));
             }
-            self.wait_reply(left)?;
+            self.wait_reply(left.min(HELD_CHECK_PERIOD))?;
         }
     }
 
@@ -390,6 +399,7 @@ impl Client {
         let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
         let deadline = Instant::now() + self.control_timeout;
         loop {
+            let held = pending.is_connected();
             if let Some(response) = pending
                 .receive()
                 .map_err(transport("cannot receive the response"))?
@@ -405,11 +415,14 @@ impl Client {
                 }
                 return Ok((h, response.payload().to_vec()));
             }
+            if !held {
+                return Err(Error::Dropped);
+            }
             let left = deadline.saturating_duration_since(Instant::now());
             if left.is_zero() {
                 return Err(Error::Timeout(self.control_timeout));
             }
-            self.wait_reply(left)?;
+            self.wait_reply(left.min(HELD_CHECK_PERIOD))?;
         }
     }
 

@@ -49,6 +49,10 @@ pub enum Error {
     /// No answer within the timeout.
     #[error("no answer from ppfd within {0:?}")]
     Timeout(std::time::Duration),
+    /// The daemon let go of the request without answering it (it will not answer; sending the
+    /// request again is safe).
+    #[error("ppfd let go of the request without an answer; send it again")]
+    Dropped,
     /// No daemon serves (with this prefix).
     #[error("no ppfd daemon is serving {0}; start one (ppfd --models <dir>)")]
     NoDaemon(&'static str),
