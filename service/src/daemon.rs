@@ -412,10 +412,15 @@ impl Daemon {
             self.housekeeping();
         }
         self.dispatch();
+        if self.responder.abandoned_held() > responder::MAX_ABANDONED_HELD {
+            // Clients died faster than housekeeping comes round.
+            self.release_abandoned();
+        }
     }
 
     /// The I/O thread's share of housekeeping (cleanup and discovery run on the
-    /// [`Housekeeper`]'s thread): release older frames, bound the reply-key cache.
+    /// [`Housekeeper`]'s thread): release older frames, bound the reply-key cache, let go of
+    /// dead clients' requests.
     fn housekeeping(&mut self) {
         self.last_housekeeping = Instant::now();
         // Keep only the newest frame of each camera, releasing older ones to their drivers.
@@ -424,6 +429,12 @@ impl Daemon {
         }
         self.responder.trim();
         self.drop_dead_clients_requests();
+        self.release_abandoned();
+    }
+
+    /// Lets go of the dead clients' requests that can be let go of (see
+    /// [`Responder::release_one_abandoned`]), one at a time.
+    fn release_abandoned(&mut self) {
         let mut forced = 0;
         while let Some((port, release)) = self.responder.release_one_abandoned() {
             forced += usize::from(release == Release::Forced);

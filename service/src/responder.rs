@@ -348,9 +348,13 @@ impl Responder {
     /// empty (the daemon's ports saw the dead client go) or its channel serves another request
     /// id. Those still waiting stay for a later call: the daemon has not yet seen the dead
     /// client removed, or a new client's request waits on the same channel under the same id
-    /// (until it is answered). Beyond [`MAX_ABANDONED_HELD`] the oldest is dropped all the
-    /// same: a new client might lose its request's answer (it times out), but the daemon stays
-    /// up. Returns which port's request was dropped, if any, and whether it was one of those.
+    /// (until it is answered). Beyond [`MAX_ABANDONED_HELD`] one is dropped all the same (a
+    /// control request first, else the oldest detect request): a new client might lose its
+    /// request's answer (the client library then returns `Error::Dropped` at once), but the
+    /// daemon stays up. Returns which port's request was dropped, if any, and how.
+    ///
+    /// The check and the drop are two steps: a new client that sends its first request on that
+    /// very slot and channel in the microseconds between them would lose it the same way.
     ///
     /// One at a time, because of how iceoryx2 (0.10) forgets a dead client's connection: the
     /// next `receive` on the port removes the connections that no longer hold borrowed
@@ -387,20 +391,6 @@ impl Responder {
 
     fn lock_abandoned(&self) -> std::sync::MutexGuard<'_, Abandoned> {
         self.abandoned.lock().unwrap_or_else(|p| p.into_inner())
-    }
-}
-
-impl Drop for Responder {
-    /// What is still held is left as it is: the process exits next, which releases it without
-    /// touching another client's channel.
-    fn drop(&mut self) {
-        let abandoned = std::mem::take(&mut *self.lock_abandoned());
-        for active in abandoned.detect {
-            std::mem::forget(active);
-        }
-        for active in abandoned.control {
-            std::mem::forget(active);
-        }
     }
 }
 
