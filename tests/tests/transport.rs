@@ -253,14 +253,15 @@ fn malformed_requests_are_refused_each_with_its_error_and_the_daemon_keeps_servi
     );
 }
 
-/// The daemon's statistics once no detection runs.
+/// The daemon's statistics once nothing is queued or running (panics after 30 s).
 fn settled_stats(client: &ppfd_client::Client) -> ppfd_client::DaemonStats {
-    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
     loop {
-        let stats = client.stats().expect("statistics");
-        if stats.in_flight == 0 || std::time::Instant::now() > deadline {
+        let stats = client.stats().expect("the daemon still answers");
+        if stats.queued == 0 && stats.in_flight == 0 {
             return stats;
         }
+        assert!(std::time::Instant::now() < deadline, "{stats:?}");
         std::thread::sleep(Duration::from_millis(10));
     }
 }
@@ -337,16 +338,8 @@ fn clients_killed_mid_request_by_the_hundred_leave_the_daemon_serving() {
             v.signal(libc::SIGKILL);
             v.wait_exit(Duration::from_secs(5)).expect("victim died");
         }
-        // Until the daemon has let go of the batch: nothing queued or running.
-        let deadline = std::time::Instant::now() + Duration::from_secs(30);
-        loop {
-            stats = observer.stats().expect("the daemon still answers");
-            if stats.queued == 0 && stats.in_flight == 0 {
-                break;
-            }
-            assert!(std::time::Instant::now() < deadline, "{stats:?}");
-            std::thread::sleep(Duration::from_millis(50));
-        }
+        // Until the daemon has let go of the batch.
+        stats = settled_stats(&observer);
     }
     let found = observer
         .detect("cam0", &[1], &ppfd_client::DetectOptions::default())
