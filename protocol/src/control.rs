@@ -113,7 +113,8 @@ pub struct DaemonStats {
     pub requests_abandoned: u64,
     /// Camera frames taken off the camera ports.
     pub frames_received: u64,
-    /// Cameras the daemon subscribes to.
+    /// Cameras the daemon subscribes to now (those without a driver for a while are
+    /// forgotten).
     pub cameras: u64,
     /// Models loaded.
     pub models_loaded: u64,

@@ -43,6 +43,11 @@ pub struct Args {
     /// Period of camera discovery and dead-process cleanup, milliseconds [default: 1000].
     #[arg(long)]
     pub housekeeping_ms: Option<u64>,
+    /// A camera without a driver this long is forgotten (its subscription and shared memory let
+    /// go; requests naming it are refused "unknown camera" until it is back), milliseconds
+    /// [default: 60000].
+    #[arg(long)]
+    pub forget_camera_after_ms: Option<u64>,
     /// Set a detector parameter, `stage.field=value` (as `ppf detect --set`, e.g.
     /// `--set voting.reference_step=4`), after the file's `[detector]` table; repeatable.
     #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
@@ -70,6 +75,9 @@ impl Args {
         c.queue_capacity = self.queue_capacity.unwrap_or(c.queue_capacity);
         c.max_frame_age_ms = self.max_frame_age_ms.unwrap_or(c.max_frame_age_ms);
         c.housekeeping_ms = self.housekeeping_ms.unwrap_or(c.housekeeping_ms);
+        c.forget_camera_after_ms = self
+            .forget_camera_after_ms
+            .unwrap_or(c.forget_camera_after_ms);
         for assignment in &self.set {
             let (key, value) = assignment
                 .split_once('=')
@@ -163,6 +171,7 @@ mod tests {
             ("--queue-capacity", d.queue_capacity as u64),
             ("--max-frame-age-ms", d.max_frame_age_ms),
             ("--housekeeping-ms", d.housekeeping_ms),
+            ("--forget-camera-after-ms", d.forget_camera_after_ms),
         ] {
             let at = help
                 .find(flag)

@@ -10,6 +10,7 @@
 //! queue_capacity = 64               # requests waiting beyond that are refused "busy" (1 to 4096)
 //! max_frame_age_ms = 1000           # older camera frames are refused "camera stale"
 //! housekeeping_ms = 1000            # period of camera discovery and dead-peer cleanup
+//! forget_camera_after_ms = 60000    # a camera without a driver this long is forgotten
 //!
 //! [detector]                        # detector parameters by name (`ppf detect --set` names)
 //! voting.reference_step = 2         # every 2nd evenly spread candidate votes: about half the voting time
@@ -55,6 +56,14 @@ pub struct DaemonConfig {
     pub max_frame_age_ms: u64,
     /// Period of housekeeping: discovering cameras and removing resources of dead processes.
     pub housekeeping_ms: u64,
+    /// A camera that has had no driver publishing on it for this long is forgotten at the next
+    /// housekeeping round: its subscription, its last frame and the shared memory they keep
+    /// mapped are let go, and requests naming it are refused "unknown camera" until a driver
+    /// publishes under that name again. The time counts from the first housekeeping round
+    /// that finds the camera without a driver (a killed driver's publisher counts until the
+    /// round that cleans up after it). Without it a cell whose camera names change (a driver
+    /// that names its stream per run) would pile up one subscription per name for good.
+    pub forget_camera_after_ms: u64,
     /// Detector parameters that differ from the defaults, as `(stage.field, value)`: the file's
     /// `[detector]` table, then `--set stage.field=value` flags. Checked at start; an unknown
     /// name or a bad value stops the daemon before it serves.
@@ -115,6 +124,7 @@ impl Default for DaemonConfig {
             queue_capacity: 64,
             max_frame_age_ms: 1000,
             housekeeping_ms: 1000,
+            forget_camera_after_ms: 60_000,
             detector: Vec::new(),
         }
     }

@@ -138,10 +138,22 @@ struct ModelLoaded {
 struct Camera {
     newest: Option<Rc<FrameSample>>,
     subscriber: FrameSubscriber,
-    _service: CameraService<Ipc>,
+    service: CameraService<Ipc>,
+    /// Since when no driver publishes on it (counted at housekeeping rounds).
+    driverless_since: Option<Instant>,
 }
 
 impl Camera {
+    /// Whether the camera has been without a driver for `limit`, as of `now`; keeps count.
+    fn driverless_for(&mut self, limit: Duration, now: Instant) -> bool {
+        if self.service.dynamic_config().number_of_publishers() > 0 {
+            self.driverless_since = None;
+            return false;
+        }
+        let since = *self.driverless_since.get_or_insert(now);
+        now.saturating_duration_since(since) >= limit
+    }
+
     /// Takes every waiting frame, keeping the newest. Returns how many arrived.
     fn refresh(&mut self, name: &str) -> u64 {
         let mut n = 0;
@@ -427,6 +439,7 @@ impl Daemon {
         for (name, camera) in &mut self.cameras {
             self.stats.frames_received += camera.refresh(name);
         }
+        self.forget_driverless_cameras();
         self.responder.trim();
         self.drop_dead_clients_requests();
         self.release_abandoned();
@@ -488,6 +501,29 @@ impl Daemon {
         }
     }
 
+    /// Lets go of the cameras that have had no driver for `forget_camera_after_ms` (see
+    /// [`DaemonConfig::forget_camera_after_ms`]). A detection still running on one of their
+    /// frames keeps that frame (iceoryx2's sample holds what it needs of the subscriber); the
+    /// last frame and the subscription go, and with them the service once nobody else holds it.
+    fn forget_driverless_cameras(&mut self) {
+        let limit = Duration::from_millis(self.config.forget_camera_after_ms);
+        let now = Instant::now();
+        let gone: Vec<String> = self
+            .cameras
+            .iter_mut()
+            .filter_map(|(name, camera)| camera.driverless_for(limit, now).then(|| name.clone()))
+            .collect();
+        for name in gone {
+            self.cameras.remove(&name);
+            tracing::info!(
+                camera = %name,
+                "forgot camera: no driver for {} ms",
+                self.config.forget_camera_after_ms
+            );
+            self.housekeeper.forget(name);
+        }
+    }
+
     fn open_camera(&mut self, name: &str) -> Result<&mut Camera, EngineError> {
         if !self.cameras.contains_key(name) {
             let builder = services::camera_builder(&self.node, name)
@@ -519,7 +555,8 @@ impl Daemon {
                 Camera {
                     newest: None,
                     subscriber,
-                    _service: service,
+                    service,
+                    driverless_since: None,
                 },
             );
         }

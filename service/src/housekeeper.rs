@@ -26,6 +26,8 @@ type Ipc = ipc::Service;
 enum Ask {
     /// Look for cameras now (one announced itself).
     Scan,
+    /// The I/O thread let go of this camera: report it again when it is found again.
+    Forget(String),
 }
 
 /// The housekeeping thread. Dropping it stops and joins the thread.
@@ -124,7 +126,15 @@ impl Housekeeper {
         }
     }
 
-    /// The camera names found since the last call; each name is reported once.
+    /// Report `name` again the next time it is found (the I/O thread forgot the camera).
+    pub fn forget(&self, name: String) {
+        if let Some(ask) = &self.ask {
+            let _ = ask.send(Ask::Forget(name));
+        }
+    }
+
+    /// The camera names found since the last call; each name is reported once (until
+    /// [`Housekeeper::forget`]).
     pub fn cameras_found(&self) -> Vec<String> {
         let mut names = Vec::new();
         while let Ok(batch) = self.found.try_recv() {
@@ -149,6 +159,10 @@ fn serve(
     loop {
         let scan_only = match ask.recv_timeout(next.saturating_duration_since(Instant::now())) {
             Ok(Ask::Scan) => true,
+            Ok(Ask::Forget(name)) => {
+                reported.remove(&name);
+                continue;
+            }
             Err(RecvTimeoutError::Timeout) => false,
             Err(RecvTimeoutError::Disconnected) => return,
         };
@@ -214,7 +228,7 @@ mod tests {
     }
 
     #[test]
-    fn reports_a_new_camera_once_and_at_once_when_asked() {
+    fn reports_a_new_camera_once_and_again_once_forgotten() {
         let prefix = format!("hk{}_", std::process::id());
         let config = config(&prefix);
         let wake = Wakeup::new().unwrap();
@@ -243,6 +257,10 @@ mod tests {
         h.scan_now();
         std::thread::sleep(Duration::from_millis(200));
         assert!(h.cameras_found().is_empty());
+        // Once forgotten, "left" is reported again while it exists.
+        h.forget("left".to_owned());
+        h.scan_now();
+        assert_eq!(next_found(&h, &wake), vec!["left".to_owned()]);
         drop(h); // stops and joins the thread
     }
 }

@@ -100,8 +100,12 @@ pub fn stats(args: StatsArgs) -> Result<(), String> {
     // The daemon takes a camera's frames when it needs one (a request, or its housekeeping
     // round) and keeps the newest; frames published in between are skipped, not lost work.
     println!(
-        "frames taken      {} from {} cameras (the newest when needed; the rest skipped)",
-        s.frames_received, s.cameras
+        "frames taken      {} (the newest when needed; the rest skipped)",
+        s.frames_received
+    );
+    println!(
+        "cameras           {} subscribed (one without a driver is forgotten after a while)",
+        s.cameras
     );
     println!(
         "models            {} ({:.1} MB)",
