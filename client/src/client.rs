@@ -163,6 +163,8 @@ pub struct Client {
     reply_token: u64,
     next_request: Cell<u64>,
     control_timeout: Duration,
+    /// The iceoryx2 prefix, for messages.
+    prefix: String,
     _detect_service: DetectService<Ipc>,
     _control_service: ControlService<Ipc>,
     _wake_service: EventService<Ipc>,
@@ -237,6 +239,7 @@ impl Client {
             // Ids unique across clients: a response can never be taken for another client's.
             next_request: Cell::new(reply_token.rotate_left(24) & !0xff_ffff),
             control_timeout: options.control_timeout,
+            prefix: config.global.prefix.to_string(),
             _detect_service: detect_service,
             _control_service: control_service,
             _wake_service: wake_service,
@@ -339,7 +342,10 @@ impl Client {
             .send()
             .map_err(transport("cannot send the request"))?;
         if pending.number_of_server_connections() == 0 {
-            return Err(Error::NoDaemon(services::DETECT));
+            return Err(Error::NoDaemon {
+                service: services::DETECT,
+                prefix: self.prefix.clone(),
+            });
         }
         let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
         let deadline = Instant::now() + timeout;
@@ -394,7 +400,10 @@ impl Client {
             .send_copy(request)
             .map_err(transport("cannot send the control request"))?;
         if pending.number_of_server_connections() == 0 {
-            return Err(Error::NoDaemon(services::CONTROL));
+            return Err(Error::NoDaemon {
+                service: services::CONTROL,
+                prefix: self.prefix.clone(),
+            });
         }
         let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
         let deadline = Instant::now() + self.control_timeout;

@@ -53,9 +53,14 @@ pub enum Error {
     /// request again is safe).
     #[error("ppfd let go of the request without an answer; send it again")]
     Dropped,
-    /// No daemon serves (with this prefix).
-    #[error("no ppfd daemon is serving {0}; start one (ppfd --models <dir>)")]
-    NoDaemon(&'static str),
+    /// No daemon serves under this client's prefix.
+    #[error("no ppfd daemon is serving {service} under the iceoryx2 prefix {prefix:?}; start one (ppfd --models <dir>), or give the daemon's prefix (--prefix, or PPFD_PREFIX)")]
+    NoDaemon {
+        /// The service without a server (`ppfd/detect`, `ppfd/control`).
+        service: &'static str,
+        /// The iceoryx2 prefix the client looked under.
+        prefix: String,
+    },
     /// The request was malformed before it was sent.
     #[error("{0}")]
     Protocol(#[from] ppfd_protocol::ProtocolError),
@@ -76,6 +81,7 @@ pub(crate) fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::C
     let mut config = iceoryx2::config::Config::default();
     if let Some(prefix) = prefix {
         use iceoryx2::prelude::SemanticString;
+        ppfd_protocol::services::check_prefix(prefix).map_err(Error::Transport)?;
         config.global.prefix = iceoryx2::prelude::FileName::new(prefix.as_bytes())
             .map_err(|e| Error::Transport(format!("iceoryx2 prefix {prefix:?}: {e:?}")))?;
     }

@@ -47,8 +47,8 @@ macro_rules! number_value {
 
 number_value! {
     f32: "a finite number", |v: &f32| v.is_finite();
-    usize: "a count (0 or more)", |_: &usize| true;
-    u32: "a count (0 or more)", |_: &u32| true;
+    usize: "a whole number", |_: &usize| true;
+    u32: "a whole number", |_: &u32| true;
 }
 
 impl Value for bool {
@@ -98,8 +98,13 @@ struct Setting {
 }
 
 fn parsed<T: Value>(key: &str, text: &str, range: Range) -> Result<T, String> {
-    let value =
-        T::parse(text).ok_or_else(|| format!("{key}: expected {}, got {text:?}", T::EXPECTED))?;
+    let value = T::parse(text).ok_or_else(|| match range {
+        Some((lo, hi)) => format!(
+            "{key}: expected {} in {lo}..={hi}, got {text:?}",
+            T::EXPECTED
+        ),
+        None => format!("{key}: expected {}, got {text:?}", T::EXPECTED),
+    })?;
     if let (Some(x), Some((lo, hi))) = (value.number(), range) {
         if !(lo..=hi).contains(&x) {
             return Err(format!("{key}: {} is outside {lo}..={hi}", text.trim()));
@@ -319,7 +324,9 @@ mod tests {
             (lo + d) / 2.0
         };
         let mut p = DetectParams::new();
-        if p.set(key, "0.5").is_err_and(|e| e.contains("a count")) {
+        if p.set(key, "0.5")
+            .is_err_and(|e| e.contains("a whole number"))
+        {
             // A count: a whole number between the default and a bound.
             let v = if d < hi { v.ceil() } else { v.floor() };
             return format!("{v}");
@@ -364,8 +371,8 @@ mod tests {
         let before = format!("{p:?}");
         let refused = [
             ("voting.reference_steps", "4", "unknown detector parameter"),
-            ("voting.reference_step", "-1", "a count"),
-            ("voting.reference_step", "two", "a count"),
+            ("voting.reference_step", "-1", "a whole number in 1..=1000"),
+            ("voting.reference_step", "two", "a whole number in 1..=1000"),
             ("filters.min_silhouette_fraction", "NaN", "finite"),
             ("filters.min_silhouette_fraction", "inf", "finite"),
             ("voting.vote_once", "yes", "true or false"),

@@ -13,7 +13,7 @@
 
 use std::fs::File;
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use memmap2::Mmap;
 
@@ -41,6 +41,33 @@ fn io(path: &Path, source: std::io::Error) -> Error {
         path: path.to_path_buf(),
         source,
     }
+}
+
+/// Where models built from meshes are cached unless told otherwise: `$PPFD_CACHE`, else
+/// `$XDG_CACHE_HOME/ppfd`, else `~/.cache/ppfd`, else `ppfd-cache` in the system's temporary
+/// directory. Never the mesh's own folder: a dataset's folder may be read-only or shared.
+pub fn default_cache_dir() -> PathBuf {
+    if let Some(d) = std::env::var_os("PPFD_CACHE").filter(|d| !d.is_empty()) {
+        return PathBuf::from(d);
+    }
+    if let Some(d) = std::env::var_os("XDG_CACHE_HOME").filter(|d| !d.is_empty()) {
+        return PathBuf::from(d).join("ppfd");
+    }
+    if let Some(h) = std::env::var_os("HOME").filter(|h| !h.is_empty()) {
+        return PathBuf::from(h).join(".cache/ppfd");
+    }
+    std::env::temp_dir().join("ppfd-cache")
+}
+
+/// The file in `cache_dir` that caches the model of the mesh at `mesh`: the mesh's file stem and
+/// a hash of its canonical path (`obj_000005-1a2b3c4d.ppfm`), so that meshes of one name in
+/// different folders each keep their own. What the file holds is checked on loading
+/// ([`load_built_from_file`], [`load_expecting`]); the name only keeps meshes apart.
+pub fn cache_file(cache_dir: &Path, mesh: &Path) -> PathBuf {
+    let canonical = std::fs::canonicalize(mesh).unwrap_or_else(|_| mesh.to_path_buf());
+    let hash = crc32fast::hash(canonical.as_os_str().as_encoded_bytes());
+    let stem = mesh.file_stem().unwrap_or_default().to_string_lossy();
+    cache_dir.join(format!("{stem}-{hash:08x}.{EXTENSION}"))
 }
 
 /// Writes `model` to `path` (through a temporary file and a rename, so a reader never sees a
@@ -268,6 +295,28 @@ mod tests {
             &ModelParams::default(),
         )
         .unwrap()
+    }
+
+    /// Meshes of one name in two folders get two cache files; one mesh named two ways, one.
+    #[test]
+    fn cache_files_keep_meshes_of_one_name_apart() {
+        let dir = temp_dir("names");
+        for sub in ["a", "b"] {
+            std::fs::create_dir_all(dir.join(sub)).unwrap();
+            std::fs::write(dir.join(sub).join("obj_000001.ply"), "ply").unwrap();
+        }
+        let cache = dir.join("cache");
+        let a = cache_file(&cache, &dir.join("a/obj_000001.ply"));
+        let b = cache_file(&cache, &dir.join("b/obj_000001.ply"));
+        assert_ne!(a, b);
+        assert_eq!(a, cache_file(&cache, &dir.join("b/../a/obj_000001.ply")));
+        assert_eq!(a.parent(), Some(cache.as_path()));
+        let name = a.file_name().unwrap().to_str().unwrap();
+        assert!(
+            name.starts_with("obj_000001-") && name.ends_with(".ppfm"),
+            "{name}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -251,6 +251,22 @@ pub fn reply_listener_name(reply_token: u64) -> String {
     format!("ppf-reply-{reply_token:016x}")
 }
 
+/// Checks an iceoryx2 resource prefix as the daemon and its clients take it (`--prefix`,
+/// `PPFD_PREFIX`): a non-empty name of ASCII letters, digits, `_` and `-` (it becomes part of
+/// file names).
+pub fn check_prefix(prefix: &str) -> Result<(), String> {
+    if prefix.is_empty()
+        || !prefix
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+    {
+        return Err(format!(
+            "prefix {prefix:?} may hold only ASCII letters, digits, '_' and '-'"
+        ));
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -20,12 +20,12 @@ pub struct Args {
     /// TOML configuration file; flags override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Where models built from PLY meshes are saved (default: beside the mesh); one is reused
-    /// while its mesh is unchanged.
+    /// Where models built from PLY meshes are saved (default: $PPFD_CACHE, $XDG_CACHE_HOME/ppfd
+    /// or ~/.cache/ppfd, shared with `ppf eval`); one is reused while its mesh is unchanged.
     #[arg(long)]
     pub model_cache: Option<PathBuf>,
     /// iceoryx2 resource prefix: daemons (and their clients) with different prefixes never
-    /// see each other.
+    /// see each other [default: PPFD_PREFIX, as for the clients, else iceoryx2's].
     #[arg(long)]
     pub prefix: Option<String>,
     /// Detection worker threads, 0 to 256 (0: one per core) [default: 0].
@@ -67,8 +67,11 @@ impl Args {
         if self.model_cache.is_some() {
             c.model_cache = self.model_cache.clone();
         }
-        if self.prefix.is_some() {
-            c.prefix = self.prefix.clone();
+        // The clients' variable too: `PPFD_PREFIX=cell2 ppfd` and `PPFD_PREFIX=cell2 ppf detect`
+        // meet. The flag wins over the variable, the variable over the file.
+        let from_env = std::env::var("PPFD_PREFIX").ok().filter(|p| !p.is_empty());
+        if let Some(prefix) = self.prefix.clone().or(from_env) {
+            c.prefix = Some(prefix);
         }
         c.workers = self.workers.unwrap_or(c.workers);
         c.parallel_detections = self.parallel_detections.unwrap_or(c.parallel_detections);
@@ -89,11 +92,34 @@ impl Args {
     }
 }
 
+/// The most characters of a logged field's value. iceoryx2 logs its port's whole state as the
+/// `origin` of each message (8.8 kB on one line for a frame lost from a driver that died).
+const MAX_FIELD_CHARS: usize = 240;
+
+/// Writes one logged field; a value other than the message is cut to [`MAX_FIELD_CHARS`]
+/// characters.
+fn write_field(
+    w: &mut tracing_subscriber::fmt::format::Writer<'_>,
+    field: &tracing::field::Field,
+    value: &dyn std::fmt::Debug,
+) -> std::fmt::Result {
+    if field.name() == "message" {
+        return write!(w, "{value:?}");
+    }
+    let text = format!("{value:?}");
+    match text.char_indices().nth(MAX_FIELD_CHARS) {
+        Some((at, _)) => write!(w, "{}={} …", field.name(), &text[..at]),
+        None => write!(w, "{}={text}", field.name()),
+    }
+}
+
 /// Logs to stderr, filtered by `RUST_LOG` (default `info`).
 pub fn init_tracing() {
+    use tracing_subscriber::field::MakeExt;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
     let _ = tracing_subscriber::fmt()
+        .fmt_fields(tracing_subscriber::fmt::format::debug_fn(write_field).delimited(" "))
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         // Colour codes only for a terminal: a log file or journal gets plain text.
@@ -184,6 +210,43 @@ mod tests {
                 &rest[..next]
             );
         }
+    }
+
+    /// A long field value (iceoryx2's `origin`) is cut; the message and short fields are whole.
+    #[test]
+    fn long_logged_values_are_cut() {
+        use tracing_subscriber::field::MakeExt;
+        #[derive(Clone, Default)]
+        struct Buffer(Arc<std::sync::Mutex<Vec<u8>>>);
+        impl std::io::Write for Buffer {
+            fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+                self.0.lock().unwrap().extend_from_slice(b);
+                Ok(b.len())
+            }
+            fn flush(&mut self) -> std::io::Result<()> {
+                Ok(())
+            }
+        }
+        let buffer = Buffer::default();
+        let out = buffer.clone();
+        let subscriber = tracing_subscriber::fmt()
+            .fmt_fields(tracing_subscriber::fmt::format::debug_fn(write_field).delimited(" "))
+            .with_writer(move || out.clone())
+            .with_ansi(false)
+            .finish();
+        let message = "m".repeat(300);
+        let origin = "o".repeat(5000);
+        tracing::subscriber::with_default(subscriber, || {
+            tracing::warn!(origin = %origin, camera = "left", "{message}");
+        });
+        let line = String::from_utf8(buffer.0.lock().unwrap().clone()).unwrap();
+        assert!(line.contains(&message), "{line}");
+        assert!(line.contains("camera=\"left\""), "{line}");
+        assert!(
+            line.contains(&format!("origin={} …", "o".repeat(MAX_FIELD_CHARS))),
+            "{line}"
+        );
+        assert!(line.len() < 700, "{} bytes", line.len());
     }
 
     #[test]

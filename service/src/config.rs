@@ -3,7 +3,7 @@
 //!
 //! ```toml
 //! models = "/var/lib/ppfd/models"   # *.ppfm files, and PLY meshes to build models from
-//! model_cache = "/var/cache/ppfd"   # where models built from PLY files are saved
+//! model_cache = "/var/cache/ppfd"   # where models built from PLY files are saved (default ~/.cache/ppfd)
 //! prefix = "ppfd_"                  # iceoryx2 resource prefix (isolates daemons)
 //! workers = 0                       # detection threads; 0 = one per core
 //! parallel_detections = 1           # detections running at once
@@ -36,9 +36,10 @@ pub struct DaemonConfig {
     /// Directory of models to load at start (`*.ppfm`, and PLY meshes: a mesh's model is built
     /// once and reused while the mesh is unchanged).
     pub models: Option<PathBuf>,
-    /// Where models built from PLY files are saved (default: beside the PLY file when
-    /// writable). A built model is loaded from here on the next start if the mesh has not
-    /// changed since.
+    /// Where models built from PLY files are saved; by default `$PPFD_CACHE`,
+    /// `$XDG_CACHE_HOME/ppfd` or `~/.cache/ppfd` (the cache of `ppf eval` and `ppf detect
+    /// --dataset` too), never the meshes' folder. A built model is loaded from here on the next
+    /// start if the mesh has not changed since; a model file beside its mesh is used as well.
     pub model_cache: Option<PathBuf>,
     /// iceoryx2 resource prefix; daemons with different prefixes never see each other.
     pub prefix: Option<String>,
@@ -131,6 +132,13 @@ impl Default for DaemonConfig {
 }
 
 impl DaemonConfig {
+    /// [`DaemonConfig::model_cache`], or the default cache ([`ppfd_models::store::default_cache_dir`]).
+    pub fn model_cache_dir(&self) -> PathBuf {
+        self.model_cache
+            .clone()
+            .unwrap_or_else(ppfd_models::store::default_cache_dir)
+    }
+
     /// Reads a TOML file; unknown keys are refused so that a typo does not pass silently.
     pub fn from_toml_file(path: &Path) -> Result<DaemonConfig, String> {
         let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
@@ -175,15 +183,7 @@ impl DaemonConfig {
             return Err("housekeeping_ms must be at least 1".into());
         }
         if let Some(p) = &self.prefix {
-            if p.is_empty()
-                || !p
-                    .bytes()
-                    .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
-            {
-                return Err(format!(
-                    "prefix {p:?} may hold only ASCII letters, digits, '_' and '-'"
-                ));
-            }
+            ppfd_protocol::services::check_prefix(p)?;
         }
         Ok(())
     }

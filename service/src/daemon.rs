@@ -365,7 +365,7 @@ impl Daemon {
         if let Some(dir) = &config.models {
             let started = Instant::now();
             let failures = registry
-                .load_dir(engine.as_ref(), dir, config.model_cache.as_deref())
+                .load_dir(engine.as_ref(), dir, Some(&config.model_cache_dir()))
                 .map_err(DaemonError)?;
             tracing::info!(
                 loaded = registry.len(),
@@ -899,7 +899,7 @@ impl Daemon {
                 self.next_job += 1;
                 self.control_pending.insert(job, active);
                 let engine = self.engine.clone();
-                let cache = self.config.model_cache.clone();
+                let cache = Some(self.config.model_cache_dir());
                 let tx = self.loaded_tx.clone();
                 let signaller = self.signaller;
                 // Building a model from a mesh may take seconds: off the I/O thread and off the

@@ -113,11 +113,12 @@ fn loaded(model: ObjectModel, source: &Path) -> LoadedModel {
 }
 
 impl PpfEngine {
+    /// Where the model built from `ply` is saved: in `cache_dir` ([`store::cache_file`]), or
+    /// beside the mesh without one (the daemon always gives one).
     fn cache_path(ply: &Path, cache_dir: Option<&Path>) -> PathBuf {
-        let name = ply.with_extension(MODEL_EXTENSION);
-        match (cache_dir, name.file_name()) {
-            (Some(dir), Some(file)) => dir.join(file),
-            _ => name,
+        match cache_dir {
+            Some(dir) => store::cache_file(dir, ply),
+            None => ply.with_extension(MODEL_EXTENSION),
         }
     }
 

@@ -453,3 +453,65 @@ fn the_daemon_refuses_unknown_detector_parameters_at_start() {
         );
     }
 }
+
+/// A daemon without `--model-cache` saves the models it builds from meshes in the user's cache
+/// (`$PPFD_CACHE` here), not beside the meshes: a dataset's folder may be read-only (then every
+/// start rebuilt every model) or shared, and a daemon running as root wrote into it anyway. The
+/// second start takes the saved model as it is.
+#[test]
+fn models_built_from_meshes_are_cached_outside_the_models_folder() {
+    let prefix = Prefix::new("default_cache");
+    let work = WorkDir::new("default-cache");
+    let (models, cache) = (work.join("models"), work.join("cache"));
+    std::fs::create_dir_all(&models).unwrap();
+    let part = Part::ALL[0];
+    let mesh_file = models.join(format!("{}_{:06}.ply", part.name(), part.object_id()));
+    std::fs::write(&mesh_file, part.mesh().to_ply_ascii()).unwrap();
+    let cache_s = cache.to_str().unwrap().to_owned();
+    let start = || {
+        let mut d = Proc::spawn(
+            Path::new(DAEMON),
+            &["--prefix", &prefix.0, "--models", models.to_str().unwrap()],
+            &[("PPFD_CACHE", cache_s.as_str())],
+        );
+        d.wait_line("ppfd ready", DETECTION);
+        let client = ppfd_client::Client::connect_with(&ppfd_client::ClientOptions {
+            prefix: Some(prefix.0.clone()),
+            ..Default::default()
+        })
+        .unwrap();
+        let listed = client.models().expect("models listed");
+        assert_eq!(
+            listed.iter().map(|m| m.object_id).collect::<Vec<_>>(),
+            [part.object_id()]
+        );
+        d
+    };
+    let list = |dir: &Path| -> Vec<PathBuf> {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+            .map(|r| r.map(|e| e.unwrap().path()).collect())
+            .unwrap_or_default();
+        v.sort();
+        v
+    };
+    let daemon = start();
+    drop(daemon);
+    assert_eq!(
+        list(&models),
+        std::slice::from_ref(&mesh_file),
+        "nothing beside the mesh"
+    );
+    let cached = list(&cache);
+    assert_eq!(cached.len(), 1, "{cached:?}");
+    assert_eq!(cached[0].extension().unwrap(), "ppfm");
+    let built = std::fs::metadata(&cached[0]).unwrap().modified().unwrap();
+    let daemon = start();
+    drop(daemon);
+    assert_eq!(list(&cache), cached);
+    assert_eq!(
+        std::fs::metadata(&cached[0]).unwrap().modified().unwrap(),
+        built,
+        "the second start rebuilt the model"
+    );
+    assert_eq!(list(&models), [mesh_file]);
+}

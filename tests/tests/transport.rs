@@ -131,6 +131,30 @@ fn a_second_model_file_with_a_loaded_id_is_refused_at_start() {
     assert_eq!(names, [(1, "dup".to_string()), (2, "part2".to_string())]);
 }
 
+/// The daemon takes its prefix from `PPFD_PREFIX` as the clients do: the variable set for both
+/// brings them together without a flag.
+#[test]
+fn the_daemon_takes_its_prefix_from_the_clients_variable() {
+    let prefix = Prefix::new("envprefix");
+    let models = fake_model_dir("envprefix", &[1]);
+    let mut d = Proc::spawn(
+        Path::new(DAEMON),
+        &["--models", models.to_str().unwrap()],
+        &[("PPFD_TEST_ENGINE", "fake"), ("PPFD_PREFIX", &prefix.0)],
+    );
+    d.wait_line("ppfd ready", STARTUP);
+    let listed = connect(&prefix).models().expect("served under PPFD_PREFIX");
+    assert_eq!(listed.len(), 1);
+    // A client under another prefix is told which one it looked under.
+    let other = Prefix::new("envprefix_other");
+    match connect(&other).models() {
+        Err(e @ ppfd_client::Error::NoDaemon { .. }) => {
+            assert!(e.to_string().contains(&format!("{:?}", other.0)), "{e}")
+        }
+        r => panic!("expected NoDaemon, got {r:?}"),
+    }
+}
+
 #[test]
 fn a_camera_that_stops_is_reported_stale_with_the_age_of_its_last_frame() {
     use ppfd_client::{DetectOptions, Status};

@@ -17,8 +17,37 @@ fn arg(args: &[String], name: &str) -> Option<String> {
         .cloned()
 }
 
+/// The flags this driver knows; each takes a value.
+const FLAGS: &[&str] = &[
+    "--prefix",
+    "--camera",
+    "--fps",
+    "--frames",
+    "--parts-seed",
+    "--noise",
+    "--bop",
+    "--scene",
+    "--image",
+];
+
+/// Stops with a usage line at an unknown flag (a typo would otherwise publish on the default
+/// prefix) or a flag without its value.
+fn check(args: &[String]) {
+    for pair in args[1..].chunks(2) {
+        if !FLAGS.contains(&pair[0].as_str()) || pair.len() < 2 {
+            eprintln!(
+                "e2e-camera: unknown flag or missing value at {:?}; flags, each with a value: {}",
+                pair[0],
+                FLAGS.join(" ")
+            );
+            std::process::exit(2);
+        }
+    }
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
+    check(&args);
     let prefix = arg(&args, "--prefix");
     let camera = arg(&args, "--camera").unwrap_or_else(|| "cam0".into());
     let fps: f64 = arg(&args, "--fps")
