@@ -1,5 +1,7 @@
-//! What the daemon-facing subcommands share: connecting, and printing latency tables.
+//! What the subcommands share: connecting to the daemon, printing latency tables, scratch
+//! folders.
 
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use clap::Args;
@@ -103,4 +105,34 @@ pub fn checks_letters(bits: u32) -> String {
 
 pub fn millis(ms: u64) -> Duration {
     Duration::from_millis(ms)
+}
+
+/// Hypotheses per object a detect request may ask for: the protocol's limit, as clap ranges take
+/// it (`ppf detect --hypotheses`, `ppf demo --hypotheses`).
+pub const MAX_HYPOTHESES: i64 = ppfd_client::protocol::MAX_HYPOTHESES_PER_OBJECT as i64;
+
+/// A scratch folder of this process, `<temp>/<name>-<pid>`, removed with all it holds when
+/// dropped: on every way out of a command, an error included.
+pub struct ScratchDir(PathBuf);
+
+impl ScratchDir {
+    /// Creates the folder empty (a leftover of an earlier process with this pid is removed
+    /// first).
+    pub fn create(name: &str) -> Result<ScratchDir, String> {
+        let dir = std::env::temp_dir().join(format!("{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir)
+            .map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+        Ok(ScratchDir(dir))
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.0
+    }
+}
+
+impl Drop for ScratchDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
 }

@@ -21,7 +21,7 @@ use ppfd_models::store;
 use ppfd_models::synthetic::{NoiseModel, SceneSpec};
 use ppfd_models::Pose;
 
-use crate::common::print_latency;
+use crate::common::{print_latency, ScratchDir, MAX_HYPOTHESES};
 
 #[derive(Args, Debug)]
 pub struct DemoArgs {
@@ -43,8 +43,9 @@ pub struct DemoArgs {
     /// A `ppfd` executable to start (default: this executable's built-in daemon, `ppf serve`).
     #[arg(long)]
     pub ppfd: Option<PathBuf>,
-    /// Hypotheses per object.
-    #[arg(long, default_value_t = 1)]
+    /// Hypotheses per object, 1 to 16.
+    #[arg(long, default_value_t = 1,
+          value_parser = clap::value_parser!(u32).range(1..=MAX_HYPOTHESES))]
     pub hypotheses: u32,
 }
 
@@ -52,8 +53,9 @@ pub struct DemoArgs {
 struct DemoScene {
     frame: OwnedDepthFrame,
     truth: Vec<(u32, Pose)>,
-    /// Files for the daemon's model directory: meshes (built by the daemon) or model files.
-    model_files: Vec<PathBuf>,
+    /// Files for the daemon's model directory, with the object id each is for: meshes (built
+    /// by the daemon) or model files.
+    model_files: Vec<(u32, PathBuf)>,
     label: String,
 }
 
@@ -83,7 +85,7 @@ fn generated_scene(args: &DemoArgs, cache: &Path) -> Result<DemoScene, String> {
                 started.elapsed().as_secs_f64()
             );
         }
-        model_files.push(path);
+        model_files.push((part.object_id(), path));
     }
     let noise = if args.no_noise {
         ""
@@ -148,11 +150,11 @@ fn bop_scene(args: &DemoArgs, root: &Path) -> Result<DemoScene, String> {
         .iter()
         .map(|g| (g.obj_id, g.pose))
         .collect();
-    let mut meshes = Vec::new();
+    let mut meshes: Vec<(u32, PathBuf)> = Vec::new();
     for (id, _) in &truth {
-        let path = dataset.model_path(*id).map_err(|e| e.to_string())?;
-        if !meshes.contains(&path) {
-            meshes.push(path);
+        if !meshes.iter().any(|(known, _)| known == id) {
+            let path = dataset.model_path(*id).map_err(|e| e.to_string())?;
+            meshes.push((*id, path));
         }
     }
     Ok(DemoScene {
@@ -161,6 +163,35 @@ fn bop_scene(args: &DemoArgs, root: &Path) -> Result<DemoScene, String> {
         model_files: meshes,
         label: format!("{} scene {scene} image {im}", root.display()),
     })
+}
+
+/// The name `file` (the model of object `id`) is linked under in the daemon's model folder: a
+/// mesh as `obj_<id>.ply`, since the daemon takes a mesh's object id from the digits ending its
+/// name and a dataset may call it anything (`obj.ply`, `duck.ply`); a model file (`.ppfm`)
+/// under its own name, as it holds its object id.
+fn link_name(id: u32, file: &Path) -> std::ffi::OsString {
+    let is_model_file = file
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case(store::EXTENSION));
+    match file.file_name() {
+        Some(name) if is_model_file => name.to_owned(),
+        _ => format!("obj_{id:06}.ply").into(),
+    }
+}
+
+/// What a demo run leaves on the machine: its work folder (the daemon's model folder of links)
+/// and the daemon. Dropped on every way out of [`run`], an error included: stops the daemon,
+/// then removes the folder.
+struct DemoRun {
+    work: ScratchDir,
+    daemon: Option<Daemon>,
+}
+
+impl Drop for DemoRun {
+    fn drop(&mut self) {
+        // The daemon first: it has the folder open. `work` removes the folder after this.
+        drop(self.daemon.take());
+    }
 }
 
 /// The daemon command: the given `ppfd` executable, else this executable's `serve` (the same
@@ -251,13 +282,17 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
     );
 
     // The daemon loads the model files (or builds models from meshes once, into the cache).
-    let work = std::env::temp_dir().join(format!("ppf-demo-{}", std::process::id()));
-    let models = work.join("models");
-    std::fs::create_dir_all(&models).map_err(|e| e.to_string())?;
-    for file in &scene.model_files {
-        let link = models.join(file.file_name().unwrap_or_default());
+    // Declared before the camera and the client, so dropped after them.
+    let mut run = DemoRun {
+        work: ScratchDir::create("ppf-demo")?,
+        daemon: None,
+    };
+    let models = run.work.path().join("models");
+    std::fs::create_dir_all(&models).map_err(|e| format!("{}: {e}", models.display()))?;
+    for (id, file) in &scene.model_files {
+        let link = models.join(link_name(*id, file));
         let abs = std::fs::canonicalize(file).map_err(|e| format!("{}: {e}", file.display()))?;
-        std::os::unix::fs::symlink(&abs, &link).map_err(|e| e.to_string())?;
+        std::os::unix::fs::symlink(&abs, &link).map_err(|e| format!("{}: {e}", link.display()))?;
     }
     let prefix = format!("ppfd_demo_{}_", std::process::id());
     let exe = daemon_command(&args.ppfd)?;
@@ -268,7 +303,7 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
         cache.display()
     );
     let started = Instant::now();
-    let daemon = start_daemon(&exe, &models, &cache, &prefix)?;
+    run.daemon = Some(start_daemon(&exe, &models, &cache, &prefix)?);
     println!("daemon ready in {:.1} s", started.elapsed().as_secs_f64());
 
     let f = &scene.frame;
@@ -358,8 +393,7 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
     print_latency(&found);
     drop(camera);
     drop(client);
-    drop(daemon);
-    let _ = std::fs::remove_dir_all(&work);
+    drop(run);
     println!("\ndaemon stopped");
     Ok(())
 }
@@ -371,6 +405,25 @@ mod tests {
     /// A closed box of `size` mm.
     fn box_mesh([sx, sy, sz]: [f32; 3]) -> Mesh {
         ppfd_models::parts::box_mesh(nalgebra::Vector3::new(sx, sy, sz))
+    }
+
+    /// The daemon takes a mesh's object id from the digits ending its name: a dataset's mesh
+    /// is linked under the name that gives its id, whatever the dataset calls it.
+    #[test]
+    fn a_mesh_is_linked_under_a_name_that_gives_its_object_id() {
+        for (id, file, name) in [
+            (19, "/d/data/obj.ply", "obj_000019.ply"),
+            (5, "/d/models/obj_000005.ply", "obj_000005.ply"),
+            (7, "/d/duck3.PLY", "obj_000007.ply"),
+            (2, "/cache/bracket_000002.ppfm", "bracket_000002.ppfm"),
+        ] {
+            let link = link_name(id, Path::new(file));
+            assert_eq!(link, name, "{file}");
+            assert_eq!(
+                ppfd::ppf_engine::object_id_of_file(Path::new(&link)),
+                Some(id)
+            );
+        }
     }
 
     #[test]

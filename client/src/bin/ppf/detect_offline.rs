@@ -13,7 +13,7 @@ use crate::offline::{dataset_models, symmetric_pose_errors};
 #[derive(Args, Debug)]
 pub struct DetectCommand {
     /// Camera whose newest frame the daemon should use.
-    #[arg(long, conflicts_with = "dataset", required_unless_present = "dataset")]
+    #[arg(long, conflicts_with = "dataset")]
     pub camera: Option<String>,
     /// A BOP dataset directory: detect in one of its frames in this process, no daemon.
     #[arg(long, requires_all = ["scene", "image"])]
@@ -28,7 +28,8 @@ pub struct DetectCommand {
     #[arg(long, value_delimiter = ',')]
     pub objects: Vec<u32>,
     /// Hypotheses per object, 1 to 16.
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=16))]
+    #[arg(long, default_value_t = 1,
+          value_parser = clap::value_parser!(u32).range(1..=crate::common::MAX_HYPOTHESES))]
     pub hypotheses: u32,
     /// Give up after this long, milliseconds (with --camera; a cluttered VGA frame takes
     /// seconds per object on a 2-core machine).
@@ -60,12 +61,24 @@ pub struct DetectCommand {
     pub connect: crate::common::Connect,
 }
 
+/// What `ppf detect` says when given neither of its two modes (clap's "required: --camera" would
+/// hide the offline one).
+pub const NO_MODE: &str = "ppf detect has two modes; give one of
+  --camera NAME                        a camera's newest frame, through the daemon
+  --dataset DIR --scene N --image N    a frame of a BOP dataset, in this process (no daemon)";
+
 pub enum DetectTarget {
     Camera(crate::detect::DetectArgs),
     Dataset(DatasetDetectArgs),
 }
 
 impl DetectCommand {
+    /// Whether one of the two modes is given (`--camera` or `--dataset`); without, the command
+    /// is refused with [`NO_MODE`] as a usage error.
+    pub fn has_mode(&self) -> bool {
+        self.camera.is_some() || self.dataset.is_some()
+    }
+
     pub fn into_target(self) -> Result<DetectTarget, String> {
         if let Some(id) = (1..self.objects.len()).find_map(|i| {
             self.objects[..i]
@@ -110,7 +123,7 @@ impl DetectCommand {
             return Err("--camera needs --objects".into());
         }
         Ok(DetectTarget::Camera(crate::detect::DetectArgs {
-            camera: self.camera.ok_or("give --camera or --dataset")?,
+            camera: self.camera.ok_or(NO_MODE)?,
             objects: self.objects,
             hypotheses: self.hypotheses,
             timeout_ms: self.timeout_ms,

@@ -13,7 +13,7 @@ mod profile;
 mod replay;
 mod score;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -59,16 +59,42 @@ enum Command {
     Score(score::ScoreArgs),
 }
 
+/// Parses the command line as clap does, with the checks clap cannot express: `ppf detect`
+/// without either of its modes is a usage error naming both.
+fn parse_cli<I, T>(args: I) -> Result<Cli, clap::Error>
+where
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
+    let cli = Cli::try_parse_from(args)?;
+    if let Command::Detect(detect) = &cli.command {
+        if !detect.has_mode() {
+            let mut command = Cli::command();
+            command.build();
+            let detect = command
+                .find_subcommand_mut("detect")
+                .expect("detect is a subcommand");
+            return Err(detect.error(
+                clap::error::ErrorKind::MissingRequiredArgument,
+                detect_offline::NO_MODE,
+            ));
+        }
+    }
+    Ok(cli)
+}
+
 fn main() {
-    let cli = Cli::parse();
+    let cli = parse_cli(std::env::args_os()).unwrap_or_else(|e| e.exit());
     if let Command::Serve { args } = &cli.command {
         let argv = std::iter::once("ppfd".to_owned()).chain(args.iter().cloned());
         let engine = Box::new(|config: &ppfd::config::DaemonConfig| {
             let engine = ppfd::ppf_engine::PpfEngine::from_config(config)?;
             Ok(std::sync::Arc::new(engine) as std::sync::Arc<dyn ppfd::DetectionEngine>)
         });
+        // ppfd's exit codes, as `ppfd` has them: 2 for a bad configuration (a bad `--set`).
         std::process::exit(match ppfd::cli::main_with_args(argv, engine) {
             code if code == std::process::ExitCode::SUCCESS => 0,
+            code if code == std::process::ExitCode::from(2) => 2,
             _ => 1,
         });
     }
@@ -193,6 +219,38 @@ mod tests {
             let args: Vec<&str> = dataset.iter().copied().chain(["--hypotheses", n]).collect();
             assert!(target(&args).unwrap_err().contains("1..=16"));
         }
+    }
+
+    /// Without `--camera` or `--dataset`, a usage error that names both modes (not clap's
+    /// "required: --camera", which hides the offline one).
+    #[test]
+    fn detect_without_a_mode_names_both() {
+        for args in [
+            &["ppf", "detect"][..],
+            &["ppf", "detect", "--objects", "1,5"],
+        ] {
+            let e = parse_cli(args).unwrap_err();
+            assert_eq!(e.kind(), clap::error::ErrorKind::MissingRequiredArgument);
+            let text = e.to_string();
+            assert!(
+                text.contains("--camera NAME")
+                    && text.contains("--dataset DIR --scene N --image N"),
+                "{text}"
+            );
+            assert!(text.contains("Usage: ppf detect"), "{text}");
+        }
+        parse_cli(["ppf", "detect", "--camera", "k", "--objects", "1"]).unwrap();
+    }
+
+    /// The demo refuses a count the daemon would refuse before it starts one, as detect does.
+    #[test]
+    fn demo_hypotheses_are_checked_when_parsed() {
+        for n in ["0", "17", "20"] {
+            let e = parse_cli(["ppf", "demo", "--hypotheses", n]).unwrap_err();
+            assert!(e.to_string().contains("1..=16"), "{e}");
+        }
+        let cli = parse_cli(["ppf", "demo", "--hypotheses", "16"]).unwrap();
+        assert!(matches!(cli.command, Command::Demo(ref a) if a.hypotheses == 16));
     }
 
     #[test]

@@ -10,6 +10,8 @@ use ppfd_models::mesh::Mesh;
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_models::store;
 
+use crate::common::ScratchDir;
+
 #[derive(Subcommand, Debug)]
 pub enum ModelCommand {
     /// Build model files (`<name>.ppfm`) from PLY meshes.
@@ -25,15 +27,16 @@ pub enum ModelCommand {
 
 #[derive(Args, Debug)]
 pub struct BuildArgs {
-    /// PLY meshes, in millimetres. A file named `obj_000005.ply` gets object id 5; others are
-    /// numbered in the order given, from 1, unless `--id` is set.
+    /// PLY meshes, in millimetres. The digits ending a file's name give its object id, as
+    /// `ppfd` takes them (`obj_000005.ply` is object 5, `duck7.ply` object 7); a name without
+    /// them needs `--id`.
     #[arg(required = true)]
     pub meshes: Vec<PathBuf>,
     /// Directory to write the model files into.
     #[arg(long)]
     pub out: PathBuf,
-    /// Object id for a single mesh.
-    #[arg(long)]
+    /// Object id for a single mesh, from 1 (instead of the digits ending its name).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     pub id: Option<u32>,
 }
 
@@ -47,10 +50,64 @@ pub struct BenchArgs {
     pub repeat: usize,
 }
 
-/// The object id a BOP-style file name implies (`obj_000005.ply` → 5).
-pub fn object_id_from_path(path: &Path) -> Option<u32> {
-    let stem = path.file_stem()?.to_str()?;
-    stem.strip_prefix("obj_")?.parse().ok()
+/// Refuses a path that cannot be a mesh file before it is read as one (a folder would be
+/// "malformed PLY: bad header: Is a directory").
+fn check_mesh_path(path: &Path) -> Result<(), String> {
+    if path.is_dir() {
+        return Err(format!(
+            "{}: is a directory; give PLY mesh files (e.g. {}/*.ply)",
+            path.display(),
+            path.display()
+        ));
+    }
+    Ok(())
+}
+
+/// The object id of each mesh: `id` (`--id`, a single mesh), else the digits ending the file's
+/// name, by `ppfd`'s own rule (`obj_000005.ply` → 5, `duck7.ply` → 7), so that a model built
+/// here has the id the daemon gives the mesh. Refuses, naming the file, a folder, a name
+/// without an id, id 0, and two meshes of one id (two models of one object).
+fn object_ids(meshes: &[PathBuf], id: Option<u32>) -> Result<Vec<u32>, String> {
+    if id.is_some() && meshes.len() > 1 {
+        let e = "--id applies to a single mesh; with several, the digits ending each file's \
+                 name give its object id (obj_000005.ply is object 5)";
+        return Err(e.into());
+    }
+    let mut ids: Vec<u32> = Vec::with_capacity(meshes.len());
+    for path in meshes {
+        check_mesh_path(path)?;
+        let id = match id.or_else(|| ppfd::ppf_engine::object_id_of_file(path)) {
+            Some(0) => {
+                return Err(format!(
+                    "{}: the digits ending its name give object id 0; ids start at 1: \
+                     rename the file or give --id",
+                    path.display()
+                ))
+            }
+            Some(id) => id,
+            None => {
+                return Err(format!(
+                    "{}: no object id: name the file obj_<id>.ply (the digits ending the name \
+                     are the id, as for ppfd) or give --id",
+                    path.display()
+                ))
+            }
+        };
+        if let Some(j) = ids.iter().position(|&known| known == id) {
+            return Err(if meshes[j] == *path {
+                format!("{} is given twice", path.display())
+            } else {
+                format!(
+                    "{} and {} are both object {id} (the digits ending a file's name are its \
+                     id): one model per object; rename one",
+                    meshes[j].display(),
+                    path.display()
+                )
+            });
+        }
+        ids.push(id);
+    }
+    Ok(ids)
 }
 
 fn name_of(path: &Path) -> String {
@@ -68,22 +125,15 @@ pub fn run(cmd: ModelCommand) -> Result<(), Box<dyn std::error::Error>> {
 }
 
 fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
-    if args.id.is_some() && args.meshes.len() > 1 {
-        return Err(
-            "--id applies to a single mesh; BOP file names (obj_NNNNNN.ply) give ids".into(),
-        );
-    }
+    // All refusals before anything is built.
+    let ids = object_ids(&args.meshes, args.id)?;
     std::fs::create_dir_all(&args.out)
         .map_err(|e| format!("cannot create {}: {e}", args.out.display()))?;
     let bar = ProgressBar::new(args.meshes.len() as u64);
     bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} {msg} [{elapsed}]").unwrap());
     let params = ModelParams::default();
     let mut failures = 0;
-    for (i, path) in args.meshes.iter().enumerate() {
-        let id = args
-            .id
-            .or_else(|| object_id_from_path(path))
-            .unwrap_or(i as u32 + 1);
+    for (path, &id) in args.meshes.iter().zip(&ids) {
         let name = name_of(path);
         bar.set_message(name.clone());
         let result = Mesh::from_ply_file(path)
@@ -166,15 +216,22 @@ fn median(mut v: Vec<Duration>) -> Duration {
 }
 
 fn bench(args: BenchArgs) -> Result<(), Box<dyn std::error::Error>> {
-    let dir = std::env::temp_dir().join(format!("ppf-model-bench-{}", std::process::id()));
-    std::fs::create_dir_all(&dir)?;
+    for path in &args.meshes {
+        check_mesh_path(path)?;
+    }
+    // Removed on every way out, a failed mesh included.
+    let scratch = ScratchDir::create("ppf-model-bench")?;
+    let dir = scratch.path();
     let repeat = args.repeat.max(1);
     println!("| model | build (ms) | points | table entries | size (MB) | load (ms) | D (mm) |");
     println!("|---|---:|---:|---:|---:|---:|---:|");
     let params = ModelParams::default();
     for (i, path) in args.meshes.iter().enumerate() {
         let mesh = Mesh::from_ply_file(path)?;
-        let id = object_id_from_path(path).unwrap_or(i as u32 + 1);
+        // The id only seeds the sampling here: a name without one is numbered by position.
+        let id = ppfd::ppf_engine::object_id_of_file(path)
+            .filter(|&id| id > 0)
+            .unwrap_or(i as u32 + 1);
         let name = name_of(path);
         let mut builds = Vec::new();
         let mut model = None;
@@ -203,6 +260,61 @@ fn bench(args: BenchArgs) -> Result<(), Box<dyn std::error::Error>> {
             model.diameter_mm()
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn paths(names: &[&str]) -> Vec<PathBuf> {
+        names.iter().map(PathBuf::from).collect()
+    }
+
+    /// The ids are the daemon's: the digits ending the name, whatever comes before them.
+    #[test]
+    fn object_ids_follow_the_daemons_rule() {
+        let meshes = paths(&["m/obj_000005.ply", "duck7.ply", "part_12.PLY"]);
+        assert_eq!(object_ids(&meshes, None).unwrap(), [5, 7, 12]);
+        for mesh in &meshes {
+            assert_eq!(
+                ppfd::ppf_engine::object_id_of_file(mesh),
+                Some(object_ids(std::slice::from_ref(mesh), None).unwrap()[0])
+            );
+        }
+        assert_eq!(object_ids(&paths(&["duck.ply"]), Some(3)).unwrap(), [3]);
+        assert_eq!(
+            object_ids(&paths(&["obj_000001.ply"]), Some(3)).unwrap(),
+            [3]
+        );
+    }
+
+    #[test]
+    fn a_mesh_without_an_id_or_with_another_meshs_id_is_refused_by_name() {
+        let e = object_ids(&paths(&["duck.ply", "obj_000001.ply"]), None).unwrap_err();
+        assert!(
+            e.starts_with("duck.ply: no object id") && e.contains("--id"),
+            "{e}"
+        );
+        let e = object_ids(&paths(&["a/part1.ply", "b/obj_000001.ply"]), None).unwrap_err();
+        assert!(
+            e.starts_with("a/part1.ply and b/obj_000001.ply are both object 1"),
+            "{e}"
+        );
+        let e = object_ids(&paths(&["obj_1.ply", "obj_1.ply"]), None).unwrap_err();
+        assert_eq!(e, "obj_1.ply is given twice");
+        let e = object_ids(&paths(&["obj_000000.ply"]), None).unwrap_err();
+        assert!(e.contains("object id 0"), "{e}");
+        let e = object_ids(&paths(&["a1.ply", "b2.ply"]), Some(3)).unwrap_err();
+        assert!(e.starts_with("--id applies to a single mesh"), "{e}");
+    }
+
+    #[test]
+    fn a_folder_is_refused_as_a_folder() {
+        let e = object_ids(&[std::env::temp_dir()], Some(1)).unwrap_err();
+        assert!(
+            e.contains("is a directory") && e.contains("PLY mesh files"),
+            "{e}"
+        );
+    }
 }

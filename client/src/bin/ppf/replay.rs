@@ -13,6 +13,12 @@ use crate::common::Connect;
 /// Decoded frames kept in memory when looping.
 const KEEP_DECODED_BYTES: usize = 1 << 30;
 
+/// How long a replay without `--loop` keeps its last frame published before it exits.
+const LINGER: Duration = Duration::from_secs(2);
+
+/// Without `--verbose`, the time between two summary lines.
+const SUMMARY_PERIOD: Duration = Duration::from_secs(10);
+
 #[derive(Args, Debug)]
 pub struct ReplayArgs {
     /// Root of a BOP dataset (e.g. ../shared/data/lmo).
@@ -23,7 +29,8 @@ pub struct ReplayArgs {
     /// Frames per second, 0.01 to 1000.
     #[arg(long, default_value_t = 10.0, value_parser = parse_fps)]
     pub fps: f64,
-    /// Start again after the last frame, until interrupted.
+    /// Start again after the last frame, until interrupted. Without it the replay stays 2 s
+    /// after its last frame, so that the daemon can take it, and exits.
     #[arg(long = "loop")]
     pub repeat: bool,
     /// Dataset split folder (default: test).
@@ -32,6 +39,10 @@ pub struct ReplayArgs {
     /// Only this scene.
     #[arg(long)]
     pub scene: Option<u32>,
+    /// Print a line for every frame published (default: the first frame's line, then a summary
+    /// every 10 s).
+    #[arg(long)]
+    pub verbose: bool,
     #[command(flatten)]
     pub connect: Connect,
 }
@@ -42,6 +53,24 @@ pub fn run(args: ReplayArgs) -> Result<(), String> {
         None => BopDataset::open(&args.dataset),
     }
     .map_err(|e| e.to_string())?;
+    if let Some(scene) = args.scene {
+        let scenes = dataset.scene_ids();
+        if !scenes.contains(&scene) {
+            let within = match dataset.split() {
+                Some(split) if !split.is_empty() => format!(" in '{split}'"),
+                _ => String::new(),
+            };
+            return Err(format!(
+                "{}: no scene {scene}{within}; {}",
+                args.dataset.display(),
+                match scenes.len() {
+                    0 => "there are no scenes".to_owned(),
+                    1 => format!("the only scene is {}", id_ranges(&scenes)),
+                    _ => format!("the scenes are {}", id_ranges(&scenes)),
+                }
+            ));
+        }
+    }
     let mut images = Vec::new();
     for scene in dataset.scene_ids() {
         if args.scene.is_some_and(|s| s != scene) {
@@ -54,10 +83,13 @@ pub fn run(args: ReplayArgs) -> Result<(), String> {
         }
     }
     let Some(&(first_scene, first_im)) = images.first() else {
-        return Err(format!(
-            "{}: no depth frames to replay",
-            args.dataset.display()
-        ));
+        return Err(match args.scene {
+            Some(scene) => format!(
+                "{}: scene {scene} has no depth frames to replay",
+                args.dataset.display()
+            ),
+            None => format!("{}: no depth frames to replay", args.dataset.display()),
+        });
     };
     let first = dataset
         .depth_frame(first_scene, first_im)
@@ -99,6 +131,7 @@ pub fn run(args: ReplayArgs) -> Result<(), String> {
     let mut kept_bytes = 0usize;
     decoded[0] = Some(first.clone());
     let mut next = Instant::now();
+    let mut progress = Progress::new(args.verbose, next);
     loop {
         for (index, &(scene, im)) in images.iter().enumerate() {
             let read;
@@ -135,18 +168,111 @@ pub fn run(args: ReplayArgs) -> Result<(), String> {
             };
             h.depth_scale_mm = frame.depth_scale_mm;
             let seq = ready.send(monotonic_now_ns()).map_err(|e| e.to_string())?;
-            let objects: Vec<u32> = dataset
-                .ground_truth(scene, im)
-                .map(|g| g.iter().map(|p| p.obj_id).collect())
-                .unwrap_or_default();
-            println!("frame {seq}: scene {scene} image {im}, objects {objects:?}");
+            let line = progress.published(Instant::now(), || {
+                let objects: Vec<u32> = dataset
+                    .ground_truth(scene, im)
+                    .map(|g| g.iter().map(|p| p.obj_id).collect())
+                    .unwrap_or_default();
+                format!("frame {seq}: scene {scene} image {im}, objects {objects:?}")
+            });
+            if let Some(line) = line {
+                println!("{line}");
+            }
             next += period;
             std::thread::sleep(next.saturating_duration_since(Instant::now()));
         }
         if !args.repeat {
+            if let Some(line) = progress.finished(Instant::now()) {
+                println!("{line}");
+            }
+            // A frame whose publisher is gone before the daemon has read it is lost (iceoryx2
+            // unmaps the publisher's memory; the daemon logs "Lost chunk"): stay until the
+            // daemon has come round to it (it reads frames at requests and at least once a
+            // housekeeping period, 1 s by default).
+            std::thread::sleep(LINGER);
             return Ok(());
         }
     }
+}
+
+/// What replay prints as it publishes: every frame's line with `--verbose`; else the first
+/// frame's line, then a summary at most every [`SUMMARY_PERIOD`]. A looping replay runs in the
+/// background of the shell that runs `ppf detect` or `ppf bench`, and a line per frame (10 to
+/// 30 a second) would drown their output.
+struct Progress {
+    verbose: bool,
+    started: Instant,
+    published: u64,
+    /// When the last summary was printed (or the first frame's line), and the count then.
+    last_line: Option<(Instant, u64)>,
+}
+
+impl Progress {
+    fn new(verbose: bool, started: Instant) -> Progress {
+        Progress {
+            verbose,
+            started,
+            published: 0,
+            last_line: None,
+        }
+    }
+
+    /// Counts a frame published at `now`; the line to print, if any (`frame_line` describes
+    /// the frame; it is called only when its line is printed).
+    fn published(&mut self, now: Instant, frame_line: impl FnOnce() -> String) -> Option<String> {
+        self.published += 1;
+        match self.last_line {
+            _ if self.verbose => Some(frame_line()),
+            None => {
+                self.last_line = Some((now, self.published));
+                Some(frame_line())
+            }
+            Some((at, count)) if now.duration_since(at) >= SUMMARY_PERIOD => {
+                self.last_line = Some((now, self.published));
+                let rate = (self.published - count) as f64 / now.duration_since(at).as_secs_f64();
+                Some(format!(
+                    "{} frames published in {:.0} s, {rate:.1} per second over the last {:.0} s",
+                    self.published,
+                    now.duration_since(self.started).as_secs_f64(),
+                    now.duration_since(at).as_secs_f64()
+                ))
+            }
+            Some(_) => None,
+        }
+    }
+
+    /// The closing line of a replay that ends (not with `--verbose`, whose frame lines say it
+    /// all): how many frames were published, over how long.
+    fn finished(&self, now: Instant) -> Option<String> {
+        (!self.verbose && self.published > 1).then(|| {
+            format!(
+                "{} frames published in {:.1} s",
+                self.published,
+                now.duration_since(self.started).as_secs_f64()
+            )
+        })
+    }
+}
+
+/// Ids as ascending runs: `[1, 2, 3, 5, 7, 8]` → `1-3, 5, 7-8` (a split may have dozens).
+fn id_ranges(ids: &[u32]) -> String {
+    let mut runs: Vec<(u32, u32)> = Vec::new();
+    for &id in ids {
+        match runs.last_mut() {
+            Some((_, last)) if last.checked_add(1) == Some(id) => *last = id,
+            _ => runs.push((id, id)),
+        }
+    }
+    runs.iter()
+        .map(|&(a, b)| {
+            if a == b {
+                a.to_string()
+            } else {
+                format!("{a}-{b}")
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// A frame rate from 0.01 to 1000 frames per second (NaN and infinity refused).
@@ -156,5 +282,52 @@ fn parse_fps(text: &str) -> Result<f64, String> {
         Ok(fps)
     } else {
         Err(format!("{fps} fps: give 0.01 to 1000"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Without --verbose: the first frame's line, then one summary per period; with it, every
+    /// frame's line.
+    #[test]
+    fn a_replay_says_little_unless_verbose() {
+        let t0 = Instant::now();
+        let at = |ms: u64| t0 + Duration::from_millis(ms);
+        let mut quiet = Progress::new(false, t0);
+        let mut printed = Vec::new();
+        // 10 fps for 25 s.
+        for i in 0..250u64 {
+            if let Some(line) = quiet.published(at(i * 100), || format!("frame {i}")) {
+                printed.push(line);
+            }
+        }
+        assert_eq!(printed.len(), 3, "{printed:?}");
+        assert_eq!(printed[0], "frame 0");
+        assert_eq!(
+            printed[1],
+            "101 frames published in 10 s, 10.0 per second over the last 10 s"
+        );
+        assert!(printed[2].starts_with("201 frames published in 20 s"));
+        assert_eq!(
+            quiet.finished(at(25_000)).unwrap(),
+            "250 frames published in 25.0 s"
+        );
+
+        let mut verbose = Progress::new(true, t0);
+        for i in 0..25u64 {
+            let line = verbose.published(at(i * 100), || format!("frame {i}"));
+            assert_eq!(line.unwrap(), format!("frame {i}"));
+        }
+        assert!(verbose.finished(at(2_500)).is_none());
+    }
+
+    #[test]
+    fn scene_ids_are_listed_as_runs() {
+        assert_eq!(id_ranges(&[]), "");
+        assert_eq!(id_ranges(&[2]), "2");
+        assert_eq!(id_ranges(&[1, 2, 3, 5, 7, 8]), "1-3, 5, 7-8");
+        assert_eq!(id_ranges(&[0, u32::MAX]), format!("0, {}", u32::MAX));
     }
 }
