@@ -1,6 +1,6 @@
 //! What the offline commands share: loading a BOP dataset's models, built once and cached.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use indicatif::{ProgressBar, ProgressStyle};
 use ppfd_models::bop::BopDataset;
@@ -8,37 +8,14 @@ use ppfd_models::mesh::Mesh;
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_models::{store, Pose};
 
-/// Where built models are cached: `$PPFD_CACHE`, else `$XDG_CACHE_HOME/ppfd`, else
-/// `~/.cache/ppfd`, else the system temporary directory.
-pub fn cache_dir() -> PathBuf {
-    if let Some(d) = std::env::var_os("PPFD_CACHE") {
-        return PathBuf::from(d);
-    }
-    if let Some(d) = std::env::var_os("XDG_CACHE_HOME") {
-        return PathBuf::from(d).join("ppfd");
-    }
-    if let Some(h) = std::env::var_os("HOME") {
-        return PathBuf::from(h).join(".cache/ppfd");
-    }
-    std::env::temp_dir().join("ppfd-cache")
-}
-
-/// The cache file of the mesh at `mesh`: one per mesh file (its canonical path), whose content
-/// says which mesh it was built from.
-fn cache_path(cache_dir: &Path, mesh: &Path) -> std::io::Result<PathBuf> {
-    let canonical = std::fs::canonicalize(mesh)?;
-    let hash = crc32fast::hash(canonical.as_os_str().as_encoded_bytes());
-    let stem = mesh.file_stem().unwrap_or_default().to_string_lossy();
-    Ok(cache_dir.join(format!("{stem}-{hash:08x}.{}", store::EXTENSION)))
-}
-
-/// Loads the model of `mesh_path` from the cache ([`cache_dir`]), or builds it and caches it.
+/// Loads the model of `mesh_path` from the cache ([`store::default_cache_dir`], the daemon's
+/// default too), or builds it and caches it.
 pub fn load_or_build(
     mesh_path: &Path,
     object_id: u32,
     params: &ModelParams,
 ) -> Result<ObjectModel, String> {
-    load_or_build_in(&cache_dir(), mesh_path, object_id, params)
+    load_or_build_in(&store::default_cache_dir(), mesh_path, object_id, params)
 }
 
 /// [`load_or_build`] with the cache in `cache_dir`. The cached model is used if built with the
@@ -50,8 +27,7 @@ fn load_or_build_in(
     object_id: u32,
     params: &ModelParams,
 ) -> Result<ObjectModel, String> {
-    let cached =
-        cache_path(cache_dir, mesh_path).map_err(|e| format!("{}: {e}", mesh_path.display()))?;
+    let cached = store::cache_file(cache_dir, mesh_path);
     let bytes = std::fs::read(mesh_path).map_err(|e| format!("{}: {e}", mesh_path.display()))?;
     let source_crc = store::source_crc(&bytes);
     if cached.is_file() {
@@ -139,7 +115,7 @@ pub fn symmetric_pose_errors(est: &Pose, gt: &Pose, symmetries: &[Pose]) -> (f32
 mod tests {
     use super::*;
 
-    fn scratch(name: &str) -> PathBuf {
+    fn scratch(name: &str) -> std::path::PathBuf {
         let d = std::env::temp_dir().join(format!("ppf-offline-{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&d);
         std::fs::create_dir_all(&d).unwrap();
@@ -166,7 +142,7 @@ mod tests {
         write_box_ply(&ply, a);
         let first = load_or_build_in(&cache, &ply, 3, &params).unwrap();
         assert!((first.diameter_mm() - diagonal(a)).abs() < 0.01);
-        let cached = cache_path(&cache, &ply).unwrap();
+        let cached = store::cache_file(&cache, &ply);
         assert!(cached.is_file(), "the built model is cached");
 
         // Unchanged mesh: the cached model is used. A copy renamed "earlier" tells it apart
