@@ -88,7 +88,4 @@ pub(crate) fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::C
     Ok(config)
 }
 
-/// The prefix from the environment: `PPFD_PREFIX`, if set and non-empty.
-pub fn prefix_from_env() -> Option<String> {
-    std::env::var("PPFD_PREFIX").ok().filter(|p| !p.is_empty())
-}
+pub use ppfd_protocol::services::prefix_from_env;

@@ -71,17 +71,28 @@ pub fn cache_file(cache_dir: &Path, mesh: &Path) -> PathBuf {
 }
 
 /// Writes `model` to `path` (through a temporary file and a rename, so a reader never sees a
-/// half-written model).
+/// half-written model). The temporary file's name is this writer's own (process id and a
+/// counter) and is created only if nothing is there: processes sharing a cache may build one
+/// mesh at once, and a mapped model file must never be written to again.
 pub fn save(model: &ObjectModel, path: &Path) -> Result<()> {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static SAVES: AtomicU64 = AtomicU64::new(0);
     let payload = model.archive_bytes();
     let mut header = [0u8; HEADER_LEN];
     header[..8].copy_from_slice(MAGIC);
     header[8..12].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
     header[16..24].copy_from_slice(&(payload.len() as u64).to_le_bytes());
     header[24..28].copy_from_slice(&crc32fast::hash(payload).to_le_bytes());
-    let tmp = path.with_extension(format!("{EXTENSION}.tmp"));
+    let tmp = path.with_extension(format!(
+        "{EXTENSION}.{}-{}.tmp",
+        std::process::id(),
+        SAVES.fetch_add(1, Ordering::Relaxed)
+    ));
     let write = || -> std::io::Result<()> {
-        let mut f = File::create(&tmp)?;
+        let mut f = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)?;
         f.write_all(&header)?;
         f.write_all(payload)?;
         f.sync_all()?;

@@ -251,6 +251,12 @@ pub fn reply_listener_name(reply_token: u64) -> String {
     format!("ppf-reply-{reply_token:016x}")
 }
 
+/// The iceoryx2 prefix from the environment: `PPFD_PREFIX`, if set and not empty. The daemon
+/// and its clients both read it, so that one variable brings them together.
+pub fn prefix_from_env() -> Option<String> {
+    std::env::var("PPFD_PREFIX").ok().filter(|p| !p.is_empty())
+}
+
 /// Checks an iceoryx2 resource prefix as the daemon and its clients take it (`--prefix`,
 /// `PPFD_PREFIX`): a non-empty name of ASCII letters, digits, `_` and `-` (it becomes part of
 /// file names).

@@ -55,8 +55,13 @@ pub struct Args {
 }
 
 impl Args {
-    /// The configuration: defaults, then the file, then the flags.
+    /// The configuration: defaults, then the file, then `PPFD_PREFIX`, then the flags.
     pub fn config(&self) -> Result<DaemonConfig, String> {
+        self.config_with(ppfd_protocol::services::prefix_from_env())
+    }
+
+    /// [`Args::config`] with `env_prefix` as `PPFD_PREFIX`'s value.
+    fn config_with(&self, env_prefix: Option<String>) -> Result<DaemonConfig, String> {
         let mut c = match &self.config {
             Some(path) => DaemonConfig::from_toml_file(path)?,
             None => DaemonConfig::default(),
@@ -69,8 +74,10 @@ impl Args {
         }
         // The clients' variable too: `PPFD_PREFIX=cell2 ppfd` and `PPFD_PREFIX=cell2 ppf detect`
         // meet. The flag wins over the variable, the variable over the file.
-        let from_env = std::env::var("PPFD_PREFIX").ok().filter(|p| !p.is_empty());
-        if let Some(prefix) = self.prefix.clone().or(from_env) {
+        if let (None, Some(p)) = (&self.prefix, &env_prefix) {
+            ppfd_protocol::services::check_prefix(p).map_err(|e| format!("PPFD_PREFIX: {e}"))?;
+        }
+        if let Some(prefix) = self.prefix.clone().or(env_prefix) {
             c.prefix = Some(prefix);
         }
         c.workers = self.workers.unwrap_or(c.workers);
@@ -105,6 +112,10 @@ fn write_field(
 ) -> std::fmt::Result {
     if field.name() == "message" {
         return write!(w, "{value:?}");
+    }
+    if field.name().starts_with("log.") {
+        // What the `log` bridge adds (target, file, line), as the default format leaves out.
+        return Ok(());
     }
     let text = format!("{value:?}");
     match text.char_indices().nth(MAX_FIELD_CHARS) {
@@ -247,6 +258,37 @@ mod tests {
             "{line}"
         );
         assert!(line.len() < 700, "{} bytes", line.len());
+    }
+
+    /// The prefix: the flag, else `PPFD_PREFIX`, else the file.
+    #[test]
+    fn the_prefix_flag_wins_over_the_variable_and_the_variable_over_the_file() {
+        let dir = std::env::temp_dir().join(format!("ppfd-cli-prefix-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("ppfd.toml");
+        std::fs::write(&file, "prefix = \"from_file\"\n").unwrap();
+        let path = file.to_str().unwrap();
+        let prefix = |args: &[&str], env: Option<&str>| {
+            let mut all = vec!["ppfd", "--config", path];
+            all.extend_from_slice(args);
+            Args::parse_from(all)
+                .config_with(env.map(str::to_owned))
+                .unwrap()
+                .prefix
+        };
+        assert_eq!(prefix(&[], None).as_deref(), Some("from_file"));
+        assert_eq!(prefix(&[], Some("from_env")).as_deref(), Some("from_env"));
+        assert_eq!(
+            prefix(&["--prefix", "from_flag"], Some("from_env")).as_deref(),
+            Some("from_flag")
+        );
+        let bad = Args::parse_from(["ppfd"]).config_with(Some("a/b".into()));
+        let e = bad.unwrap_err();
+        assert!(
+            e.starts_with("PPFD_PREFIX: ") && e.contains("\"a/b\""),
+            "{e}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -62,7 +62,7 @@ pub struct DaemonConfig {
     /// mapped are let go, and requests naming it are refused "unknown camera" until a driver
     /// publishes under that name again. The time counts from the first housekeeping round
     /// that finds the camera without a driver (a killed driver's publisher counts until the
-    /// round that cleans up after it). Without it a cell whose camera names change (a driver
+    /// round that cleans up after it); 0 forgets it at that first round. Without it a cell whose camera names change (a driver
     /// that names its stream per run) would pile up one subscription per name for good.
     pub forget_camera_after_ms: u64,
     /// Detector parameters that differ from the defaults, as `(stage.field, value)`: the file's

@@ -490,12 +490,14 @@ impl Daemon {
 
     // ---------------------------------------------------------------- cameras
 
-    /// Subscribes to the cameras the housekeeper found.
+    /// Subscribes to the cameras the housekeeper found. One that cannot be subscribed to now
+    /// (no driver publishes on it yet, or any more) is reported again at the next scan.
     fn open_found_cameras(&mut self) {
         for name in self.housekeeper.cameras_found() {
             if !self.cameras.contains_key(&name) {
                 if let Err(e) = self.open_camera(&name) {
                     tracing::debug!(camera = %name, error = %e.message, "camera not opened");
+                    self.housekeeper.forget(name);
                 }
             }
         }
@@ -520,6 +522,8 @@ impl Daemon {
                 "forgot camera: no driver for {} ms",
                 self.config.forget_camera_after_ms
             );
+            // Found again once a driver publishes under the name (the service may outlive the
+            // subscription a while: a running detection's frame keeps it).
             self.housekeeper.forget(name);
         }
     }
@@ -543,6 +547,14 @@ impl Daemon {
                     format!("camera {name:?} cannot be opened: {e:?}"),
                 ),
             })?;
+            // A service without a publisher is a camera whose driver is gone (kept by a frame
+            // still in use, or by another process): subscribing would only hold it.
+            if service.dynamic_config().number_of_publishers() == 0 {
+                return Err(EngineError::new(
+                    Status::UnknownCamera,
+                    format!("no camera {name:?}: no driver publishes on it"),
+                ));
+            }
             let subscriber = service.subscriber_builder().create().map_err(|e| {
                 EngineError::new(
                     Status::Internal,

@@ -26,7 +26,8 @@ type Ipc = ipc::Service;
 enum Ask {
     /// Look for cameras now (one announced itself).
     Scan,
-    /// The I/O thread let go of this camera: report it again when it is found again.
+    /// The I/O thread let go of this camera (or did not subscribe): report it again at the next
+    /// scan that finds it.
     Forget(String),
 }
 
@@ -126,15 +127,16 @@ impl Housekeeper {
         }
     }
 
-    /// Report `name` again the next time it is found (the I/O thread forgot the camera).
+    /// Report `name` again the next time it is found (the I/O thread forgot the camera, or did
+    /// not subscribe to it). A name whose service is gone at a scan is reported again anyway.
     pub fn forget(&self, name: String) {
         if let Some(ask) = &self.ask {
             let _ = ask.send(Ask::Forget(name));
         }
     }
 
-    /// The camera names found since the last call; each name is reported once (until
-    /// [`Housekeeper::forget`]).
+    /// The camera names found since the last call; each name is reported once while its
+    /// service exists (and again after [`Housekeeper::forget`]).
     pub fn cameras_found(&self) -> Vec<String> {
         let mut names = Vec::new();
         while let Ok(batch) = self.found.try_recv() {
@@ -178,6 +180,8 @@ fn serve(
             }
         }
         let mut cameras = list_cameras(node.config());
+        // A name whose service is gone is reported again when it comes back.
+        reported.retain(|name| cameras.contains(name));
         cameras.retain(|name| reported.insert(name.clone()));
         tracing::trace!(
             us = started.elapsed().as_micros() as u64,
@@ -228,7 +232,7 @@ mod tests {
     }
 
     #[test]
-    fn reports_a_new_camera_once_and_again_once_forgotten() {
+    fn reports_a_camera_once_and_again_once_forgotten_or_gone() {
         let prefix = format!("hk{}_", std::process::id());
         let config = config(&prefix);
         let wake = Wakeup::new().unwrap();
@@ -261,6 +265,17 @@ mod tests {
         h.forget("left".to_owned());
         h.scan_now();
         assert_eq!(next_found(&h, &wake), vec!["left".to_owned()]);
+        // A camera whose service went away is reported again when it is back.
+        drop(_right);
+        h.scan_now();
+        std::thread::sleep(Duration::from_millis(200));
+        assert!(h.cameras_found().is_empty());
+        let _right = services::camera_builder(&node, "right")
+            .unwrap()
+            .create()
+            .unwrap();
+        h.scan_now();
+        assert_eq!(next_found(&h, &wake), vec!["right".to_owned()]);
         drop(h); // stops and joins the thread
     }
 }

@@ -152,6 +152,11 @@ impl PpfEngine {
         if cache != candidates[0] {
             candidates.push(cache.clone());
         }
+        // A model cache written before its files were named after their mesh's path held
+        // `<stem>.ppfm`: still good if built from this mesh.
+        if let (Some(dir), Some(file)) = (cache_dir, candidates[0].file_name()) {
+            candidates.push(dir.join(file));
+        }
         // First without parsing the mesh: a model built from these very bytes.
         for candidate in candidates.iter().filter(|p| p.is_file()) {
             match store::load_built_from_file(candidate, &self.model_params, source_crc) {
@@ -459,6 +464,24 @@ mod tests {
             .iter()
             .map(|p| e.load(p, None, cache).unwrap_or_else(|err| panic!("{err}")))
             .collect()
+    }
+
+    /// A model cache written when its files were named `<stem>.ppfm` is still used.
+    #[test]
+    fn a_model_cached_under_the_earlier_file_name_is_used() {
+        let root = scratch("earlier-name");
+        let (models, cache) = (root.join("models"), root.join("cache"));
+        std::fs::create_dir_all(&models).unwrap();
+        std::fs::create_dir_all(&cache).unwrap();
+        let ply = models.join("obj_000001.ply");
+        write_box_ply(&ply, [60.0, 40.0, 20.0]);
+        let mesh = Mesh::from_ply_file(&ply).unwrap();
+        let earlier = ObjectModel::build(&mesh, 1, "earlier", &ModelParams::default()).unwrap();
+        store::save(&earlier, &cache.join("obj_000001.ppfm")).unwrap();
+        let loaded = load_dir(&PpfEngine::default(), &models, Some(&cache));
+        assert_eq!(loaded[0].info.name(), "earlier");
+        drop(loaded);
+        std::fs::remove_dir_all(&root).unwrap();
     }
 
     /// A picking cell whose mesh is replaced gets a model of the new mesh, whether the model

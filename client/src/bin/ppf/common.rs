@@ -117,12 +117,11 @@ pub struct ScratchDir(PathBuf);
 
 impl ScratchDir {
     /// Creates the folder empty (a leftover of an earlier process with this pid is removed
-    /// first).
+    /// first). It must be this process's own: one that someone made meanwhile is refused.
     pub fn create(name: &str) -> Result<ScratchDir, String> {
         let dir = std::env::temp_dir().join(format!("{name}-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir)
-            .map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+        std::fs::create_dir(&dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
         Ok(ScratchDir(dir))
     }
 

@@ -234,7 +234,9 @@ fn start_daemon(
 ) -> Result<Daemon, String> {
     let mut child = Command::new(exe)
         .args(first)
-        .args(["--models", models.to_str().unwrap_or("."), "--model-cache"])
+        .arg("--models")
+        .arg(models)
+        .arg("--model-cache")
         .arg(cache)
         .args(["--prefix", prefix])
         .stdout(Stdio::piped())
