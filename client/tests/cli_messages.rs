@@ -6,32 +6,12 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use common::{shared_data, Scratch};
+
+use std::path::Path;
 use std::process::{Command, Output};
 
 use ppfd_models::parts::Part;
-
-/// A fresh scratch directory, removed when dropped.
-struct Scratch(PathBuf);
-
-impl Scratch {
-    fn new(name: &str) -> Scratch {
-        let dir = std::env::temp_dir().join(format!("ppf-cli-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        Scratch(dir)
-    }
-
-    fn join(&self, name: &str) -> PathBuf {
-        self.0.join(name)
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 fn ppf(args: &[&str]) -> Command {
     let mut command = Command::new(env!("CARGO_BIN_EXE_ppf"));
@@ -53,25 +33,6 @@ fn run(command: &mut Command) -> Output {
 
 fn stderr(out: &Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
-}
-
-/// `../shared/data/<name>` when it is there; `None` (the caller skips, saying why) when it is
-/// not, except under `CI=true`.
-fn shared_data(name: &str) -> Option<PathBuf> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
-        .join(name);
-    if dir.is_dir() {
-        return Some(dir);
-    }
-    if std::env::var("CI").as_deref() == Ok("true") {
-        panic!("CI=true but the data is missing at {}", dir.display());
-    }
-    eprintln!(
-        "skipped: no data at {} (the test runs when it is there)",
-        dir.display()
-    );
-    None
 }
 
 fn write_part_mesh(path: &Path) {

@@ -2,28 +2,12 @@
 //! mesh says what became of it, and a failure says why.
 #![cfg(feature = "cli")]
 
-use std::path::PathBuf;
+mod common;
+
 use std::process::Command;
 
+use common::Scratch;
 use ppfd_models::parts::Part;
-
-/// A fresh scratch directory, removed when dropped.
-struct Scratch(PathBuf);
-
-impl Scratch {
-    fn new(name: &str) -> Scratch {
-        let dir = std::env::temp_dir().join(format!("ppf-{name}-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        Scratch(dir)
-    }
-}
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
 
 #[test]
 fn each_mesh_reports_its_model_or_why_it_failed_without_a_terminal() {

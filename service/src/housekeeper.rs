@@ -244,17 +244,17 @@ mod tests {
         assert!(h.cameras_found().is_empty());
 
         let node = NodeBuilder::new().config(&config).create::<Ipc>().unwrap();
-        let _left = services::camera_builder(&node, "left")
-            .unwrap()
-            .create()
-            .unwrap();
+        let camera = |name| {
+            services::camera_builder(&node, name)
+                .unwrap()
+                .create()
+                .unwrap()
+        };
+        let _left = camera("left");
         h.scan_now();
         assert_eq!(next_found(&h, &wake), vec!["left".to_owned()]);
 
-        let _right = services::camera_builder(&node, "right")
-            .unwrap()
-            .create()
-            .unwrap();
+        let _right = camera("right");
         h.scan_now();
         // "left" is not reported again.
         assert_eq!(next_found(&h, &wake), vec!["right".to_owned()]);
@@ -270,10 +270,7 @@ mod tests {
         h.scan_now();
         std::thread::sleep(Duration::from_millis(200));
         assert!(h.cameras_found().is_empty());
-        let _right = services::camera_builder(&node, "right")
-            .unwrap()
-            .create()
-            .unwrap();
+        let _right = camera("right");
         h.scan_now();
         assert_eq!(next_found(&h, &wake), vec!["right".to_owned()]);
         drop(h); // stops and joins the thread
