@@ -40,6 +40,13 @@ fn camera(prefix: &Prefix, name: &str, extra: &[&str]) -> Proc {
     c
 }
 
+/// How many files the process `pid` (a daemon) has open.
+fn open_files_of(pid: u32) -> usize {
+    std::fs::read_dir(format!("/proc/{pid}/fd"))
+        .expect("the daemon runs")
+        .count()
+}
+
 fn client(prefix: &Prefix, args: &[&str]) -> Proc {
     let mut all = vec!["--prefix", &prefix.0];
     all.extend_from_slice(args);
@@ -212,11 +219,7 @@ fn cameras_whose_driver_is_gone_are_forgotten_and_found_again() {
     let models = fake_model_dir("forget", &[1]);
     let d = daemon(&prefix, &models, &["--forget-camera-after-ms", "300"], "0");
     let pid = d.child.id();
-    let open_files = || {
-        std::fs::read_dir(format!("/proc/{pid}/fd"))
-            .expect("the daemon runs")
-            .count()
-    };
+    let open_files = || open_files_of(pid);
     let client = connect(&prefix);
     let unknown = || {
         let (status, _, message) =
@@ -415,11 +418,7 @@ fn clients_killed_mid_request_by_the_hundred_leave_the_daemon_serving() {
     std::thread::sleep(Duration::from_millis(300));
     let observer = connect(&prefix);
     let pid = d.child.id();
-    let open_files = || {
-        std::fs::read_dir(format!("/proc/{pid}/fd"))
-            .expect("the daemon runs")
-            .count()
-    };
+    let open_files = || open_files_of(pid);
     let files_before = open_files();
     let wanted = 140; // more than iceoryx2's 128
     let mut batches = 0;
