@@ -16,7 +16,8 @@ const UNIT_NORMAL_TOLERANCE: f32 = 1e-3;
 
 /// A triangle mesh with one unit normal per vertex.
 ///
-/// A mesh read from a PLY file without normals gets area-weighted normals from its faces. A mesh
+/// A mesh read from a PLY file without normals gets normals from its faces, with a vertex per
+/// side of each crease ([`CREASE_ANGLE_DEG`]). A mesh
 /// may have no faces (a point cloud with normals); then it cannot be sampled or rendered, only
 /// used point by point.
 #[derive(Clone, Debug, Default)]
@@ -62,8 +63,9 @@ impl Mesh {
     /// normalised when present; other vertex properties and other elements are ignored. Faces
     /// are read from the `face` element's `vertex_indices` (or `vertex_index`) list of any
     /// integer type; polygons are fan-triangulated and degenerate triangles (a repeated index or
-    /// zero area) are skipped. Vertices without normals in the file (or with a zero-length one)
-    /// get the area-weighted normal of their faces, as in [`Mesh::from_triangles`].
+    /// zero area) are skipped. A file without normals gets them from its faces, as
+    /// [`Mesh::from_triangles`] does (split at creases); a vertex whose normal in the file has
+    /// zero length gets the area-weighted normal of its faces.
     ///
     /// Errors: [`Error::Io`] when the file cannot be opened, [`Error::Ply`] naming what is wrong
     /// and where for anything malformed (truncated data, a missing coordinate, a non-finite
@@ -86,10 +88,10 @@ impl Mesh {
         ply::read_mesh(reader, name_for_errors.as_ref())
     }
 
-    /// Builds a mesh from vertex positions and triangles, with area-weighted vertex normals.
+    /// Builds a mesh from vertex positions and triangles, with normals from the faces
+    /// ([`CREASE_ANGLE_DEG`]: a vertex on a crease becomes one vertex per side).
     ///
-    /// Degenerate triangles (a repeated index or zero area) are dropped. A vertex whose triangle
-    /// normals cancel out (a two-sided sheet) takes the normal of its largest triangle. Refuses (with
+    /// Degenerate triangles (a repeated index or zero area) are dropped. Refuses (with
     /// [`Error::InvalidMesh`]) an empty vertex list, non-finite positions, indices out of range,
     /// and vertices that lie on no triangle of non-zero area (they can get no normal).
     pub fn from_triangles(positions: Vec<Point3<f32>>, faces: &[[u32; 3]]) -> Result<Mesh> {
@@ -117,24 +119,10 @@ impl Mesh {
                 kept.push(*face);
             }
         }
-        let mut normals = Vec::with_capacity(positions.len());
-        for (i, normal) in vertex_normals_from_faces(&positions, &kept)
-            .into_iter()
-            .enumerate()
-        {
-            match normal {
-                Some(n) => normals.push(n),
-                None => {
-                    return Err(Error::InvalidMesh(format!(
-                        "vertex {i} lies on no triangle of non-zero area, so it has no normal"
-                    )))
-                }
-            }
-        }
-        Ok(Mesh {
-            positions,
-            normals,
-            faces: kept,
+        with_normals_from_faces(&positions, &kept).map_err(|i| {
+            Error::InvalidMesh(format!(
+                "vertex {i} lies on no triangle of non-zero area, so it has no normal"
+            ))
         })
     }
 
@@ -278,6 +266,104 @@ fn is_degenerate(positions: &[Point3<f32>], [a, b, c]: [u32; 3]) -> bool {
     let twice_area = e1.cross(&e2).norm();
     // Relative test: sin of the angle at `a` below 1e-9 is collinear up to rounding.
     twice_area.is_nan() || twice_area <= 1e-9 * e1.norm() * e2.norm()
+}
+
+/// Faces meeting at a vertex at more than this angle (degrees) meet at a crease, where normals
+/// taken from faces do not blend: the vertex becomes one vertex per side, each with the normal
+/// of its own side.
+///
+/// A mesh without normals, as CAD exports often are, needs this: the mean normal of all of a
+/// cube corner's faces is 55° from each of them, and interpolated across a face it tilts the
+/// face's samples by up to 50° where the sensor sees a flat face. Curved surfaces tessellated
+/// finely enough to be modelled (faces a few degrees apart) stay smooth. The value is the
+/// normal-clustering angle of subsampling.
+pub const CREASE_ANGLE_DEG: f64 = 30.0;
+
+/// The mesh of `positions` and the non-degenerate `faces`, with normals from the faces split at
+/// creases ([`CREASE_ANGLE_DEG`]), or the first vertex that lies on no face (it could get no
+/// normal).
+pub(crate) fn with_normals_from_faces(
+    positions: &[Point3<f32>],
+    faces: &[[u32; 3]],
+) -> std::result::Result<Mesh, usize> {
+    let mut used = vec![false; positions.len()];
+    for f in faces {
+        for &v in f {
+            used[v as usize] = true;
+        }
+    }
+    if let Some(unused) = used.iter().position(|&u| !u) {
+        return Err(unused);
+    }
+    let positions: Vec<Point3<f64>> = positions.iter().map(|p| p.cast()).collect();
+    Ok(split_creases(
+        &positions,
+        faces,
+        CREASE_ANGLE_DEG.to_radians(),
+    ))
+}
+
+/// Gives every face corner the angle-weighted mean normal of the faces around its vertex that lie
+/// within `crease_rad` of the corner's own face, and makes one output vertex per distinct
+/// (position, normal).
+pub(crate) fn split_creases(
+    positions: &[Point3<f64>],
+    faces: &[[u32; 3]],
+    crease_rad: f64,
+) -> Mesh {
+    let cos_crease = crease_rad.cos();
+    let face_normals: Vec<Vector3<f64>> = faces
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| positions[i as usize]);
+            (b - a)
+                .cross(&(c - a))
+                .try_normalize(1e-12)
+                .unwrap_or_else(Vector3::zeros)
+        })
+        .collect();
+    let corner_angle = |t: &[u32; 3], k: usize| {
+        let p = positions[t[k] as usize];
+        let (e1, e2) = (
+            positions[t[(k + 1) % 3] as usize] - p,
+            positions[t[(k + 2) % 3] as usize] - p,
+        );
+        e1.angle(&e2)
+    };
+    let mut around: Vec<Vec<(usize, usize)>> = vec![Vec::new(); positions.len()];
+    for (f, t) in faces.iter().enumerate() {
+        for (k, &v) in t.iter().enumerate() {
+            around[v as usize].push((f, k));
+        }
+    }
+    let mut mesh = Mesh::default();
+    let mut out_faces = vec![[0u32; 3]; faces.len()];
+    for (v, corners) in around.iter().enumerate() {
+        let mut made: Vec<(Vector3<f64>, u32)> = Vec::new();
+        for &(f, k) in corners {
+            let nf = face_normals[f];
+            let mut sum = Vector3::zeros();
+            for &(g, kg) in corners {
+                if face_normals[g].dot(&nf) >= cos_crease {
+                    sum += face_normals[g] * corner_angle(&faces[g], kg);
+                }
+            }
+            let n = sum.try_normalize(1e-12).unwrap_or(nf);
+            let index = match made.iter().find(|(m, _)| (m - n).norm() < 1e-6) {
+                Some(&(_, i)) => i,
+                None => {
+                    mesh.positions.push(positions[v].cast::<f32>());
+                    mesh.normals.push(n.cast::<f32>().normalize());
+                    let i = (mesh.positions.len() - 1) as u32;
+                    made.push((n, i));
+                    i
+                }
+            };
+            out_faces[f][k] = index;
+        }
+    }
+    mesh.faces = out_faces;
+    mesh
 }
 
 /// Per vertex, the area-weighted mean of its triangles' normals, or `None` for a vertex on no
@@ -441,15 +527,19 @@ mod tests {
     }
 
     #[test]
-    fn two_sided_sheet_gets_the_normal_of_its_largest_triangle() {
+    fn two_sided_sheet_gets_a_vertex_per_side() {
         let positions = vec![
             Point3::new(0.0, 0.0, 0.0),
             Point3::new(1.0, 0.0, 0.0),
             Point3::new(0.0, 1.0, 0.0),
         ];
         let mesh = Mesh::from_triangles(positions, &[[0, 1, 2], [1, 0, 2]]).unwrap();
-        for n in &mesh.normals {
-            assert!((n.z.abs() - 1.0).abs() < 1e-6, "{n:?}");
+        assert_eq!(mesh.positions.len(), 6);
+        for (face, side) in mesh.faces.iter().zip([1.0, -1.0]) {
+            for &v in face {
+                let n = mesh.normals[v as usize];
+                assert!((n - Vector3::z() * side).norm() < 1e-6, "{n:?}");
+            }
         }
     }
 
@@ -502,7 +592,7 @@ mod tests {
             .to_string()
             .contains("vertex 3"));
         let mut bad_face = good.clone();
-        bad_face.faces[5] = [0, 1, 8];
+        bad_face.faces[5] = [0, 1, good.positions.len() as u32];
         assert!(bad_face
             .validate()
             .unwrap_err()

@@ -22,7 +22,7 @@ use std::f64::consts::{PI, TAU};
 
 use nalgebra::{Point3, Vector2, Vector3};
 
-use crate::mesh::Mesh;
+use crate::mesh::{split_creases, Mesh};
 
 /// Edges whose faces meet at a larger angle than this keep one normal per side.
 pub const CREASE_ANGLE_DEG: f64 = 35.0;
@@ -621,65 +621,6 @@ fn orient_outward(positions: &[Point3<f64>], faces: &mut [[u32; 3]]) {
             }
         }
     }
-}
-
-/// Gives every face corner the angle-weighted mean normal of the faces around its vertex that lie
-/// within `crease_rad` of the corner's own face, and makes one output vertex per distinct
-/// (position, normal).
-fn split_creases(positions: &[Point3<f64>], faces: &[[u32; 3]], crease_rad: f64) -> Mesh {
-    let cos_crease = crease_rad.cos();
-    let face_normals: Vec<Vector3<f64>> = faces
-        .iter()
-        .map(|t| {
-            let [a, b, c] = t.map(|i| positions[i as usize]);
-            (b - a)
-                .cross(&(c - a))
-                .try_normalize(1e-12)
-                .unwrap_or_else(Vector3::zeros)
-        })
-        .collect();
-    let corner_angle = |t: &[u32; 3], k: usize| {
-        let p = positions[t[k] as usize];
-        let (e1, e2) = (
-            positions[t[(k + 1) % 3] as usize] - p,
-            positions[t[(k + 2) % 3] as usize] - p,
-        );
-        e1.angle(&e2)
-    };
-    let mut around: Vec<Vec<(usize, usize)>> = vec![Vec::new(); positions.len()];
-    for (f, t) in faces.iter().enumerate() {
-        for (k, &v) in t.iter().enumerate() {
-            around[v as usize].push((f, k));
-        }
-    }
-    let mut mesh = Mesh::default();
-    let mut out_faces = vec![[0u32; 3]; faces.len()];
-    for (v, corners) in around.iter().enumerate() {
-        let mut made: Vec<(Vector3<f64>, u32)> = Vec::new();
-        for &(f, k) in corners {
-            let nf = face_normals[f];
-            let mut sum = Vector3::zeros();
-            for &(g, kg) in corners {
-                if face_normals[g].dot(&nf) >= cos_crease {
-                    sum += face_normals[g] * corner_angle(&faces[g], kg);
-                }
-            }
-            let n = sum.try_normalize(1e-12).unwrap_or(nf);
-            let index = match made.iter().find(|(m, _)| (m - n).norm() < 1e-6) {
-                Some(&(_, i)) => i,
-                None => {
-                    mesh.positions.push(positions[v].cast::<f32>());
-                    mesh.normals.push(n.cast::<f32>().normalize());
-                    let i = (mesh.positions.len() - 1) as u32;
-                    made.push((n, i));
-                    i
-                }
-            };
-            out_faces[f][k] = index;
-        }
-    }
-    mesh.faces = out_faces;
-    mesh
 }
 
 fn cross2(a: Vector2<f64>, b: Vector2<f64>) -> f64 {

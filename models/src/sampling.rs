@@ -141,6 +141,96 @@ mod tests {
         assert!(pts.normals.iter().all(|n| (n - Vector3::z()).norm() < 1e-6));
     }
 
+    /// Angles in degrees, sorted.
+    fn sorted_degrees(angles: impl Iterator<Item = f32>) -> Vec<f32> {
+        let mut v: Vec<f32> = angles.map(|a| a.to_degrees()).collect();
+        v.sort_by(f32::total_cmp);
+        v
+    }
+
+    #[test]
+    fn a_cube_without_normals_is_sampled_with_its_face_normals() {
+        // Eight shared corners: the normals read from faces are 55° off every face there.
+        let positions: Vec<Point3<f32>> = (0..8u32)
+            .map(|i| {
+                let s = |bit: u32| if i & bit != 0 { 50.0 } else { -50.0 };
+                Point3::new(s(1), s(2), s(4))
+            })
+            .collect();
+        let quads = [
+            [0, 4, 6, 2],
+            [1, 3, 7, 5],
+            [0, 1, 5, 4],
+            [2, 6, 7, 3],
+            [0, 2, 3, 1],
+            [4, 5, 7, 6],
+        ];
+        let faces: Vec<[u32; 3]> = quads
+            .iter()
+            .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+            .collect();
+        let mesh = Mesh::from_triangles(positions, &faces).unwrap();
+        let pts = sample_surface(&mesh, 20_000, 3).unwrap();
+        // The face a sample lies on is the axis along which it is furthest out.
+        let errors = sorted_degrees(pts.positions.iter().zip(&pts.normals).map(|(p, n)| {
+            let axis = p.coords.iamax();
+            let mut face = Vector3::zeros();
+            face[axis] = p.coords[axis].signum();
+            n.angle(&face)
+        }));
+        let worst = errors[errors.len() - 1];
+        assert!(
+            worst < 0.01,
+            "sample normals up to {worst:.1}° off their face"
+        );
+    }
+
+    #[test]
+    fn a_capped_cylinder_keeps_a_smooth_side_and_flat_caps() {
+        // 24 sides of radius 50 mm, height 100 mm, closed by two fans; no normals given, so
+        // a blend of side and cap at every rim vertex would tilt the side's samples by up to 18°.
+        let sides = 24;
+        let mut positions = Vec::new();
+        for z in [-50.0f32, 50.0] {
+            for k in 0..sides {
+                let t = k as f32 / sides as f32 * std::f32::consts::TAU;
+                positions.push(Point3::new(50.0 * t.cos(), 50.0 * t.sin(), z));
+            }
+        }
+        positions.push(Point3::new(0.0, 0.0, -50.0));
+        positions.push(Point3::new(0.0, 0.0, 50.0));
+        let (bottom, top) = (2 * sides, 2 * sides + 1);
+        let mut faces = Vec::new();
+        for k in 0..sides {
+            let next = (k + 1) % sides;
+            faces.push([k, next, sides + next]);
+            faces.push([k, sides + next, sides + k]);
+            faces.push([bottom, next, k]);
+            faces.push([top, sides + k, sides + next]);
+        }
+        let mesh = Mesh::from_triangles(positions, &faces).unwrap();
+        let pts = sample_surface(&mesh, 40_000, 5).unwrap();
+        let (mut side, mut caps) = (Vec::new(), Vec::new());
+        for (p, n) in pts.positions.iter().zip(&pts.normals) {
+            // A cap's samples at the rim (radius 49.5 to 50 mm) are left out: side ones lie there too.
+            let radius = p.x.hypot(p.y);
+            if p.z.abs() > 49.99 && radius < 49.5 {
+                caps.push(n.angle(&(Vector3::z() * p.z.signum())));
+            } else if p.z.abs() < 49.99 {
+                side.push(n.angle(&Vector3::new(p.x, p.y, 0.0)));
+            }
+        }
+        let (side, caps) = (
+            sorted_degrees(side.into_iter()),
+            sorted_degrees(caps.into_iter()),
+        );
+        // Facets are 15° apart: their own normals would put 95 % within 7°.
+        let side_p95 = side[side.len() * 95 / 100];
+        assert!(side_p95 < 3.0, "side normals: 95 % within {side_p95:.1}°");
+        let caps_worst = caps[caps.len() - 1];
+        assert!(caps_worst < 0.01, "cap normals up to {caps_worst:.1}° off");
+    }
+
     #[test]
     fn diameter_of_a_box_is_its_space_diagonal() {
         let mut pts = Vec::new();

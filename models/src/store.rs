@@ -23,9 +23,11 @@ use crate::{Error, Result};
 
 /// The file name extension of model files.
 pub const EXTENSION: &str = "ppfm";
-/// Bumped whenever [`crate::model::ModelData`] or the table encoding changes. Version 2 added
-/// the mesh fingerprint, version 3 the CRC of the mesh file.
-pub const FORMAT_VERSION: u32 = 3;
+/// Bumped whenever [`crate::model::ModelData`], the table encoding or what a model is built
+/// from a mesh changes. Version 2 added the mesh fingerprint, version 3 the CRC of the mesh
+/// file; version 4 takes the normals of a mesh without normals from its faces split at creases
+/// ([`crate::mesh::CREASE_ANGLE_DEG`]), which changes the models of such meshes only.
+pub const FORMAT_VERSION: u32 = 4;
 const MAGIC: &[u8; 8] = b"PPFDMODL";
 const HEADER_LEN: usize = 32;
 

@@ -11,7 +11,7 @@ use ply_rs_bw::ply::{
     ScalarType,
 };
 
-use super::{is_degenerate, unit_f32, vertex_normals_from_faces, Mesh};
+use super::{is_degenerate, unit_f32, vertex_normals_from_faces, with_normals_from_faces, Mesh};
 use crate::{Error, Result};
 
 /// Names of the face element's index list, in order of preference.
@@ -393,17 +393,12 @@ fn build_mesh(
                     .into(),
             );
         }
-        for (i, normal) in vertex_normals_from_faces(&positions, &triangles)
-            .into_iter()
-            .enumerate()
-        {
-            normals.push(normal.ok_or_else(|| {
-                format!(
-                    "vertex {i}: the file has no normals and the vertex lies on no face of \
-                     non-zero area to compute one from"
-                )
-            })?);
-        }
+        return with_normals_from_faces(&positions, &triangles).map_err(|i| {
+            format!(
+                "vertex {i}: the file has no normals and the vertex lies on no face of \
+                 non-zero area to compute one from"
+            )
+        });
     }
     Ok(Mesh {
         positions,
@@ -629,7 +624,10 @@ mod tests {
         let ascii = read(&fixture.bytes(Format::Ascii)).unwrap();
         let le = read(&fixture.bytes(Format::Le)).unwrap();
         let be = read(&fixture.bytes(Format::Be)).unwrap();
-        assert_eq!(ascii.positions.len(), 8);
+        // Without normals in the file, each corner becomes three vertices, one per face, with
+        // that face's normal (the faces meet at right angles: creases).
+        assert_eq!(ascii.positions.len(), 24);
+        assert!(ascii.normals.iter().all(|n| n.amax() == 1.0));
         assert_eq!(ascii.faces.len(), 12, "six quads fan into twelve triangles");
         for other in [&le, &be] {
             assert_eq!(ascii.positions, other.positions);
@@ -986,12 +984,14 @@ mod tests {
             let header = Parser::<Skipped>::new()
                 .read_ply_header(&mut std::fs::File::open(path).unwrap())
                 .unwrap();
-            assert_eq!(
-                mesh.positions.len(),
-                header.elements["vertex"].count,
-                "{}",
-                path.display()
-            );
+            // A file without normals gets a vertex per side of each crease.
+            let in_file = header.elements["vertex"].count;
+            let has_normals = header.elements["vertex"].properties.contains_key("nx");
+            if has_normals {
+                assert_eq!(mesh.positions.len(), in_file, "{}", path.display());
+            } else {
+                assert!(mesh.positions.len() >= in_file, "{}", path.display());
+            }
             mesh.validate()
                 .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
             for (i, n) in mesh.normals.iter().enumerate() {
