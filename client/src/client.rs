@@ -3,7 +3,7 @@
 use std::cell::Cell;
 use std::time::{Duration, Instant};
 
-use iceoryx2::node::Node;
+use iceoryx2::node::{Node, NodeState, NodeView};
 use iceoryx2::port::client::Client as IoxClient;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
@@ -26,6 +26,12 @@ use crate::{iceoryx_config, transport, Error, Result};
 /// How often a client waiting for an answer checks that the daemon still holds its request (an
 /// answer wakes it at once; a request let go of does not).
 const HELD_CHECK_PERIOD: Duration = Duration::from_millis(50);
+
+/// How often a client waiting for an answer checks that the daemon's process is alive. A
+/// daemon that is killed never lets go of its requests: without this check its clients would
+/// wait out their timeouts. Each check lists the prefix's iceoryx2 nodes (a directory read and
+/// a lock test per node).
+const ALIVE_CHECK_PERIOD: Duration = Duration::from_millis(250);
 
 type Ipc = ipc::Service;
 type DetectPort =
@@ -170,6 +176,54 @@ pub struct Client {
     _wake_service: EventService<Ipc>,
     _replies_service: EventService<Ipc>,
     _node: Node<Ipc>,
+}
+
+/// Now plus `timeout`, or the far future for a timeout beyond what `Instant` holds.
+fn later(timeout: Duration) -> Instant {
+    let now = Instant::now();
+    now.checked_add(timeout)
+        .unwrap_or_else(|| now + Duration::from_secs(100 * 365 * 24 * 3600))
+}
+
+/// Whether the daemon's process still lives, checked every [`ALIVE_CHECK_PERIOD`] while a
+/// client waits.
+struct AliveCheck {
+    next: Instant,
+}
+
+impl AliveCheck {
+    fn new() -> Self {
+        AliveCheck {
+            next: Instant::now() + ALIVE_CHECK_PERIOD,
+        }
+    }
+
+    /// True once no live node of the daemon's name is left under the client's prefix. A
+    /// listing that fails, or a node whose state cannot be read, counts as alive: the timeout
+    /// still ends the wait.
+    fn daemon_gone(&mut self, node: &Node<Ipc>) -> bool {
+        if Instant::now() < self.next {
+            return false;
+        }
+        self.next = Instant::now() + ALIVE_CHECK_PERIOD;
+        let mut alive = false;
+        let listed = Node::<Ipc>::list(node.config(), |state| {
+            alive = match &state {
+                NodeState::Alive(view) => view
+                    .details()
+                    .as_ref()
+                    .is_some_and(|d| d.name().as_str() == services::DAEMON_NODE),
+                NodeState::Dead(_) => false,
+                NodeState::Inaccessible(_) | NodeState::Undefined(_) => true,
+            };
+            if alive {
+                CallbackProgression::Stop
+            } else {
+                CallbackProgression::Continue
+            }
+        });
+        listed.is_ok() && !alive
+    }
 }
 
 fn new_token() -> u64 {
@@ -337,7 +391,8 @@ impl Client {
         header.reply_token = self.reply_token;
         let send_ns = monotonic_now_ns();
         header.send_time_ns = send_ns;
-        header.deadline_ns = send_ns + timeout.as_nanos() as u64;
+        header.deadline_ns =
+            send_ns.saturating_add(u64::try_from(timeout.as_nanos()).unwrap_or(u64::MAX));
         let pending = request
             .send()
             .map_err(transport("cannot send the request"))?;
@@ -348,11 +403,13 @@ impl Client {
             });
         }
         let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
-        let deadline = Instant::now() + timeout;
+        let deadline = later(timeout);
+        let mut alive = AliveCheck::new();
         loop {
             // Whether the daemon still holds the request, read before looking for the answer:
             // it answers before it lets go, so an answer sent before is found below.
             let held = pending.is_connected();
+            let gone = alive.daemon_gone(&self._node);
             while let Some(response) = pending
                 .receive()
                 .map_err(transport("cannot receive the response"))?
@@ -365,6 +422,9 @@ impl Client {
             }
             if !held {
                 return Err(Error::Dropped);
+            }
+            if gone {
+                return Err(Error::DaemonGone);
             }
             let left = deadline.saturating_duration_since(Instant::now());
             if left.is_zero() {
@@ -406,9 +466,11 @@ impl Client {
             });
         }
         let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
-        let deadline = Instant::now() + self.control_timeout;
+        let deadline = later(self.control_timeout);
+        let mut alive = AliveCheck::new();
         loop {
             let held = pending.is_connected();
+            let gone = alive.daemon_gone(&self._node);
             if let Some(response) = pending
                 .receive()
                 .map_err(transport("cannot receive the response"))?
@@ -426,6 +488,9 @@ impl Client {
             }
             if !held {
                 return Err(Error::Dropped);
+            }
+            if gone {
+                return Err(Error::DaemonGone);
             }
             let left = deadline.saturating_duration_since(Instant::now());
             if left.is_zero() {

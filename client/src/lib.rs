@@ -53,6 +53,10 @@ pub enum Error {
     /// request again is safe).
     #[error("ppfd let go of the request without an answer; send it again")]
     Dropped,
+    /// The daemon's process ended (it was killed or crashed) while the request waited for its
+    /// answer.
+    #[error("ppfd exited while the request waited for its answer (killed or crashed); the request is lost, send it again once a daemon serves")]
+    DaemonGone,
     /// No daemon serves under this client's prefix.
     #[error("no ppfd daemon is serving {service} under the iceoryx2 prefix {prefix:?}; start one (ppfd --models <dir>), or give the daemon's prefix (--prefix, or PPFD_PREFIX)")]
     NoDaemon {

@@ -16,11 +16,13 @@ pub fn monotonic_now_ns() -> u64 {
 }
 
 /// The `Instant` of a `CLOCK_MONOTONIC` timestamp (for deadlines handed to library code that
-/// takes an `Instant`). Timestamps in the past map to now.
+/// takes an `Instant`). Timestamps in the past map to now, those beyond what an `Instant` holds
+/// to a century from now.
 pub fn instant_of(monotonic_ns: u64) -> Instant {
     let now_ns = monotonic_now_ns();
     let now = Instant::now();
-    now + Duration::from_nanos(monotonic_ns.saturating_sub(now_ns))
+    now.checked_add(Duration::from_nanos(monotonic_ns.saturating_sub(now_ns)))
+        .unwrap_or_else(|| now + Duration::from_secs(100 * 365 * 24 * 3600))
 }
 
 #[cfg(test)]
@@ -45,6 +47,7 @@ mod tests {
 
     #[test]
     fn instants_of_future_timestamps_lie_ahead() {
+        assert!(instant_of(u64::MAX) > Instant::now() + Duration::from_secs(3600));
         let d = instant_of(monotonic_now_ns() + 50_000_000);
         let ahead = d.saturating_duration_since(Instant::now());
         assert!(

@@ -223,7 +223,7 @@ pub fn run(
         .request_response
         .server_expired_connection_buffer = expired_connection_buffer(&config);
     let node = NodeBuilder::new()
-        .name(&NodeName::new("ppfd").map_err(fail("node name"))?)
+        .name(&NodeName::new(services::DAEMON_NODE).map_err(fail("node name"))?)
         .config(&iox)
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Ipc>()

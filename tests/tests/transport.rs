@@ -469,6 +469,42 @@ fn client_proc_served(prefix: &Prefix) -> Vec<String> {
     results(&mut c, Duration::from_secs(10))
 }
 
+/// A daemon killed while it works on a request never lets go of it: the client used to wait
+/// its whole timeout (here 60 s) for an answer that could not come.
+#[test]
+fn a_client_learns_at_once_that_the_daemon_died_under_its_request() {
+    let prefix = Prefix::new("died");
+    let models = fake_model_dir("died", &[1]);
+    let d = daemon(&prefix, &models, &[], "20000");
+    let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let client = connect(&prefix);
+    let killer = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_millis(500));
+        d.signal(libc::SIGKILL);
+        d
+    });
+    let started = std::time::Instant::now();
+    let opts = ppfd_client::DetectOptions {
+        timeout: Duration::from_secs(60),
+        ..Default::default()
+    };
+    let result = client.detect("cam0", &[1], &opts);
+    let waited = started.elapsed();
+    eprintln!("the client returned {waited:?} after sending, the daemon killed at 0.5 s");
+    let mut d = killer.join().unwrap();
+    d.wait_exit(Duration::from_secs(5)).expect("daemon killed");
+    assert!(
+        matches!(result, Err(ppfd_client::Error::DaemonGone)),
+        "{result:?} after {waited:?}"
+    );
+    // Killed after 0.5 s; the client looks every 0.25 s.
+    assert!(
+        waited < Duration::from_secs(5),
+        "the client waited {waited:?}"
+    );
+}
+
 #[test]
 fn clients_reconnect_to_a_restarted_daemon() {
     let prefix = Prefix::new("restart");
@@ -484,6 +520,15 @@ fn clients_reconnect_to_a_restarted_daemon() {
     client
         .detect("cam0", &[1], &opts)
         .expect("served before the crash");
+    // A timeout longer than any clock holds: the deadline sent saturates instead of wrapping
+    // round into the past (the daemon refused it as "deadline exceeded").
+    let forever = ppfd_client::DetectOptions {
+        timeout: Duration::MAX,
+        ..Default::default()
+    };
+    client
+        .detect("cam0", &[1], &forever)
+        .expect("served without a deadline");
 
     d.signal(libc::SIGKILL);
     d.wait_exit(Duration::from_secs(5)).expect("daemon killed");
