@@ -688,6 +688,18 @@ impl Daemon {
         };
         let (frame_header, depth, hold) = match &q.source {
             FrameSource::Inline => {
+                if let Some(ahead) = stamped_ahead(&q.header.inline_frame, now) {
+                    let e = EngineError::new(
+                        Status::InvalidFrame,
+                        format!(
+                            "the frame is stamped {} ahead of this machine's monotonic clock: \
+                             capture_time_ns must be CLOCK_MONOTONIC nanoseconds \
+                             (ppfd_protocol::clock::monotonic_now_ns), or 0 when unknown",
+                            duration_text(ahead)
+                        ),
+                    );
+                    return Err(Box::new((q.active, q.header, q.received_ns, e)));
+                }
                 let payload = q.active.payload();
                 (
                     q.header.inline_frame,
@@ -718,6 +730,19 @@ impl Daemon {
                     let e = EngineError::new(
                         e.status(),
                         format!("camera {name:?} published a bad frame: {e}"),
+                    );
+                    return Err(Box::new((q.active, q.header, q.received_ns, e)));
+                }
+                if let Some(ahead) = stamped_ahead(&fh, now) {
+                    let e = EngineError::new(
+                        Status::InvalidFrame,
+                        format!(
+                            "camera {name:?} stamps its frames {} ahead of this machine's \
+                             monotonic clock: capture_time_ns must be CLOCK_MONOTONIC \
+                             nanoseconds (ppfd_protocol::clock::monotonic_now_ns), not wall-clock \
+                             time; its frames' age cannot be told",
+                            duration_text(ahead)
+                        ),
                     );
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 }
@@ -1057,5 +1082,28 @@ impl Drop for Daemon {
     fn drop(&mut self) {
         // Workers read the frames held in `in_flight`: never release them under a worker.
         self.join_in_flight();
+    }
+}
+
+/// A frame stamped further than this ahead of the daemon's clock was not stamped with it.
+/// Stamps taken by the driver just after the daemon read its clock are a few microseconds
+/// ahead; a driver stamping wall-clock time is decades ahead.
+const MAX_STAMP_AHEAD_NS: u64 = 1_000_000_000;
+
+/// How far ahead of `now` the frame is stamped, if more than [`MAX_STAMP_AHEAD_NS`].
+fn stamped_ahead(frame: &FrameHeader, now: u64) -> Option<u64> {
+    let ahead = frame.capture_time_ns.saturating_sub(now);
+    (ahead > MAX_STAMP_AHEAD_NS).then_some(ahead)
+}
+
+/// `ns` for a message: in seconds up to two minutes, hours up to two days, else days.
+fn duration_text(ns: u64) -> String {
+    let s = ns as f64 / 1e9;
+    if s < 120.0 {
+        format!("{s:.1} s")
+    } else if s < 48.0 * 3600.0 {
+        format!("{:.1} h", s / 3600.0)
+    } else {
+        format!("{:.0} days", s / 86400.0)
     }
 }

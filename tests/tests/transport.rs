@@ -336,6 +336,30 @@ fn malformed_requests_are_refused_each_with_its_error_and_the_daemon_keeps_servi
         assert_eq!(status, Status::InvalidIntrinsics, "{message}");
     }
 
+    // Stamped with wall-clock time instead of the monotonic clock: decades ahead, so its age
+    // would read 0 and no frame would ever be stale.
+    let wall_clock_ns = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_nanos() as u64;
+    let mut ahead = inline;
+    ahead.inline_frame.capture_time_ns = wall_clock_ns;
+    let (status, _, message) = refusal(client.send_raw(&ahead, &depth, t));
+    assert_eq!(status, Status::InvalidFrame, "{message}");
+    assert!(
+        message.contains("CLOCK_MONOTONIC") && message.contains("days ahead"),
+        "{message}"
+    );
+    let _ahead_cam = camera(
+        &prefix,
+        "ahead",
+        &["--fps", "50", "--stamp-ahead-s", "3600"],
+    );
+    std::thread::sleep(Duration::from_millis(300));
+    let (status, _, message) = refusal(client.detect("ahead", &[1], &opts));
+    assert_eq!(status, Status::InvalidFrame, "{message}");
+    assert!(message.contains("1.0 h ahead"), "{message}");
+
     // Still serving, from the camera and inline.
     let found = client
         .detect("cam0", &[1, 2], &opts)
@@ -353,7 +377,7 @@ fn malformed_requests_are_refused_each_with_its_error_and_the_daemon_keeps_servi
     // detection counts once nothing runs any more.
     let stats = settled_stats(&client);
     assert!(
-        stats.requests_refused >= 7 && stats.requests_served >= 2,
+        stats.requests_refused >= 9 && stats.requests_served >= 2,
         "{stats:?}"
     );
 }

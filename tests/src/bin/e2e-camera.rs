@@ -8,7 +8,7 @@
 use std::io::Write;
 use std::time::{Duration, Instant};
 
-use ppfd_client::{CameraPublisher, Intrinsics};
+use ppfd_client::{monotonic_now_ns, CameraPublisher, Intrinsics};
 
 fn arg(args: &[String], name: &str) -> Option<String> {
     args.iter()
@@ -28,6 +28,7 @@ const FLAGS: &[&str] = &[
     "--bop",
     "--scene",
     "--image",
+    "--stamp-ahead-s",
 ];
 
 /// Stops with a usage line at an unknown flag (a typo would otherwise publish on the default
@@ -100,6 +101,15 @@ fn main() {
             vec![800u16; 640 * 480],
         ),
     };
+    // A driver whose clock is not the daemon's (wall-clock time, say): its frames are stamped
+    // this far ahead.
+    let stamp_ahead_ns: u64 = arg(&args, "--stamp-ahead-s")
+        .map(|s| {
+            s.parse::<u64>()
+                .expect("--stamp-ahead-s takes whole seconds")
+                * 1_000_000_000
+        })
+        .unwrap_or(0);
     let mut publisher = CameraPublisher::new(
         prefix.as_deref(),
         &camera,
@@ -116,7 +126,11 @@ fn main() {
     let mut next = Instant::now();
     let mut sent = 0;
     while frames == 0 || sent < frames {
-        let seq = publisher.publish(&depth).expect("publish");
+        let seq = publisher
+            .loan()
+            .and_then(|frame| frame.write_from_slice(&depth))
+            .and_then(|frame| frame.send(monotonic_now_ns() + stamp_ahead_ns))
+            .expect("publish");
         sent += 1;
         writeln!(out, "frame {seq}").unwrap();
         out.flush().unwrap();
