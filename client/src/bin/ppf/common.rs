@@ -17,8 +17,14 @@ pub struct Connect {
 
 impl Connect {
     pub fn client(&self) -> Result<Client, String> {
+        self.client_with(ClientOptions::default().control_timeout)
+    }
+
+    /// A client whose control requests wait up to `control_timeout` for their answers.
+    pub fn client_with(&self, control_timeout: Duration) -> Result<Client, String> {
         let options = ClientOptions {
             prefix: self.prefix.clone().or_else(ppfd_client::prefix_from_env),
+            control_timeout,
             ..Default::default()
         };
         Client::connect_with(&options).map_err(|e| e.to_string())

@@ -1,5 +1,7 @@
 //! `ppf models` and `ppf stats`: the daemon's control requests.
 
+use std::time::Duration;
+
 use clap::Args;
 use ppfd_client::DaemonStats;
 
@@ -17,12 +19,18 @@ pub struct ModelsArgs {
     /// Drop the model with this object id.
     #[arg(long)]
     pub drop: Option<u32>,
+    /// Give up waiting for the daemon's answer after this long, milliseconds (building a model
+    /// from a mesh of millions of faces takes a while; a daemon that dies is noticed at once).
+    #[arg(long, default_value_t = 600_000)]
+    pub timeout_ms: u64,
     #[command(flatten)]
     pub connect: Connect,
 }
 
 pub fn models(args: ModelsArgs) -> Result<(), String> {
-    let client = args.connect.client()?;
+    let client = args
+        .connect
+        .client_with(Duration::from_millis(args.timeout_ms))?;
     if let Some(path) = &args.load {
         let before = client.models().map_err(|e| e.to_string())?;
         let m = client
@@ -67,12 +75,18 @@ pub struct StatsArgs {
     /// Print as JSON.
     #[arg(long)]
     pub json: bool,
+    /// Give up waiting for the daemon's answer after this long, milliseconds (a daemon answers
+    /// once it has loaded the models it starts with).
+    #[arg(long, default_value_t = 5_000)]
+    pub timeout_ms: u64,
     #[command(flatten)]
     pub connect: Connect,
 }
 
 pub fn stats(args: StatsArgs) -> Result<(), String> {
-    let client = args.connect.client()?;
+    let client = args
+        .connect
+        .client_with(Duration::from_millis(args.timeout_ms))?;
     let (s, detector) = client.statistics().map_err(|e| e.to_string())?;
     let detector = detector
         .strip_prefix("detector:")
