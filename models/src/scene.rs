@@ -712,10 +712,20 @@ pub fn prepare(frame: &DepthFrame, params: &SceneParams) -> Result<SceneImage> {
         }
     };
     if !normals.iter().any(|n| n.x.is_finite()) {
-        return Err(Error::InvalidFrame(format!(
-            "no valid depth in the {}x{} frame (all values zero or out of {}..{} mm)",
-            frame.width, frame.height, params.min_depth_mm, params.max_depth_mm
-        )));
+        let valid = image.points.iter().filter(|p| p.z.is_finite()).count();
+        return Err(Error::InvalidFrame(if valid == 0 {
+            format!(
+                "no valid depth in the {}x{} frame (all values zero or out of {}..{} mm)",
+                frame.width, frame.height, params.min_depth_mm, params.max_depth_mm
+            )
+        } else {
+            format!(
+                "no surface normal could be estimated in the {}x{} frame: its {valid} pixels of \
+                 valid depth have too few neighbours of valid depth on one surface to fit a \
+                 normal to (a frame only a few pixels high or wide, or scattered pixels)",
+                frame.width, frame.height
+            )
+        }));
     }
     Ok(SceneImage {
         width: frame.width,
@@ -866,6 +876,20 @@ mod tests {
             ..Intrinsics::LMO
         };
         assert!(prepare_points(&frame, &SceneParams::default()).is_err());
+        // Valid depth, but one row: no window to fit a normal in.
+        let row = vec![850u16; 640];
+        let thin = DepthFrame {
+            width: 640,
+            height: 1,
+            intrinsics: Intrinsics::LMO,
+            depth_scale_mm: 1.0,
+            depth: &row,
+        };
+        let err = prepare_points(&thin, &SceneParams::default()).unwrap_err();
+        assert!(
+            err.to_string().contains("no surface normal") && err.to_string().contains("640 pixels"),
+            "{err}"
+        );
     }
 
     #[test]

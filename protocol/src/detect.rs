@@ -50,7 +50,9 @@ pub struct DetectRequestHeader {
     pub send_time_ns: u64,
     /// Absolute deadline, `CLOCK_MONOTONIC` nanoseconds; 0 for none. A request still queued at
     /// its deadline is answered [`Status::DeadlineExceeded`]; a detection running past it stops
-    /// early and returns what it has.
+    /// before its next object and is answered [`Status::DeadlineExceeded`] too, without the
+    /// objects it had finished.
+    /// The client library stops waiting at the deadline.
     pub deadline_ns: u64,
     /// Oldest acceptable camera frame, nanoseconds of age at the start of detection; 0 for the
     /// daemon's default. An older frame is refused with [`Status::CameraStale`].
