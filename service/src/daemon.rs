@@ -977,7 +977,7 @@ impl Daemon {
         let Some(active) = self.control_pending.remove(&m.job) else {
             return;
         };
-        match m.result {
+        match m.result.and_then(Registry::with_valid_id) {
             Ok(model) => {
                 let info = model.info;
                 let replaced = self.registry.insert(model).is_some();

@@ -35,7 +35,7 @@ impl Registry {
         let mut failures = Vec::new();
         let mut loaded_from: BTreeMap<u32, PathBuf> = BTreeMap::new();
         for path in engine.select(files) {
-            match engine.load(&path, None, cache_dir) {
+            match engine.load(&path, None, cache_dir).and_then(Self::with_valid_id) {
                 Ok(model) if loaded_from.contains_key(&model.info.object_id) => {
                     let id = model.info.object_id;
                     let e = EngineError::new(
@@ -66,6 +66,22 @@ impl Registry {
             }
         }
         Ok(failures)
+    }
+
+    /// `model`, or the refusal of its object id 0: ids start at 1 (BOP's do; in a control
+    /// request 0 stands for "the id the file gives").
+    pub fn with_valid_id(model: LoadedModel) -> Result<LoadedModel, EngineError> {
+        if model.info.object_id == 0 {
+            return Err(EngineError::new(
+                Status::ModelError,
+                format!(
+                    "{}: object id 0; ids start at 1 (rename the file, e.g. obj_000001, or give \
+                     an id)",
+                    model.source.display()
+                ),
+            ));
+        }
+        Ok(model)
     }
 
     /// Adds a model, replacing one of the same id.

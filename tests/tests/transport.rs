@@ -122,13 +122,16 @@ fn refusal(r: ppfd_client::Result<ppfd_client::Detections>) -> (ppfd_client::Sta
 }
 
 /// Two files of one object id at start: the first loaded (here by name) is kept and the other
-/// is reported, rather than the later file silently replacing the earlier one.
+/// is reported, rather than the later file silently replacing the earlier one. A file of
+/// object id 0 is not loaded.
 #[test]
 fn a_second_model_file_with_a_loaded_id_is_refused_at_start() {
     let prefix = Prefix::new("dupid");
     let models = fake_model_dir("dupid", &[1, 2]);
     // `dup.fake` sorts before `obj_000001.fake`.
     std::fs::write(models.join("dup.fake"), "1 dup\n").unwrap();
+    // Object id 0 is no id.
+    std::fs::write(models.join("obj_000000.fake"), "0 nought\n").unwrap();
     let _d = daemon(&prefix, &models, &[], "0");
     let listed = connect(&prefix).models().expect("models listed");
     let names: Vec<(u32, String)> = listed
@@ -649,6 +652,18 @@ fn models_are_listed_loaded_and_dropped_at_run_time() {
         }) => {
             assert_eq!(status, Status::ModelError);
             assert!(message.contains("/nonexistent/x.fake"), "{message}");
+        }
+        other => panic!("{other:?}"),
+    }
+    // Object id 0 is refused, as `ppf model build` refuses it.
+    let zero = models.join("obj_000000.fake");
+    std::fs::write(&zero, "0 nought\n").unwrap();
+    match client.load_model(zero.to_str().unwrap(), 0) {
+        Err(ppfd_client::Error::Refused {
+            status, message, ..
+        }) => {
+            assert_eq!(status, Status::ModelError);
+            assert!(message.contains("ids start at 1"), "{message}");
         }
         other => panic!("{other:?}"),
     }
