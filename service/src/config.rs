@@ -182,6 +182,13 @@ impl DaemonConfig {
         if self.housekeeping_ms == 0 {
             return Err("housekeeping_ms must be at least 1".into());
         }
+        if self.max_frame_age_ms == 0 {
+            return Err(
+                "max_frame_age_ms must be at least 1: every camera frame is older than 0 ms by \
+                 the time a detection starts"
+                    .into(),
+            );
+        }
         if let Some(p) = &self.prefix {
             ppfd_protocol::services::check_prefix(p)?;
         }
@@ -345,6 +352,11 @@ mod tests {
             };
             assert!(c.validate().unwrap_err().contains("at most 256"));
         }
+        let c = DaemonConfig {
+            max_frame_age_ms: 0,
+            ..Default::default()
+        };
+        assert!(c.validate().unwrap_err().contains("max_frame_age_ms"));
         for queue_capacity in [0, MAX_QUEUE_CAPACITY + 1] {
             let c = DaemonConfig {
                 queue_capacity,
