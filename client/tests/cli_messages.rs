@@ -52,6 +52,33 @@ fn detect_without_a_mode_names_both_modes() {
     }
 }
 
+/// A flag of the other mode is a usage error (exit 2) that says what the flag is for.
+#[test]
+fn detect_with_a_flag_of_the_other_mode_is_a_usage_error() {
+    let out = run(&mut ppf(&[
+        "detect",
+        "--camera",
+        "k",
+        "--objects",
+        "8",
+        "--scene",
+        "2",
+    ]));
+    assert_eq!(out.status.code(), Some(2));
+    assert!(stderr(&out).contains("--scene works on a frame of a BOP dataset"));
+}
+
+/// `ppf model info` given a mesh says how to make a model of it.
+#[test]
+fn model_info_on_a_mesh_points_to_model_build() {
+    let scratch = Scratch::new("info-mesh");
+    let mesh = scratch.join("part.ply");
+    write_part_mesh(&mesh);
+    let out = run(ppf(&["model", "info"]).arg(&mesh));
+    assert_eq!(out.status.code(), Some(1));
+    assert!(stderr(&out).contains("ppf model build"), "{}", stderr(&out));
+}
+
 /// As `ppfd` does, and as the README promises for a bad detector parameter.
 #[test]
 fn serve_refuses_a_bad_parameter_with_exit_code_2() {

@@ -931,6 +931,14 @@ impl Daemon {
                         &[],
                     );
                 }
+                if path.is_dir() {
+                    let m = format!(
+                        "{} is a folder: give one model file (.ppfm) or mesh (.ply); a folder \
+                         of models is loaded at start (ppfd --models)",
+                        path.display()
+                    );
+                    return self.control_answer(active, Status::ModelError, &m, &[]);
+                }
                 let object_id = (request.object_id != 0).then_some(request.object_id);
                 let job = self.next_job;
                 self.next_job += 1;

@@ -35,7 +35,10 @@ impl Registry {
         let mut failures = Vec::new();
         let mut loaded_from: BTreeMap<u32, PathBuf> = BTreeMap::new();
         for path in engine.select(files) {
-            match engine.load(&path, None, cache_dir).and_then(Self::with_valid_id) {
+            match engine
+                .load(&path, None, cache_dir)
+                .and_then(Self::with_valid_id)
+            {
                 Ok(model) if loaded_from.contains_key(&model.info.object_id) => {
                     let id = model.info.object_id;
                     let e = EngineError::new(

@@ -655,6 +655,12 @@ fn models_are_listed_loaded_and_dropped_at_run_time() {
         }
         other => panic!("{other:?}"),
     }
+    match client.load_model(models.to_str().unwrap(), 0) {
+        Err(ppfd_client::Error::Refused { message, .. }) => {
+            assert!(message.contains("is a folder"), "{message}");
+        }
+        other => panic!("{other:?}"),
+    }
     // Object id 0 is refused, as `ppf model build` refuses it.
     let zero = models.join("obj_000000.fake");
     std::fs::write(&zero, "0 nought\n").unwrap();

@@ -28,8 +28,9 @@ pub struct BenchArgs {
     /// Requests per client before measuring.
     #[arg(long, default_value_t = 5)]
     pub warmup: usize,
-    /// Hypotheses per object.
-    #[arg(long, default_value_t = 1)]
+    /// Hypotheses per object, 1 to 16.
+    #[arg(long, default_value_t = 1,
+          value_parser = clap::value_parser!(u32).range(1..=crate::common::MAX_HYPOTHESES))]
     pub hypotheses: u32,
     /// Timeout per request, milliseconds.
     #[arg(long, default_value_t = 30_000)]

@@ -88,6 +88,13 @@ impl DetectCommand {
             return Err(format!("--objects lists object {id} twice"));
         }
         if let Some(dataset) = self.dataset {
+            if self.connect.prefix.is_some() {
+                return Err(
+                    "--prefix names a daemon's iceoryx2 prefix, for --camera; --dataset \
+                            detects in this process, without a daemon"
+                        .into(),
+                );
+            }
             return Ok(DetectTarget::Dataset(DatasetDetectArgs {
                 dataset,
                 scene: self.scene.ok_or("--dataset needs --scene")?,
@@ -100,23 +107,45 @@ impl DetectCommand {
                 set: self.set,
             }));
         }
-        let offline_only = [
+        let given = |flags: &[(&'static str, bool)]| -> Vec<&'static str> {
+            flags
+                .iter()
+                .filter(|(_, on)| *on)
+                .map(|(f, _)| *f)
+                .collect()
+        };
+        let frame_flags = given(&[
             ("--scene", self.scene.is_some()),
             ("--image", self.image.is_some()),
             ("--diagnose", self.diagnose),
+        ]);
+        if !frame_flags.is_empty() {
+            return Err(format!(
+                "{} {} a frame of a BOP dataset: give --dataset as well; with --camera the \
+                 frame is the camera's newest",
+                frame_flags.join(", "),
+                if frame_flags.len() == 1 {
+                    "works on"
+                } else {
+                    "work on"
+                }
+            ));
+        }
+        let parameter_flags = given(&[
             ("--reference-step", self.reference_step.is_some()),
             ("--peaks", self.peaks.is_some()),
             ("--set", !self.set.is_empty()),
-        ];
-        let given: Vec<&str> = offline_only
-            .iter()
-            .filter(|(_, on)| *on)
-            .map(|(flag, _)| *flag)
-            .collect();
-        if !given.is_empty() {
+        ]);
+        if !parameter_flags.is_empty() {
             return Err(format!(
-                "{} work with --dataset only; through the daemon (--camera) the detector's parameters are the daemon's, set when it starts (`ppfd --set`)",
-                given.join(", ")
+                "{} {} the detector's parameters for --dataset only; through the daemon \
+                 (--camera) the parameters are the daemon's, set when it starts (`ppfd --set`)",
+                parameter_flags.join(", "),
+                if parameter_flags.len() == 1 {
+                    "sets"
+                } else {
+                    "set"
+                }
             ));
         }
         if self.objects.is_empty() {

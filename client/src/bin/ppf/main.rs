@@ -110,7 +110,11 @@ fn main() {
         Command::Detect(args) => match args.into_target() {
             Ok(detect_offline::DetectTarget::Camera(a)) => detect::run(a).map_err(Into::into),
             Ok(detect_offline::DetectTarget::Dataset(a)) => detect_offline::run(a),
-            Err(e) => Err(e.into()),
+            Err(e) => {
+                // A usage error, as clap's own are.
+                eprintln!("error: {e}");
+                std::process::exit(2);
+            }
         },
         Command::Bench(args) => bench::run(args).map_err(Into::into),
         Command::Models(args) => daemon::models(args).map_err(Into::into),
@@ -192,7 +196,7 @@ mod tests {
         ] {
             let args: Vec<&str> = camera.iter().chain(extra).copied().collect();
             let e = target(&args).unwrap_err();
-            assert!(e.contains(extra[0]) && e.contains("--dataset only"), "{e}");
+            assert!(e.contains(extra[0]) && e.contains("--dataset"), "{e}");
         }
         let dataset = [
             "ppf",
@@ -205,6 +209,8 @@ mod tests {
             "3",
         ];
         assert!(target(&dataset).is_ok());
+        let args: Vec<&str> = dataset.iter().copied().chain(["--prefix", "p"]).collect();
+        assert!(target(&args).unwrap_err().contains("without a daemon"));
         for extra in [&["--json"][..], &["--timeout-ms", "100"]] {
             let args: Vec<&str> = dataset.iter().chain(extra).copied().collect();
             let e = target(&args).unwrap_err();

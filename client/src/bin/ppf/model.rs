@@ -170,6 +170,18 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
 }
 
 fn info(file: &Path) -> Result<(), Box<dyn std::error::Error>> {
+    if file
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("ply"))
+    {
+        return Err(format!(
+            "{} is a mesh; `ppf model info` reads model files (.ppfm): build one with \
+             `ppf model build {} --out <dir>`",
+            file.display(),
+            file.display()
+        )
+        .into());
+    }
     let model = store::load(file)?;
     let p = model.params();
     let table = model.table();
