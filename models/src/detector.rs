@@ -5,7 +5,8 @@
 //!        ─► per object: voting ─► pose clustering ─► re-scoring ─► ICP ─► filters ─► hypotheses
 //! ```
 
-use std::sync::OnceLock;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
 use crate::camera::DepthFrame;
@@ -67,12 +68,16 @@ impl DetectParams {
 }
 
 /// Per-call options.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct DetectOptions {
     /// How many hypotheses to return per object, best first.
     pub hypotheses_per_object: usize,
     /// Give up (with [`Error::DeadlineExceeded`]) once this instant has passed.
     pub deadline: Option<Instant>,
+    /// Give up (with [`Error::Cancelled`]) once this is set: another thread's way to stop a
+    /// detection nobody waits for any more. Like the deadline, it is looked at between stages:
+    /// before each object, and between an object's voting and re-scoring.
+    pub cancel: Option<Arc<AtomicBool>>,
 }
 
 impl Default for DetectOptions {
@@ -80,6 +85,7 @@ impl Default for DetectOptions {
         Self {
             hypotheses_per_object: 5,
             deadline: None,
+            cancel: None,
         }
     }
 }
@@ -253,11 +259,22 @@ impl Detector {
                 "hypotheses_per_object must be at least 1".into(),
             ));
         }
-        let check_deadline = |start: Instant| match opts.deadline {
-            Some(d) if Instant::now() > d => Err(Error::DeadlineExceeded {
-                elapsed: start.elapsed(),
-            }),
-            _ => Ok(()),
+        let check_stop = |start: Instant| {
+            if opts
+                .cancel
+                .as_ref()
+                .is_some_and(|c| c.load(Ordering::Relaxed))
+            {
+                return Err(Error::Cancelled {
+                    elapsed: start.elapsed(),
+                });
+            }
+            match opts.deadline {
+                Some(d) if Instant::now() > d => Err(Error::DeadlineExceeded {
+                    elapsed: start.elapsed(),
+                }),
+                _ => Ok(()),
+            }
         };
         let start = Instant::now();
         let mut out = Detections::default();
@@ -270,7 +287,7 @@ impl Detector {
 
         let (groups, cloud_of) = shared_clouds(models, self.params.shared_cloud_diameter_ratio);
         // The groups' clouds are independent: build them side by side.
-        check_deadline(start)?;
+        check_stop(start)?;
         let t = Instant::now();
         let clouds: Vec<PreparedScene> = groups
             .par_iter()
@@ -280,7 +297,7 @@ impl Detector {
 
         let edges = OnceLock::new();
         for (i, model) in models.iter().enumerate() {
-            check_deadline(start)?;
+            check_stop(start)?;
             let scene = &clouds[cloud_of[i]];
             let mut timings = StageTimings::default();
             let t = Instant::now();
@@ -304,6 +321,7 @@ impl Detector {
             out.counts.hypotheses += own.hypotheses;
             out.per_object_counts.push(own);
             let clusters = clusters_as_poses(&clusters);
+            check_stop(start)?;
             let hypotheses =
                 self.after_voting(model, &clusters, &scene_image, &edges, opts, &mut timings);
             out.objects.push(ObjectDetections {
@@ -455,6 +473,35 @@ mod tests {
     use super::*;
     use crate::model::ModelParams;
     use crate::parts::Part;
+
+    /// A cancel flag set before the call (as the daemon sets it when the client is gone) stops
+    /// the detection at its first look, with `Cancelled`; unset, the same call detects.
+    #[test]
+    fn a_cancelled_detection_stops_with_cancelled() {
+        let part = Part::LBracket;
+        let model =
+            ObjectModel::build(&part.mesh(), 1, part.name(), &ModelParams::default()).unwrap();
+        let pose = Pose::from_parts(
+            nalgebra::Translation3::new(0.0, 0.0, 700.0),
+            nalgebra::UnitQuaternion::identity(),
+        );
+        let scene =
+            crate::synthetic::SyntheticScene::single(&part.mesh(), 1, pose, None, 1).unwrap();
+        let detector = Detector::new(DetectParams::new());
+        let cancel = Arc::new(AtomicBool::new(true));
+        let opts = DetectOptions {
+            cancel: Some(cancel.clone()),
+            ..Default::default()
+        };
+        let frame = scene.frame.view();
+        match detector.detect(&frame, &[&model], &opts) {
+            Err(Error::Cancelled { .. }) => {}
+            other => panic!("expected Cancelled, got {other:?}"),
+        }
+        cancel.store(false, Ordering::Relaxed);
+        let found = detector.detect(&frame, &[&model], &opts).unwrap();
+        assert_eq!(found.objects.len(), 1);
+    }
 
     #[test]
     fn objects_share_a_cloud_only_within_the_diameter_ratio() {

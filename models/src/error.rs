@@ -34,6 +34,9 @@ pub enum Error {
     /// The caller's deadline passed before the detection finished.
     #[error("deadline exceeded after {elapsed:?}")]
     DeadlineExceeded { elapsed: std::time::Duration },
+    /// The caller cancelled the detection ([`crate::detector::DetectOptions::cancel`]).
+    #[error("cancelled after {elapsed:?}")]
+    Cancelled { elapsed: std::time::Duration },
     /// A dataset file (BOP layout) is missing or malformed; `field` names what was wrong.
     #[error("{path}: {reason}")]
     Dataset { path: PathBuf, reason: String },

@@ -78,7 +78,7 @@ fn detect_frame(dir: &PathBuf) -> Outcome {
             &refs,
             &DetectOptions {
                 hypotheses_per_object: 1,
-                deadline: None,
+                ..Default::default()
             },
         )
         .unwrap();

@@ -19,10 +19,12 @@
 use std::collections::{HashMap, VecDeque};
 use std::path::PathBuf;
 use std::rc::Rc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+use iceoryx2::identifiers::UniqueClientId;
 use iceoryx2::node::Node;
 use iceoryx2::port::server::Server;
 use iceoryx2::port::subscriber::Subscriber;
@@ -121,6 +123,10 @@ struct Queued {
 /// released only with the record, after the job reported.
 struct InFlight {
     _frame: Option<Rc<FrameSample>>,
+    /// The client that sent the request, to tell whether it is still there.
+    client: UniqueClientId,
+    /// Set to stop the detection early: its client is gone, or the daemon stops.
+    cancel: Arc<AtomicBool>,
 }
 
 /// A job's report, sent after its worker answered the request.
@@ -442,7 +448,19 @@ impl Daemon {
         self.forget_driverless_cameras();
         self.responder.trim();
         self.drop_dead_clients_requests();
+        self.cancel_dead_clients_detections();
         self.release_abandoned();
+    }
+
+    /// Stops the running detections of clients that died: they would hold a worker for
+    /// seconds to compute an answer nobody reads, while the queue waits behind them.
+    fn cancel_dead_clients_detections(&mut self) {
+        for (job, f) in &self.in_flight {
+            if !f.cancel.load(Ordering::Relaxed) && !self.responder.detect_client_listed(f.client) {
+                f.cancel.store(true, Ordering::Relaxed);
+                tracing::debug!(job, "client gone: its running detection is cancelled");
+            }
+        }
     }
 
     /// Lets go of the dead clients' requests that can be let go of (see
@@ -778,14 +796,17 @@ impl Daemon {
         self.next_job += 1;
         let engine = self.engine.clone();
         let models = q.models;
+        let cancel = Arc::new(AtomicBool::new(false));
         let options = DetectOptions {
             hypotheses_per_object: q.header.hypotheses_per_object as usize,
             deadline: (q.header.deadline_ns != 0).then(|| instant_of(q.header.deadline_ns)),
+            cancel: cancel.clone(),
         };
         let done = self.done_tx.clone();
         let signaller = self.signaller;
         let responder = self.responder.clone();
         let (active, header, received_ns) = (q.active, q.header, q.received_ns);
+        let client = active.origin();
         let request_id = header.request_id;
         self.pool.spawn(move || {
             let started_ns = monotonic_now_ns();
@@ -825,7 +846,14 @@ impl Daemon {
             let _ = done.send(Completion { job, outcome });
             signaller.signal();
         });
-        self.in_flight.insert(job, InFlight { _frame: hold });
+        self.in_flight.insert(
+            job,
+            InFlight {
+                _frame: hold,
+                client,
+                cancel,
+            },
+        );
         Ok(())
     }
 

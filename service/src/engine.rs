@@ -4,6 +4,7 @@
 
 use std::any::Any;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -47,12 +48,15 @@ impl std::fmt::Debug for LoadedModel {
 }
 
 /// What one detection asks for besides the frame and the models.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct DetectOptions {
     /// Best hypotheses wanted per object.
     pub hypotheses_per_object: usize,
-    /// Stop early and return what there is when this passes.
+    /// Stop early, with [`Status::DeadlineExceeded`], when this passes.
     pub deadline: Option<Instant>,
+    /// Set by the daemon when the request's client is gone: stop early (the answer would go
+    /// nowhere) and free the worker for the requests behind it.
+    pub cancel: Arc<AtomicBool>,
 }
 
 /// What one detection found, in wire types.

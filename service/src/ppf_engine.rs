@@ -74,6 +74,8 @@ fn model_error(e: ppfd_models::Error) -> EngineError {
         Error::InvalidFrame(_) => Status::InvalidFrame,
         Error::UnknownObject(_) => Status::UnknownObject,
         Error::DeadlineExceeded { .. } => Status::DeadlineExceeded,
+        // Only a client that is gone has its detection cancelled: the answer goes nowhere.
+        Error::Cancelled { .. } => Status::Internal,
         Error::InvalidParameter(_) => Status::InvalidRequest,
         Error::Io { .. } | Error::Ply { .. } | Error::InvalidMesh(_) | Error::ModelStore { .. } => {
             Status::ModelError
@@ -341,6 +343,7 @@ impl DetectionEngine for PpfEngine {
         let opts = ModelOptions {
             hypotheses_per_object: options.hypotheses_per_object,
             deadline: options.deadline,
+            cancel: Some(options.cancel.clone()),
         };
         let found = self
             .detector

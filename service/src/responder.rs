@@ -209,7 +209,11 @@ impl Responder {
     /// process may do): answering the old request would then touch the new client's channel,
     /// and so may dropping it (see [`Responder::abandon`]).
     pub fn detect_client_alive(&self, active: &DetectActive) -> bool {
-        let origin = active.origin();
+        self.detect_client_listed(active.origin())
+    }
+
+    /// Whether the detect client `origin` (of a request a worker holds) still exists.
+    pub fn detect_client_listed(&self, origin: UniqueClientId) -> bool {
         listed(
             |visit| self.detect_service.dynamic_config().list_clients(visit),
             origin,

@@ -20,7 +20,7 @@ use ppfd_protocol::text;
 
 /// An engine for transport tests: models are `*.fake` text files (`<object id> <name>`), and a
 /// detection answers, per object, hypotheses at the frame's median depth straight ahead, after
-/// sleeping `delay`. It exercises everything but the matching.
+/// sleeping `delay` (cut short when the detection is cancelled). It exercises everything but the matching.
 #[derive(Debug, Default)]
 pub struct FakeEngine {
     /// Time one detection takes.
@@ -137,7 +137,18 @@ impl DetectionEngine for FakeEngine {
             *valid.select_nth_unstable(mid).1 as f32 * frame.depth_scale_mm
         };
         if !self.delay.is_zero() {
-            std::thread::sleep(self.delay);
+            // In short naps, as the detector looks between its stages: a cancelled detection
+            // ends within one.
+            let until = started + self.delay;
+            while Instant::now() < until {
+                if options.cancel.load(std::sync::atomic::Ordering::Relaxed) {
+                    return Err(EngineError::new(
+                        Status::Internal,
+                        "cancelled: the client is gone",
+                    ));
+                }
+                std::thread::sleep(Duration::from_millis(10).min(until - Instant::now()));
+            }
         }
         let mut hypotheses = Vec::new();
         for m in models {

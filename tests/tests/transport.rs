@@ -432,6 +432,35 @@ fn a_client_killed_mid_request_does_not_stall_the_next_one() {
     assert!(other.iter_mut().all(|l| l.starts_with("ok")), "{other:?}");
 }
 
+/// A client killed while its detection runs: the daemon cancels the detection, so the request
+/// behind it waits about a housekeeping round, not the rest of the dead client's detection
+/// (here 4 s).
+#[test]
+fn a_detection_whose_client_died_is_cancelled() {
+    let prefix = Prefix::new("cancel");
+    let models = fake_model_dir("cancel", &[1]);
+    let _d = daemon(&prefix, &models, &["--parallel-detections", "1"], "4000");
+    let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let mut victim = client(&prefix, &["--camera", "cam0", "--objects", "1"]);
+    victim.wait_line("client ready", STARTUP);
+    std::thread::sleep(Duration::from_millis(300)); // its detection runs
+    victim.signal(libc::SIGKILL);
+    victim
+        .wait_exit(Duration::from_secs(5))
+        .expect("victim died");
+    let client = connect(&prefix);
+    let found = client
+        .detect("cam0", &[1], &ppfd_client::DetectOptions::default())
+        .expect("next client served");
+    let waited = Duration::from_nanos(found.latency.daemon.queue_wait_ns);
+    eprintln!("the next request waited {waited:?} in the queue");
+    assert!(
+        waited < Duration::from_millis(2000),
+        "the next request waited {waited:?} behind a dead client's detection"
+    );
+}
+
 /// While the daemon holds a request of a client that died, iceoryx2 keeps the connection to
 /// that client (its shared memory mapped, file descriptors open), and it panics once more than
 /// its buffer of such connections (128) pile up. Requests of dead clients were held forever,

@@ -218,7 +218,7 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
     let refs: Vec<_> = models.iter().collect();
     let opts = DetectOptions {
         hypotheses_per_object: args.top.max(10),
-        deadline: None,
+        ..Default::default()
     };
     let det = detector.detect(&frame.view(), &refs, &opts)?;
     println!("| object | D (mm) | rank | score | votes | t err (mm) | R err (°) | checks | correct (0.1 D, 15°) within top 10 |");

@@ -90,7 +90,7 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
     let detector = Detector::new(params);
     let opts = DetectOptions {
         hypotheses_per_object: args.hypotheses as usize,
-        deadline: None,
+        ..Default::default()
     };
     let bar = ProgressBar::new(images.len() as u64);
     bar.set_style(

@@ -66,7 +66,7 @@ pub fn run(args: ProfileArgs) -> Result<(), Box<dyn std::error::Error>> {
     let detector = Detector::new(params);
     let opts = DetectOptions {
         hypotheses_per_object: 1,
-        deadline: None,
+        ..Default::default()
     };
     let repeat = args.repeat;
     let mut per_object: Vec<Vec<StageTimings>> = vec![Vec::new(); refs.len()];
