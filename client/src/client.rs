@@ -209,10 +209,11 @@ impl AliveCheck {
         let mut alive = false;
         let listed = Node::<Ipc>::list(node.config(), |state| {
             alive = match &state {
+                // A live node whose details cannot be read may be the daemon.
                 NodeState::Alive(view) => view
                     .details()
                     .as_ref()
-                    .is_some_and(|d| d.name().as_str() == services::DAEMON_NODE),
+                    .is_none_or(|d| d.name().as_str() == services::DAEMON_NODE),
                 NodeState::Dead(_) => false,
                 NodeState::Inaccessible(_) | NodeState::Undefined(_) => true,
             };
@@ -379,7 +380,7 @@ impl Client {
         header.set_objects(objects)?;
         header.max_frame_age_ns = options
             .max_frame_age
-            .map(|d| d.as_nanos() as u64)
+            .map(|d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
             .unwrap_or(0);
         Ok(header)
     }

@@ -14,7 +14,9 @@ use ppfd_protocol::services;
 fn server_that_drops_one_request(prefix: String, say: mpsc::Sender<&'static str>) {
     let mut config = iceoryx2::config::Config::default();
     config.global.prefix = FileName::new(prefix.as_bytes()).unwrap();
+    // Named as the daemon's node is: a client takes a prefix without one for a dead daemon.
     let node = NodeBuilder::new()
+        .name(&NodeName::new(services::DAEMON_NODE).unwrap())
         .config(&config)
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<ipc::Service>()

@@ -312,49 +312,101 @@ pub(crate) fn split_creases(
     crease_rad: f64,
 ) -> Mesh {
     let cos_crease = crease_rad.cos();
+    let cos_half_crease = (crease_rad / 2.0).cos();
+    // Unit normal per face; zero for a face without area, which then joins no side.
     let face_normals: Vec<Vector3<f64>> = faces
         .iter()
         .map(|t| {
             let [a, b, c] = t.map(|i| positions[i as usize]);
             (b - a)
                 .cross(&(c - a))
-                .try_normalize(1e-12)
+                .try_normalize(0.0)
                 .unwrap_or_else(Vector3::zeros)
         })
         .collect();
-    let corner_angle = |t: &[u32; 3], k: usize| {
-        let p = positions[t[k] as usize];
-        let (e1, e2) = (
-            positions[t[(k + 1) % 3] as usize] - p,
-            positions[t[(k + 2) % 3] as usize] - p,
-        );
-        e1.angle(&e2)
-    };
-    let mut around: Vec<Vec<(usize, usize)>> = vec![Vec::new(); positions.len()];
+    // Per corner, its angle: the weight of its face's normal at the vertex.
+    let corner_angles: Vec<[f64; 3]> = faces
+        .iter()
+        .map(|t| {
+            [0, 1, 2].map(|k| {
+                let p = positions[t[k] as usize];
+                let (e1, e2) = (
+                    positions[t[(k + 1) % 3] as usize] - p,
+                    positions[t[(k + 2) % 3] as usize] - p,
+                );
+                let angle = e1.angle(&e2);
+                if angle.is_finite() {
+                    angle
+                } else {
+                    0.0
+                }
+            })
+        })
+        .collect();
+    // The corners (face, corner) around each vertex, flat.
+    let mut offsets = vec![0usize; positions.len() + 1];
+    for t in faces {
+        for &v in t {
+            offsets[v as usize + 1] += 1;
+        }
+    }
+    for v in 0..positions.len() {
+        offsets[v + 1] += offsets[v];
+    }
+    let mut next = offsets.clone();
+    let mut around = vec![(0usize, 0usize); offsets[positions.len()]];
     for (f, t) in faces.iter().enumerate() {
         for (k, &v) in t.iter().enumerate() {
-            around[v as usize].push((f, k));
+            around[next[v as usize]] = (f, k);
+            next[v as usize] += 1;
         }
     }
     let mut mesh = Mesh::default();
     let mut out_faces = vec![[0u32; 3]; faces.len()];
-    for (v, corners) in around.iter().enumerate() {
-        let mut made: Vec<(Vector3<f64>, u32)> = Vec::new();
+    let mut made: Vec<(Vector3<f64>, u32)> = Vec::new();
+    for v in 0..positions.len() {
+        let corners = &around[offsets[v]..offsets[v + 1]];
+        let weighted = |&(g, kg): &(usize, usize)| face_normals[g] * corner_angles[g][kg];
+        let mean = corners
+            .iter()
+            .map(weighted)
+            .sum::<Vector3<f64>>()
+            .try_normalize(0.0);
+        let add = |n: Vector3<f64>, mesh: &mut Mesh| {
+            mesh.positions.push(positions[v].cast::<f32>());
+            mesh.normals.push(n.cast::<f32>().normalize());
+            (mesh.positions.len() - 1) as u32
+        };
+        // Every face within half the crease angle of the mean: any two are within the crease
+        // angle, so every corner has the same side, all of them (a flat or gently curved fan
+        // of any size, in one pass).
+        if let Some(m) = mean.filter(|m| {
+            corners.iter().all(|&(g, _)| {
+                face_normals[g] == Vector3::zeros() || face_normals[g].dot(m) >= cos_half_crease
+            })
+        }) {
+            let index = add(m, &mut mesh);
+            for &(f, k) in corners {
+                out_faces[f][k] = index;
+            }
+            continue;
+        }
+        made.clear();
         for &(f, k) in corners {
             let nf = face_normals[f];
-            let mut sum = Vector3::zeros();
-            for &(g, kg) in corners {
-                if face_normals[g].dot(&nf) >= cos_crease {
-                    sum += face_normals[g] * corner_angle(&faces[g], kg);
-                }
-            }
-            let n = sum.try_normalize(1e-12).unwrap_or(nf);
+            let n = corners
+                .iter()
+                .filter(|&&(g, _)| face_normals[g].dot(&nf) >= cos_crease)
+                .map(weighted)
+                .sum::<Vector3<f64>>()
+                .try_normalize(0.0)
+                // A corner of a face without area takes the mean of the vertex's faces.
+                .or(mean)
+                .unwrap_or_else(Vector3::z);
             let index = match made.iter().find(|(m, _)| (m - n).norm() < 1e-6) {
                 Some(&(_, i)) => i,
                 None => {
-                    mesh.positions.push(positions[v].cast::<f32>());
-                    mesh.normals.push(n.cast::<f32>().normalize());
-                    let i = (mesh.positions.len() - 1) as u32;
+                    let i = add(n, &mut mesh);
                     made.push((n, i));
                     i
                 }
@@ -524,6 +576,24 @@ mod tests {
             .normals
             .iter()
             .all(|n| (n - Vector3::z()).norm() < 1e-6));
+    }
+
+    /// A face without area (three points in a line) among others: every normal stays a unit
+    /// vector, the face's corners taking the mean of their vertex's faces.
+    #[test]
+    fn a_face_without_area_gets_no_broken_normal() {
+        let positions: Vec<Point3<f64>> = vec![
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(1.0, 0.0, 0.0),
+            Point3::new(0.0, 1.0, 0.0),
+            Point3::new(2.0, 0.0, 0.0),
+        ];
+        let mesh = split_creases(&positions, &[[0, 1, 2], [0, 1, 3]], 30f64.to_radians());
+        assert!(mesh
+            .normals
+            .iter()
+            .all(|n| (n.norm() - 1.0).abs() < 1e-6 && (n - Vector3::z()).norm() < 1e-6));
+        mesh.validate().unwrap();
     }
 
     #[test]

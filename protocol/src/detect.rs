@@ -50,8 +50,8 @@ pub struct DetectRequestHeader {
     pub send_time_ns: u64,
     /// Absolute deadline, `CLOCK_MONOTONIC` nanoseconds; 0 for none. A request still queued at
     /// its deadline is answered [`Status::DeadlineExceeded`]; a detection running past it stops
-    /// before its next object and is answered [`Status::DeadlineExceeded`] too, without the
-    /// objects it had finished.
+    /// before its next object (or between an object's voting and re-scoring) and is answered
+    /// [`Status::DeadlineExceeded`] too, without the objects it had finished.
     /// The client library stops waiting at the deadline.
     pub deadline_ns: u64,
     /// Oldest acceptable camera frame, nanoseconds of age at the start of detection; 0 for the

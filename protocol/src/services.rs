@@ -24,7 +24,8 @@ use crate::frame::FrameHeader;
 use crate::{ProtocolError, CAMERA_NAME_BYTES, MAX_HYPOTHESES_PER_OBJECT, MAX_OBJECTS_PER_REQUEST};
 
 /// The iceoryx2 node name of the daemon: a client waiting for an answer looks for a live node
-/// of this name to tell a daemon that is working from one that died.
+/// of this name to tell a daemon that is working from one that died. Any server of the
+/// [`DETECT`] and [`CONTROL`] services must name its node so.
 pub const DAEMON_NODE: &str = "ppfd";
 /// The detect request/response service.
 pub const DETECT: &str = "ppfd/detect";

@@ -125,7 +125,7 @@ struct InFlight {
     _frame: Option<Rc<FrameSample>>,
     /// The client that sent the request, to tell whether it is still there.
     client: UniqueClientId,
-    /// Set to stop the detection early: its client is gone, or the daemon stops.
+    /// Set to stop the detection early: its client is gone.
     cancel: Arc<AtomicBool>,
 }
 
@@ -702,7 +702,7 @@ impl Daemon {
         let max_age_ns = if q.header.max_frame_age_ns != 0 {
             q.header.max_frame_age_ns
         } else {
-            self.config.max_frame_age_ms * 1_000_000
+            self.config.max_frame_age_ms.saturating_mul(1_000_000)
         };
         let (frame_header, depth, hold) = match &q.source {
             FrameSource::Inline => {
