@@ -486,32 +486,39 @@ pub(crate) fn shared_test_data() -> Option<std::path::PathBuf> {
     None
 }
 
+/// A cube of half-size `half` mm centred at the origin, as a CAD export without normals gives
+/// it: 8 corners shared by 12 outward-facing triangles, normals taken from the faces.
+#[cfg(test)]
+pub(crate) fn welded_cube(half: f32) -> Mesh {
+    let positions: Vec<Point3<f32>> = (0..8u32)
+        .map(|i| {
+            let s = |bit: u32| if i & bit != 0 { half } else { -half };
+            Point3::new(s(1), s(2), s(4))
+        })
+        .collect();
+    let quads = [
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+    ];
+    let faces: Vec<[u32; 3]> = quads
+        .iter()
+        .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+        .collect();
+    Mesh::from_triangles(positions, &faces).unwrap()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use nalgebra::{Translation3, UnitQuaternion};
 
-    /// A 20 mm cube centred at the origin, as 12 outward-facing triangles.
+    /// A 20 mm cube centred at the origin.
     fn cube() -> Mesh {
-        let positions: Vec<Point3<f32>> = (0..8u32)
-            .map(|i| {
-                let s = |bit: u32| if i & bit != 0 { 10.0 } else { -10.0 };
-                Point3::new(s(1), s(2), s(4))
-            })
-            .collect();
-        let quads = [
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-        ];
-        let faces: Vec<[u32; 3]> = quads
-            .iter()
-            .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
-            .collect();
-        Mesh::from_triangles(positions, &faces).unwrap()
+        welded_cube(10.0)
     }
 
     #[test]

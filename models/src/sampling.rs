@@ -150,26 +150,8 @@ mod tests {
 
     #[test]
     fn a_cube_without_normals_is_sampled_with_its_face_normals() {
-        // Eight shared corners: the normals read from faces are 55° off every face there.
-        let positions: Vec<Point3<f32>> = (0..8u32)
-            .map(|i| {
-                let s = |bit: u32| if i & bit != 0 { 50.0 } else { -50.0 };
-                Point3::new(s(1), s(2), s(4))
-            })
-            .collect();
-        let quads = [
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-        ];
-        let faces: Vec<[u32; 3]> = quads
-            .iter()
-            .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
-            .collect();
-        let mesh = Mesh::from_triangles(positions, &faces).unwrap();
+        // Eight shared corners: the mean normal of a corner's faces is 55° off each of them.
+        let mesh = crate::mesh::welded_cube(50.0);
         let pts = sample_surface(&mesh, 20_000, 3).unwrap();
         // The face a sample lies on is the axis along which it is furthest out.
         let errors = sorted_degrees(pts.positions.iter().zip(&pts.normals).map(|(p, n)| {
