@@ -9,7 +9,7 @@ use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::prelude::*;
 
-use ppfd_protocol::clock::monotonic_now_ns;
+use ppfd_protocol::clock::{instant_after, monotonic_now_ns};
 use ppfd_protocol::control::{
     ControlCommand, ControlRequest, ControlResponseHeader, DaemonStats, ModelInfo,
 };
@@ -176,13 +176,6 @@ pub struct Client {
     _wake_service: EventService<Ipc>,
     _replies_service: EventService<Ipc>,
     _node: Node<Ipc>,
-}
-
-/// Now plus `timeout`, or the far future for a timeout beyond what `Instant` holds.
-fn later(timeout: Duration) -> Instant {
-    let now = Instant::now();
-    now.checked_add(timeout)
-        .unwrap_or_else(|| now + Duration::from_secs(100 * 365 * 24 * 3600))
 }
 
 /// Whether the daemon's process still lives, checked every [`ALIVE_CHECK_PERIOD`] while a
@@ -404,7 +397,7 @@ impl Client {
             });
         }
         let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
-        let deadline = later(timeout);
+        let deadline = instant_after(timeout);
         let mut alive = AliveCheck::new();
         loop {
             // Whether the daemon still holds the request, read before looking for the answer:
@@ -467,7 +460,7 @@ impl Client {
             });
         }
         let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
-        let deadline = later(self.control_timeout);
+        let deadline = instant_after(self.control_timeout);
         let mut alive = AliveCheck::new();
         loop {
             let held = pending.is_connected();

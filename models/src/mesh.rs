@@ -486,6 +486,18 @@ pub(crate) fn shared_test_data() -> Option<std::path::PathBuf> {
     None
 }
 
+/// The sides of a cube whose corner `i` has the coordinate signs of bits 1, 2 and 4 of `i`, as
+/// quads counter-clockwise seen from outside.
+#[cfg(test)]
+pub(crate) const CUBE_QUADS: [[u32; 4]; 6] = [
+    [0, 4, 6, 2],
+    [1, 3, 7, 5],
+    [0, 1, 5, 4],
+    [2, 6, 7, 3],
+    [0, 2, 3, 1],
+    [4, 5, 7, 6],
+];
+
 /// A cube of half-size `half` mm centred at the origin, as a CAD export without normals gives
 /// it: 8 corners shared by 12 outward-facing triangles, normals taken from the faces.
 #[cfg(test)]
@@ -496,15 +508,7 @@ pub(crate) fn welded_cube(half: f32) -> Mesh {
             Point3::new(s(1), s(2), s(4))
         })
         .collect();
-    let quads = [
-        [0, 4, 6, 2],
-        [1, 3, 7, 5],
-        [0, 1, 5, 4],
-        [2, 6, 7, 3],
-        [0, 2, 3, 1],
-        [4, 5, 7, 6],
-    ];
-    let faces: Vec<[u32; 3]> = quads
+    let faces: Vec<[u32; 3]> = CUBE_QUADS
         .iter()
         .flat_map(|q| [[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
         .collect();

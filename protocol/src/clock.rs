@@ -20,8 +20,14 @@ pub fn monotonic_now_ns() -> u64 {
 /// to a century from now.
 pub fn instant_of(monotonic_ns: u64) -> Instant {
     let now_ns = monotonic_now_ns();
+    instant_after(Duration::from_nanos(monotonic_ns.saturating_sub(now_ns)))
+}
+
+/// Now plus `wait`, or a century from now for a wait beyond what an `Instant` holds
+/// (`Duration::MAX` for "no limit").
+pub fn instant_after(wait: Duration) -> Instant {
     let now = Instant::now();
-    now.checked_add(Duration::from_nanos(monotonic_ns.saturating_sub(now_ns)))
+    now.checked_add(wait)
         .unwrap_or_else(|| now + Duration::from_secs(100 * 365 * 24 * 3600))
 }
 

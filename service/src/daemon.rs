@@ -706,16 +706,7 @@ impl Daemon {
         };
         let (frame_header, depth, hold) = match &q.source {
             FrameSource::Inline => {
-                if let Some(ahead) = stamped_ahead(&q.header.inline_frame, now) {
-                    let e = EngineError::new(
-                        Status::InvalidFrame,
-                        format!(
-                            "the frame is stamped {} ahead of this machine's monotonic clock: \
-                             capture_time_ns must be CLOCK_MONOTONIC nanoseconds \
-                             (ppfd_protocol::clock::monotonic_now_ns), or 0 when unknown",
-                            duration_text(ahead)
-                        ),
-                    );
+                if let Some(e) = stamped_ahead(&q.header.inline_frame, now, "the frame is") {
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 }
                 let payload = q.active.payload();
@@ -751,17 +742,8 @@ impl Daemon {
                     );
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 }
-                if let Some(ahead) = stamped_ahead(&fh, now) {
-                    let e = EngineError::new(
-                        Status::InvalidFrame,
-                        format!(
-                            "camera {name:?} stamps its frames {} ahead of this machine's \
-                             monotonic clock: capture_time_ns must be CLOCK_MONOTONIC \
-                             nanoseconds (ppfd_protocol::clock::monotonic_now_ns), not wall-clock \
-                             time; its frames' age cannot be told",
-                            duration_text(ahead)
-                        ),
-                    );
+                let whose = format!("camera {name:?} has its frames");
+                if let Some(e) = stamped_ahead(&fh, now, &whose) {
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 }
                 let age = now.saturating_sub(fh.capture_time_ns);
@@ -1126,10 +1108,21 @@ impl Drop for Daemon {
 /// ahead; a driver stamping wall-clock time is decades ahead.
 const MAX_STAMP_AHEAD_NS: u64 = 1_000_000_000;
 
-/// How far ahead of `now` the frame is stamped, if more than [`MAX_STAMP_AHEAD_NS`].
-fn stamped_ahead(frame: &FrameHeader, now: u64) -> Option<u64> {
+/// The refusal of a frame stamped more than [`MAX_STAMP_AHEAD_NS`] ahead of `now`; `whose`
+/// begins the message ("the frame is", "camera \"x\" has its frames").
+fn stamped_ahead(frame: &FrameHeader, now: u64, whose: &str) -> Option<EngineError> {
     let ahead = frame.capture_time_ns.saturating_sub(now);
-    (ahead > MAX_STAMP_AHEAD_NS).then_some(ahead)
+    (ahead > MAX_STAMP_AHEAD_NS).then(|| {
+        EngineError::new(
+            Status::InvalidFrame,
+            format!(
+                "{whose} stamped {} ahead of this machine's monotonic clock, so frame age \
+                 cannot be told: capture_time_ns must be CLOCK_MONOTONIC nanoseconds \
+                 (ppfd_protocol::clock::monotonic_now_ns), not wall-clock time, or 0 when unknown",
+                duration_text(ahead)
+            ),
+        )
+    })
 }
 
 /// `ns` for a message: in seconds up to two minutes, hours up to two days, else days.

@@ -143,14 +143,7 @@ impl PpfEngine {
             })?;
         if id == 0 {
             // Refused before the model is built (the registry refuses it anyway).
-            return Err(EngineError::new(
-                Status::ModelError,
-                format!(
-                    "{}: object id 0; ids start at 1 (rename the file, e.g. obj_000001, or \
-                     give an id)",
-                    path.display()
-                ),
-            ));
+            return Err(crate::registry::object_id_zero(path));
         }
         let bytes = std::fs::read(path).map_err(|source| {
             model_error(ppfd_models::Error::Io {

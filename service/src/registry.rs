@@ -10,6 +10,17 @@ use ppfd_protocol::detect::Status;
 
 use crate::engine::{DetectionEngine, EngineError, LoadedModel};
 
+/// The refusal of a model file of object id 0.
+pub fn object_id_zero(path: &Path) -> EngineError {
+    EngineError::new(
+        Status::ModelError,
+        format!(
+            "{}: object id 0; ids start at 1 (rename the file, e.g. obj_000001, or give an id)",
+            path.display()
+        ),
+    )
+}
+
 /// Models by object id.
 #[derive(Default)]
 pub struct Registry {
@@ -75,14 +86,7 @@ impl Registry {
     /// request 0 stands for "the id the file gives").
     pub fn with_valid_id(model: LoadedModel) -> Result<LoadedModel, EngineError> {
         if model.info.object_id == 0 {
-            return Err(EngineError::new(
-                Status::ModelError,
-                format!(
-                    "{}: object id 0; ids start at 1 (rename the file, e.g. obj_000001, or give \
-                     an id)",
-                    model.source.display()
-                ),
-            ));
+            return Err(object_id_zero(&model.source));
         }
         Ok(model)
     }

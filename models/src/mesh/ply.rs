@@ -566,17 +566,10 @@ mod tests {
 
     /// The cube's six sides as quads, counter-clockwise seen from outside.
     fn cube_quads() -> Vec<Vec<i64>> {
-        [
-            [0, 4, 6, 2],
-            [1, 3, 7, 5],
-            [0, 1, 5, 4],
-            [2, 6, 7, 3],
-            [0, 2, 3, 1],
-            [4, 5, 7, 6],
-        ]
-        .iter()
-        .map(|q| q.to_vec())
-        .collect()
+        crate::mesh::CUBE_QUADS
+            .iter()
+            .map(|q| q.iter().map(|&v| v as i64).collect())
+            .collect()
     }
 
     fn cube_fixture() -> Fixture<'static> {
