@@ -1,8 +1,9 @@
 //! Global modelling (offline, once per object): from a mesh to an [`ObjectModel`] holding the
 //! subsampled oriented points, the PPF lookup table and what rendering needs.
 //!
-//! [`ObjectModel`] is the same in memory whether just built or mapped from a model file
-//! ([`crate::store`]): a byte buffer holding an rkyv archive of [`ModelData`], read in place.
+//! [`ObjectModel`] is the same in memory whether just built or read from a model file
+//! ([`crate::store`], into a private memory map): a byte buffer holding an rkyv archive of
+//! [`ModelData`], read in place.
 
 use std::f32::consts::PI;
 use std::sync::{Arc, Mutex};
@@ -170,7 +171,7 @@ enum Backing {
     Mapped { map: Mmap, offset: usize },
 }
 
-/// An object model ready for matching: built in memory or mapped from a model file.
+/// An object model ready for matching: built in memory or read from a model file.
 pub struct ObjectModel {
     backing: Backing,
     /// The coarse mesh of silhouettes and the cell it was made with, made on first use
@@ -270,7 +271,7 @@ impl ObjectModel {
         })
     }
 
-    /// A model over an already validated archive in a memory map (see [`crate::store`]).
+    /// A model over an already validated archive in a private memory map (see [`crate::store`]).
     pub(crate) fn from_validated_map(map: Mmap, offset: usize) -> Self {
         Self {
             backing: Backing::Mapped { map, offset },
@@ -291,7 +292,7 @@ impl ObjectModel {
     pub fn data(&self) -> &ArchivedModelData {
         // SAFETY: an `Owned` buffer was produced by `rkyv::to_bytes` from a `ModelData`, and a
         // `Mapped` one passed `rkyv::access` validation in `store::load` before construction;
-        // neither is mutated afterwards.
+        // neither is mutated afterwards (the map is a private read-only copy, not the file).
         unsafe { rkyv::access_unchecked::<ArchivedModelData>(self.archive_bytes()) }
     }
 
@@ -359,7 +360,8 @@ impl ObjectModel {
         self.archive_bytes().len()
     }
 
-    /// Whether the archive is memory-mapped from a file rather than built in memory.
+    /// Whether the archive was read from a model file (into a private memory map) rather than
+    /// built in memory.
     pub fn is_mapped(&self) -> bool {
         matches!(self.backing, Backing::Mapped { .. })
     }

@@ -1,5 +1,9 @@
-//! The model store: one file per object model, written with rkyv and read back through a memory
-//! map without decoding. A mapped file *is* the lookup table.
+//! The model store: one file per object model, written with rkyv and read back without decoding:
+//! the file's bytes, copied once into a private read-only memory map, *are* the lookup table.
+//! The copy makes a loaded model independent of its file: a file replaced or overwritten in place
+//! while a daemon holds the model (a redeploy with `cp`) changes nothing in the daemon, where a
+//! map of the file itself would take the daemon down (a truncated file's pages fault) or change
+//! a validated table under its feet.
 //!
 //! Layout: a 32-byte header (magic `PPFDMODL`, format version, payload length, CRC-32 of the
 //! payload), then the rkyv archive of [`crate::model::ModelData`]. Loading checks all of it and validates the
@@ -108,18 +112,46 @@ pub fn save(model: &ObjectModel, path: &Path) -> Result<()> {
     })
 }
 
-/// Maps and validates a model file.
-pub fn load(path: &Path) -> Result<ObjectModel> {
-    let file = File::open(path).map_err(|e| io(path, e))?;
-    // SAFETY: the map is read-only; the store writes files by rename, so a file is never
-    // modified in place while mapped. Everything read from it is validated below.
-    let map = unsafe { Mmap::map(&file) }.map_err(|e| io(path, e))?;
-    if map.len() < HEADER_LEN {
+/// Reads `path` whole into a private read-only memory map (page aligned, as the archive needs);
+/// refuses a file too short to hold the header.
+fn read_private(path: &Path) -> Result<Mmap> {
+    use std::io::Read;
+    // Looked at before opening: opening a FIFO would wait for a writer.
+    let meta = std::fs::metadata(path).map_err(|e| io(path, e))?;
+    if meta.is_dir() {
+        return Err(refuse(path, "is a folder, not a model file"));
+    }
+    if !meta.is_file() {
+        return Err(refuse(path, "is not a regular file"));
+    }
+    let mut file = File::open(path).map_err(|e| io(path, e))?;
+    let len = usize::try_from(meta.len())
+        .map_err(|_| refuse(path, format!("{} bytes is too large", meta.len())))?;
+    if len < HEADER_LEN {
         return Err(refuse(
             path,
-            format!("{} bytes is shorter than the header", map.len()),
+            format!("{len} bytes is shorter than the header"),
         ));
     }
+    let mut map = memmap2::MmapMut::map_anon(len).map_err(|e| io(path, e))?;
+    file.read_exact(&mut map[..len]).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::UnexpectedEof {
+            refuse(path, "the file became shorter while it was read")
+        } else {
+            io(path, e)
+        }
+    })?;
+    let mut more = [0u8; 1];
+    if file.read(&mut more).map_err(|e| io(path, e))? != 0 {
+        return Err(refuse(path, "the file grew while it was read"));
+    }
+    let map = map.make_read_only().map_err(|e| io(path, e))?;
+    Ok(map)
+}
+
+/// Reads and validates a model file.
+pub fn load(path: &Path) -> Result<ObjectModel> {
+    let map = read_private(path)?;
     if &map[..8] != MAGIC {
         return Err(refuse(path, "not a ppfd model file (bad magic)"));
     }
@@ -392,6 +424,57 @@ mod tests {
             Err(Error::ModelStore { reason, .. }) => reason,
             other => panic!("{name}: expected refusal, got {other:?}"),
         }
+    }
+
+    /// A loaded model does not depend on its file: the file truncated and rewritten in place
+    /// (what `cp other.ppfm model.ppfm` does), or overwritten at the same size, leaves the
+    /// model as it was. A map of the file itself would fault on the truncated pages (SIGBUS)
+    /// or show the new bytes under the validated table.
+    #[test]
+    fn a_loaded_model_survives_its_file_being_overwritten_in_place() {
+        let dir = temp_dir("inplace");
+        let path = dir.join("box.ppfm");
+        let model = built();
+        save(&model, &path).unwrap();
+        let len = std::fs::metadata(&path).unwrap().len() as usize;
+        for rewrite in [vec![0u8; 100], vec![0x5au8; len]] {
+            let loaded = load(&path).unwrap();
+            // Truncates, then writes: the inode stays, as with `cp` onto an existing file.
+            std::fs::write(&path, &rewrite).unwrap();
+            assert_eq!(
+                std::fs::metadata(&path).unwrap().len() as usize,
+                rewrite.len()
+            );
+            assert_eq!(loaded.table(), model.table());
+            assert_eq!(loaded.oriented_points(), model.oriented_points());
+            assert_eq!(loaded.surface_points(), model.surface_points());
+            assert_eq!(loaded.render_mesh().faces, model.render_mesh().faces);
+            save(&model, &path).unwrap();
+        }
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    /// A folder or a FIFO is refused by name, without waiting for a writer.
+    #[test]
+    fn a_folder_or_a_fifo_is_not_a_model_file() {
+        let dir = temp_dir("notfile");
+        match load(&dir) {
+            Err(Error::ModelStore { reason, .. }) => assert!(reason.contains("folder"), "{reason}"),
+            r => panic!("{r:?}"),
+        }
+        let fifo = dir.join("pipe.ppfm");
+        let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+        if made.is_ok_and(|s| s.success()) {
+            match load(&fifo) {
+                Err(Error::ModelStore { reason, .. }) => {
+                    assert!(reason.contains("not a regular file"), "{reason}")
+                }
+                r => panic!("{r:?}"),
+            }
+        } else {
+            eprintln!("skipped the FIFO case: mkfifo is not available");
+        }
+        std::fs::remove_dir_all(dir).unwrap();
     }
 
     #[test]
