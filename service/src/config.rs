@@ -3,6 +3,7 @@
 //!
 //! ```toml
 //! models = "/var/lib/ppfd/models"   # *.ppfm files, and PLY meshes to build models from
+//!                                   # (a relative path is relative to this file's folder)
 //! model_cache = "/var/cache/ppfd"   # where models built from PLY files are saved (default ~/.cache/ppfd)
 //! prefix = "ppfd_"                  # iceoryx2 resource prefix (isolates daemons)
 //! workers = 0                       # detection threads; 0 = one per core
@@ -140,9 +141,20 @@ impl DaemonConfig {
     }
 
     /// Reads a TOML file; unknown keys are refused so that a typo does not pass silently.
+    ///
+    /// Relative `models` and `model_cache` paths are taken relative to the file's folder, not to
+    /// wherever the daemon happens to be started from: the file and the folders it names move
+    /// together.
     pub fn from_toml_file(path: &Path) -> Result<DaemonConfig, String> {
         let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        Self::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()))
+        let mut c = Self::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+        let folder = path.parent().unwrap_or(Path::new(""));
+        for dir in [&mut c.models, &mut c.model_cache].into_iter().flatten() {
+            if dir.is_relative() {
+                *dir = folder.join(&*dir);
+            }
+        }
+        Ok(c)
     }
 
     /// Parses TOML text.
@@ -250,6 +262,24 @@ mod tests {
         assert_eq!(c.queue_capacity, DaemonConfig::default().queue_capacity);
         let e = DaemonConfig::from_toml("modles = \"/m\"").unwrap_err();
         assert!(e.contains("modles"), "{e}");
+    }
+
+    /// `models` and `model_cache` given relative in a file are relative to the file's folder;
+    /// absolute ones stay as they are.
+    #[test]
+    fn relative_folders_in_a_file_are_relative_to_the_file() {
+        let dir = std::env::temp_dir().join(format!("ppfd-config-rel-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("ppfd.toml");
+        std::fs::write(
+            &file,
+            "models = \"models\"\nmodel_cache = \"/var/cache/x\"\n",
+        )
+        .unwrap();
+        let c = DaemonConfig::from_toml_file(&file).unwrap();
+        assert_eq!(c.models.as_deref(), Some(dir.join("models").as_path()));
+        assert_eq!(c.model_cache.as_deref(), Some(Path::new("/var/cache/x")));
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

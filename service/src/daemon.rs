@@ -185,6 +185,9 @@ impl Camera {
 /// The daemon's state, owned by the I/O thread. Field order is drop order: what workers may
 /// still read goes first, the ports after, the node last.
 pub struct Daemon {
+    /// Set once a stop is requested: new detect requests, and model loads and drops, are
+    /// refused "shutting down" while the running detections finish.
+    shutting_down: bool,
     in_flight: HashMap<u64, InFlight>,
     queue: VecDeque<Queued>,
     control_pending: HashMap<u64, ControlActive>,
@@ -209,10 +212,12 @@ pub struct Daemon {
     node: Node<Ipc>,
 }
 
-/// Runs a daemon until SIGINT or SIGTERM. `on_ready` is called once it serves.
+/// Runs a daemon until SIGINT, SIGTERM or SIGHUP. `on_ready` is called once it serves; a stop
+/// requested while the models load at start ends it after the model being loaded, without
+/// serving.
 ///
-/// Call it before the process starts other threads, or block SIGINT and SIGTERM in them
-/// ([`crate::termination::block_termination_signals`]): the daemon reads both from a
+/// Call it before the process starts other threads, or block the termination signals in them
+/// ([`crate::termination::block_termination_signals`]): the daemon reads them from a
 /// `signalfd`, which gets a signal only when every thread blocks it (otherwise the kernel
 /// hands it to a thread that does not).
 pub fn run(
@@ -222,8 +227,8 @@ pub fn run(
 ) -> Result<(), DaemonError> {
     config.validate().map_err(DaemonError)?;
     // Before any thread starts: every thread the daemon starts inherits the blocked signals.
-    let termination =
-        TerminationSignals::new().map_err(fail("cannot open a signalfd for SIGINT and SIGTERM"))?;
+    let termination = TerminationSignals::new()
+        .map_err(fail("cannot open a signalfd for the termination signals"))?;
     let mut iox = iceoryx_config(config.prefix.as_deref())?;
     iox.defaults
         .request_response
@@ -252,7 +257,11 @@ pub fn run(
         .map_err(fail("cannot listen on ppfd/daemon"))?;
     let wakeup = Wakeup::new().map_err(fail("cannot create an eventfd"))?;
 
-    let mut daemon = Daemon::new(config, engine, node, wakeup.signaller())?;
+    let stop = || termination.requested();
+    let Some(mut daemon) = Daemon::new(config, engine, node, wakeup.signaller(), &stop)? else {
+        tracing::info!("stopped while loading models, before serving");
+        return Ok(());
+    };
     let waitset = WaitSetBuilder::new()
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Ipc>()
@@ -286,7 +295,7 @@ pub fn run(
         if let Err(e) = outcome {
             return Err(DaemonError(format!("WaitSet failed: {e:?}")));
         }
-        // Whatever woke the wait (another signal only interrupts it), SIGINT and SIGTERM wait
+        // Whatever woke the wait (another signal only interrupts it), the termination signals wait
         // in the signalfd until read here.
         if termination.requested() {
             break;
@@ -318,7 +327,8 @@ impl Daemon {
         engine: Arc<dyn DetectionEngine>,
         node: Node<Ipc>,
         signaller: Signaller,
-    ) -> Result<Daemon, DaemonError> {
+        stop: &dyn Fn() -> bool,
+    ) -> Result<Option<Daemon>, DaemonError> {
         let detect_service = services::detect_builder(&node)
             .open_or_create()
             .map_err(fail("cannot open the ppfd/detect service"))?;
@@ -371,8 +381,17 @@ impl Daemon {
         if let Some(dir) = &config.models {
             let started = Instant::now();
             let failures = registry
-                .load_dir(engine.as_ref(), dir, Some(&config.model_cache_dir()))
+                .load_dir(engine.as_ref(), dir, Some(&config.model_cache_dir()), stop)
                 .map_err(DaemonError)?;
+            if stop() {
+                return Ok(None);
+            }
+            if registry.len() == 0 && failures.is_empty() {
+                tracing::warn!(
+                    dir = %dir.display(),
+                    "no model in the models folder: nothing can be detected until one is loaded (ppf models --load)"
+                );
+            }
             tracing::info!(
                 loaded = registry.len(),
                 failed = failures.len(),
@@ -385,7 +404,15 @@ impl Daemon {
 
         let (done_tx, done_rx) = channel();
         let (loaded_tx, loaded_rx) = channel();
-        Ok(Daemon {
+        if config.parallel_detections > config.worker_threads() {
+            tracing::warn!(
+                parallel_detections = config.parallel_detections,
+                workers = config.worker_threads(),
+                "more detections at once than workers: the ones beyond take turns on the workers, each running slower"
+            );
+        }
+        Ok(Some(Daemon {
+            shutting_down: false,
             in_flight: HashMap::new(),
             queue: VecDeque::new(),
             control_pending: HashMap::new(),
@@ -408,7 +435,7 @@ impl Daemon {
             last_housekeeping: Instant::now(),
             housekeeper,
             node,
-        })
+        }))
     }
 
     /// One turn of the loop: everything that can be done now.
@@ -614,6 +641,10 @@ impl Daemon {
         let header = *active.user_header();
         let payload_len = active.payload().len();
         tracing::debug!(request = header.request_id, objects = ?header.objects(), "request received");
+        if self.shutting_down {
+            let e = EngineError::new(Status::ShuttingDown, "the daemon is shutting down");
+            return self.refuse(active, &header, received_ns, e);
+        }
         let source = match header.validate(payload_len) {
             Ok(source) => source,
             Err(e) => {
@@ -904,6 +935,15 @@ impl Daemon {
         } else {
             tracing::debug!(?command, "control request");
         }
+        if self.shutting_down
+            && matches!(
+                command,
+                ControlCommand::LoadModel | ControlCommand::DropModel
+            )
+        {
+            let m = "the daemon is shutting down";
+            return self.control_answer(active, Status::ShuttingDown, m, &[]);
+        }
         match command {
             ControlCommand::ListModels => {
                 let infos = self.registry.infos();
@@ -940,6 +980,22 @@ impl Daemon {
                         "LoadModel needs a path",
                         &[],
                     );
+                }
+                if path.is_relative() {
+                    let m = format!(
+                        "{} is a relative path, and ppfd's working directory is not the \
+                         caller's: give an absolute path",
+                        path.display()
+                    );
+                    return self.control_answer(active, Status::InvalidRequest, &m, &[]);
+                }
+                if path.exists() && !path.is_dir() && !path.is_file() {
+                    // A FIFO or a device: reading it could block the loading thread forever.
+                    let m = format!(
+                        "{} is not a regular file: give one model file (.ppfm) or mesh (.ply)",
+                        path.display()
+                    );
+                    return self.control_answer(active, Status::ModelError, &m, &[]);
                 }
                 if path.is_dir() {
                     let m = format!(
@@ -1063,6 +1119,7 @@ impl Daemon {
     // ---------------------------------------------------------------- shutdown
 
     fn shutdown(&mut self) {
+        self.shutting_down = true;
         while let Some(q) = self.queue.pop_front() {
             let e = EngineError::new(Status::ShuttingDown, "the daemon is shutting down");
             self.refuse(q.active, &q.header, q.received_ns, e);
@@ -1080,17 +1137,27 @@ impl Daemon {
     }
 
     /// Waits until no worker reads shared memory any more (each answers its request first).
+    /// While shutting down, requests that come in meanwhile are answered (statistics, the model
+    /// list) or refused "shutting down", not left to time out.
     fn join_in_flight(&mut self) {
+        let mut last_warning = Instant::now();
         while !self.in_flight.is_empty() {
-            match self.done_rx.recv_timeout(Duration::from_secs(5)) {
+            match self.done_rx.recv_timeout(Duration::from_millis(50)) {
                 Ok(c) => self.finish(c),
                 Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
-                    tracing::warn!(
-                        running = self.in_flight.len(),
-                        "waiting for running detections"
-                    );
+                    if last_warning.elapsed() >= Duration::from_secs(5) {
+                        last_warning = Instant::now();
+                        tracing::warn!(
+                            running = self.in_flight.len(),
+                            "waiting for running detections"
+                        );
+                    }
                 }
                 Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => break,
+            }
+            if self.shutting_down {
+                self.take_detect_requests();
+                self.take_control_requests();
             }
         }
     }

@@ -33,7 +33,7 @@ pub struct LoadedModel {
     pub info: ModelInfo,
     /// The file it came from.
     pub source: PathBuf,
-    /// The engine's model (for the PPF engine an `ObjectModel`, usually memory-mapped).
+    /// The engine's model (for the PPF engine an `ObjectModel`, usually read from a model file).
     pub data: Box<dyn Any + Send + Sync>,
 }
 

@@ -1,4 +1,4 @@
-//! The production engine: `ppfd_models`' detector over memory-mapped model files.
+//! The production engine: `ppfd_models`' detector over models read from model files.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -19,8 +19,8 @@ use crate::engine::{
 /// Extension of model files.
 pub const MODEL_EXTENSION: &str = "ppfm";
 
-/// Detection with `ppfd_models::detector::Detector`; models are `.ppfm` files (mapped, not
-/// read) or PLY meshes, built once and saved as `.ppfm` for the next start.
+/// Detection with `ppfd_models::detector::Detector`; models are `.ppfm` files (read without
+/// decoding) or PLY meshes, built once and saved as `.ppfm` for the next start.
 ///
 /// A model file beside a PLY mesh of the same name, or in the model cache, is that mesh's
 /// cache: it is used only while it was built from the same mesh (the fingerprint of the mesh as
@@ -145,6 +145,7 @@ impl PpfEngine {
             // Refused before the model is built (the registry refuses it anyway).
             return Err(crate::registry::object_id_zero(path));
         }
+        let began = std::time::Instant::now();
         let bytes = std::fs::read(path).map_err(|source| {
             model_error(ppfd_models::Error::Io {
                 path: path.to_path_buf(),
@@ -177,6 +178,7 @@ impl PpfEngine {
             }
         }
         let mesh = Mesh::from_ply_reader(&bytes[..], path).map_err(model_error)?;
+        let read_ms = began.elapsed().as_millis() as u64;
         let fingerprint = mesh.fingerprint();
         for candidate in candidates.iter().filter(|p| p.is_file()) {
             match store::load_expecting(candidate, &self.model_params, fingerprint) {
@@ -216,16 +218,17 @@ impl PpfEngine {
             path = %path.display(),
             object_id = id,
             points = model.point_count(),
-            ms = started.elapsed().as_millis() as u64,
+            read_ms,
+            build_ms = started.elapsed().as_millis() as u64,
             "model built from mesh"
         );
         if let Some(dir) = cache.parent() {
             let _ = std::fs::create_dir_all(dir);
         }
         match store::save(&model, &cache) {
-            // Map the saved file: its pages are shared and evictable, unlike the built copy.
+            // Read the saved file back: what the next start will use is checked now.
             Ok(()) => match store::load(&cache) {
-                Ok(mapped) => Ok(loaded(mapped, &cache)),
+                Ok(read_back) => Ok(loaded(read_back, &cache)),
                 Err(_) => Ok(loaded(model, path)),
             },
             Err(e) => {
@@ -237,7 +240,7 @@ impl PpfEngine {
 }
 
 /// `model`, saved at `path` again with `crc` as its mesh file's CRC (nothing to do when it has
-/// it already), and mapped back; on failure the model as it was, with the reason.
+/// it already), and read back; on failure the model as it was, with the reason.
 fn with_file_crc(
     model: ObjectModel,
     path: &Path,
@@ -511,7 +514,7 @@ mod tests {
             let saved = PpfEngine::cache_path(&ply, cache);
             assert_eq!(
                 first[0].source, saved,
-                "the built model is saved and mapped"
+                "the built model is saved and read back"
             );
             drop(first);
 

@@ -28,13 +28,15 @@ pub struct Registry {
 }
 
 impl Registry {
-    /// Loads every file of `dir` that the engine takes. Returns the errors of the files that
-    /// failed (the others stay loaded).
+    /// Loads every file of `dir` that the engine takes, asking `stop` before each: once it says
+    /// yes, the files left are not loaded. Returns the errors of the files that failed (the
+    /// others stay loaded).
     pub fn load_dir(
         &mut self,
         engine: &dyn DetectionEngine,
         dir: &Path,
         cache_dir: Option<&Path>,
+        stop: &dyn Fn() -> bool,
     ) -> Result<Vec<(PathBuf, EngineError)>, String> {
         let entries = std::fs::read_dir(dir)
             .map_err(|e| format!("model directory {}: {e}", dir.display()))?;
@@ -46,6 +48,10 @@ impl Registry {
         let mut failures = Vec::new();
         let mut loaded_from: BTreeMap<u32, PathBuf> = BTreeMap::new();
         for path in engine.select(files) {
+            if stop() {
+                tracing::info!(loaded = self.len(), "model loading stopped: stop requested");
+                break;
+            }
             match engine
                 .load(&path, None, cache_dir)
                 .and_then(Self::with_valid_id)

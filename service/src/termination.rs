@@ -1,4 +1,6 @@
-//! SIGINT and SIGTERM as a file descriptor that the I/O thread's WaitSet sleeps on.
+//! SIGINT, SIGTERM and SIGHUP as a file descriptor that the I/O thread's WaitSet sleeps on. Each
+//! stops the daemon cleanly: SIGHUP comes when the terminal it was started from closes, and
+//! would otherwise end it at once, with requests unanswered.
 //!
 //! With iceoryx2's own handling, a handler writes the last signal into one process-wide slot,
 //! and the slot is also read and reset by other code: every node's termination check consumes
@@ -21,12 +23,14 @@ fn termination_set() -> libc::sigset_t {
         libc::sigemptyset(&mut set);
         libc::sigaddset(&mut set, libc::SIGINT);
         libc::sigaddset(&mut set, libc::SIGTERM);
+        libc::sigaddset(&mut set, libc::SIGHUP);
         set
     }
 }
 
-/// Blocks SIGINT and SIGTERM in the calling thread; threads it starts afterwards inherit the
-/// mask. Blocked, they wait in the kernel for [`TerminationSignals::requested`].
+/// Blocks the termination signals (SIGINT, SIGTERM, SIGHUP) in the calling thread; threads it
+/// starts afterwards inherit the mask. Blocked, they wait in the kernel for
+/// [`TerminationSignals::requested`].
 pub fn block_termination_signals() {
     let set = termination_set();
     // SAFETY: pthread_sigmask with a valid set and no old-set output.
@@ -35,8 +39,8 @@ pub fn block_termination_signals() {
     }
 }
 
-/// A `signalfd` for SIGINT and SIGTERM. Create it on the I/O thread before any other thread
-/// of the daemon starts, so that every thread blocks them.
+/// A `signalfd` for SIGINT, SIGTERM and SIGHUP. Create it on the I/O thread before any other
+/// thread of the daemon starts, so that every thread blocks them.
 #[derive(Debug)]
 pub struct TerminationSignals {
     fd: FileDescriptor,
@@ -45,7 +49,7 @@ pub struct TerminationSignals {
 }
 
 impl TerminationSignals {
-    /// Blocks SIGINT and SIGTERM in the calling thread and opens a non-blocking `signalfd`
+    /// Blocks the termination signals in the calling thread and opens a non-blocking `signalfd`
     /// for them.
     pub fn new() -> std::io::Result<TerminationSignals> {
         block_termination_signals();
@@ -64,8 +68,8 @@ impl TerminationSignals {
         })
     }
 
-    /// Whether SIGINT or SIGTERM has arrived (since this was created): reads what is pending,
-    /// and stays true once it is.
+    /// Whether SIGINT, SIGTERM or SIGHUP has arrived (since this was created): reads what is
+    /// pending, and stays true once it is.
     pub fn requested(&self) -> bool {
         let mut info: libc::signalfd_siginfo = unsafe { std::mem::zeroed() };
         let size = std::mem::size_of::<libc::signalfd_siginfo>();

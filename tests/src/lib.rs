@@ -28,20 +28,27 @@ pub struct FakeEngine {
     /// Refuse a frame whose depth values are not in a shared-memory mapping, i.e. that was
     /// copied on its way to the engine.
     pub require_shared_memory: bool,
+    /// Time loading one model takes (as building a model from a large mesh does).
+    pub load_delay: Duration,
 }
 
 impl FakeEngine {
     /// The delay from `PPFD_FAKE_DELAY_MS` (default 0); the shared-memory check when
-    /// `PPFD_FAKE_CHECK_SHM=1`.
+    /// `PPFD_FAKE_CHECK_SHM=1`; the load delay from `PPFD_FAKE_LOAD_DELAY_MS` (default 0).
     pub fn from_env() -> FakeEngine {
-        let ms = std::env::var("PPFD_FAKE_DELAY_MS")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(0);
+        let ms = |name: &str| {
+            Duration::from_millis(
+                std::env::var(name)
+                    .ok()
+                    .and_then(|v| v.parse().ok())
+                    .unwrap_or(0),
+            )
+        };
         let require_shared_memory = std::env::var("PPFD_FAKE_CHECK_SHM").as_deref() == Ok("1");
         FakeEngine {
-            delay: Duration::from_millis(ms),
+            delay: ms("PPFD_FAKE_DELAY_MS"),
             require_shared_memory,
+            load_delay: ms("PPFD_FAKE_LOAD_DELAY_MS"),
         }
     }
 }
@@ -77,6 +84,7 @@ impl DetectionEngine for FakeEngine {
         object_id: Option<u32>,
         _cache: Option<&Path>,
     ) -> Result<LoadedModel, EngineError> {
+        std::thread::sleep(self.load_delay);
         let text = std::fs::read_to_string(path).map_err(|e| {
             EngineError::new(Status::ModelError, format!("{}: {e}", path.display()))
         })?;

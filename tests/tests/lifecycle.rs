@@ -1,0 +1,134 @@
+//! End-to-end tests of how the daemon starts and stops: stop requests while it loads its models,
+//! requests that come while it stops, and the signals that stop it. The daemon runs with the
+//! transport-only engine, each test under its own iceoryx2 prefix.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use ppfd_client::{Client, ClientOptions, DetectOptions, Error, Status};
+use ppfd_tests::{fake_model_dir, Prefix, Proc};
+
+const DAEMON: &str = env!("CARGO_BIN_EXE_e2e-daemon");
+const CAMERA: &str = env!("CARGO_BIN_EXE_e2e-camera");
+const STARTUP: Duration = Duration::from_secs(20);
+
+fn spawn_daemon(prefix: &Prefix, models: &Path, env: &[(&str, &str)]) -> Proc {
+    let args = [
+        "--prefix",
+        &prefix.0,
+        "--models",
+        models.to_str().unwrap(),
+        "--housekeeping-ms",
+        "100",
+    ];
+    let mut envs = vec![("PPFD_TEST_ENGINE", "fake")];
+    envs.extend_from_slice(env);
+    Proc::spawn(Path::new(DAEMON), &args, &envs)
+}
+
+fn connect(prefix: &Prefix) -> Client {
+    let options = ClientOptions {
+        prefix: Some(prefix.0.clone()),
+        control_timeout: Duration::from_secs(2),
+        ..Default::default()
+    };
+    Client::connect_with(&options).expect("client connects")
+}
+
+/// A stop requested while the models load at start ends the daemon after the model being
+/// loaded, without serving: a supervisor's SIGTERM is not kept waiting for every model.
+/// Without the check between models, the daemon loaded all five (5 s), said it was ready and
+/// only then stopped.
+#[test]
+fn a_stop_while_the_models_load_ends_the_daemon_before_it_serves() {
+    let prefix = Prefix::new("stopload");
+    let models = fake_model_dir("stopload", &[1, 2, 3, 4, 5]);
+    let mut d = spawn_daemon(&prefix, &models, &[("PPFD_FAKE_LOAD_DELAY_MS", "1000")]);
+    // Let the node come up and the first model start loading.
+    std::thread::sleep(Duration::from_millis(1500));
+    let asked = Instant::now();
+    d.signal(libc::SIGTERM);
+    let status = d
+        .wait_exit(Duration::from_secs(10))
+        .expect("the daemon stops");
+    let took = asked.elapsed();
+    assert!(status.success(), "{status:?}");
+    assert!(
+        took < Duration::from_millis(2500),
+        "stopped {took:?} after the request; loading every model takes 5 s"
+    );
+    let mut out = String::new();
+    use std::io::Read;
+    d.stdout.take().unwrap().read_to_string(&mut out).unwrap();
+    assert!(!out.contains("ppfd ready"), "it said it was ready: {out:?}");
+}
+
+/// While the daemon stops (here on SIGHUP, as when its terminal closes), a running detection
+/// finishes and is answered, and what comes meanwhile is answered at once: statistics and the
+/// model list as usual, detections and model loads "shutting down". Before, the new requests
+/// were left unanswered until their clients gave up, and SIGHUP ended the daemon at once.
+#[test]
+fn requests_that_come_while_the_daemon_stops_are_answered() {
+    let prefix = Prefix::new("stopping");
+    let models = fake_model_dir("stopping", &[1]);
+    let mut d = spawn_daemon(&prefix, &models, &[("PPFD_FAKE_DELAY_MS", "3000")]);
+    d.wait_line("ppfd ready", STARTUP);
+    let mut cam = Proc::spawn(
+        Path::new(CAMERA),
+        &["--prefix", &prefix.0, "--camera", "cam0", "--fps", "20"],
+        &[],
+    );
+    cam.wait_line("camera ready", STARTUP);
+    std::thread::sleep(Duration::from_millis(300));
+
+    let running = {
+        let prefix = prefix.0.clone();
+        std::thread::spawn(move || {
+            let client = Client::connect_with(&ClientOptions {
+                prefix: Some(prefix),
+                ..Default::default()
+            })
+            .expect("client connects");
+            let opts = DetectOptions {
+                timeout: Duration::from_secs(20),
+                ..Default::default()
+            };
+            client.detect("cam0", &[1], &opts)
+        })
+    };
+    std::thread::sleep(Duration::from_millis(500));
+    d.signal(libc::SIGHUP);
+    std::thread::sleep(Duration::from_millis(300));
+
+    let client = connect(&prefix);
+    let opts = DetectOptions {
+        timeout: Duration::from_secs(2),
+        ..Default::default()
+    };
+    let asked = Instant::now();
+    match client.detect("cam0", &[1], &opts) {
+        Err(Error::Refused { status, .. }) => assert_eq!(status, Status::ShuttingDown),
+        other => panic!("a detection while stopping: {other:?}"),
+    }
+    assert!(
+        asked.elapsed() < Duration::from_secs(1),
+        "{:?}",
+        asked.elapsed()
+    );
+    let stats = client.stats().expect("statistics while stopping");
+    assert_eq!(stats.models_loaded, 1);
+    match client.load_model("/nonexistent/x.fake", 0) {
+        Err(Error::Refused { status, .. }) => assert_eq!(status, Status::ShuttingDown),
+        other => panic!("a model load while stopping: {other:?}"),
+    }
+
+    let answer = running
+        .join()
+        .unwrap()
+        .expect("the running detection is answered");
+    assert_eq!(answer.hypotheses.len(), 1);
+    let status = d
+        .wait_exit(Duration::from_secs(10))
+        .expect("the daemon stops");
+    assert!(status.success(), "{status:?}");
+}
