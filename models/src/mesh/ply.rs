@@ -267,6 +267,17 @@ fn read_element<E: PropertyAccess>(
                             noun(element)
                         ));
                     }
+                    let not_finite = text
+                        .split_whitespace()
+                        .enumerate()
+                        .find(|(_, word)| !word.parse::<f64>().is_ok_and(f64::is_finite));
+                    if let Some((k, word)) = not_finite {
+                        return Err(format!(
+                            "{item_name} {i} (line {line_number}): value {} is '{word}', not a \
+                             finite number",
+                            k + 1
+                        ));
+                    }
                 }
                 let item = parser.read_ascii_element(&text, element).map_err(|e| {
                     format!("{item_name} {i} (line {line_number}): {}", flatten(&e))
@@ -850,11 +861,19 @@ mod tests {
             read(&fixture.bytes(Format::Le)),
             &["vertex 3", "not finite"],
         );
-        // ASCII has no spelling for NaN that the grammar accepts: that is a parse error.
+        // In ASCII: the value is named, as the binary case's are.
         let text = String::from_utf8(cube_fixture().bytes(Format::Ascii)).unwrap();
-        let text = text.replacen("\n10 -10 -10 ", "\n10 nan -10 ", 1);
-        // 15 header lines, then vertex 0 on line 16.
-        expect_ply_error(read(text.as_bytes()), &["vertex 1 (line 17)"]);
+        for word in ["nan", "inf", "-inf", "abc"] {
+            let text = text.replacen("\n10 -10 -10 ", &format!("\n10 {word} -10 "), 1);
+            // 15 header lines, then vertex 0 on line 16.
+            expect_ply_error(
+                read(text.as_bytes()),
+                &[
+                    "vertex 1 (line 17)",
+                    &format!("value 2 is '{word}', not a finite number"),
+                ],
+            );
+        }
     }
 
     #[test]
