@@ -105,9 +105,9 @@ impl Latency {
         self.end_to_end_ns.saturating_sub(self.daemon.detection_ns)
     }
 
-    /// The daemon's hand-back: detection finished → response sent, ns (the worker reports to
-    /// the I/O thread, which writes and sends the answer). What the overhead holds besides
-    /// transport, queue wait and response transport.
+    /// The daemon's hand-back: detection finished → response sent, ns (the worker writes and
+    /// sends the answer itself). What the overhead holds besides transport, queue wait and
+    /// response transport.
     pub fn hand_back_ns(&self) -> u64 {
         self.overhead_ns()
             .saturating_sub(self.daemon.transport_ns)

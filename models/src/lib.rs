@@ -7,7 +7,7 @@
 //! - [`model::ObjectModel`] is built from a mesh once, offline: dense surface samples are
 //!   subsampled with normal clustering ([`subsample`]) and every ordered pair of the remaining
 //!   oriented points is stored under its quantised point pair feature ([`feature`]) in a dense
-//!   lookup table ([`table::LookupTable`]). [`store`] writes it to disk and maps it back.
+//!   lookup table ([`table::LookupTable`]). [`store`] writes it to disk and reads it back.
 //! - At run time a [`camera::DepthFrame`] becomes oriented scene points ([`scene`]), which vote
 //!   for model-point/angle pairs ([`voting`]); the votes become poses that are clustered
 //!   ([`clustering`]), re-scored from the camera's view ([`rescoring`]), refined by projective
@@ -16,6 +16,9 @@
 //! Around the pipeline: [`render`] draws meshes into depth images (silhouettes, generated
 //! scenes, the VSD metric), [`synthetic`] makes table-top scenes with ground truth and sensor
 //! noise, [`bop`] reads BOP datasets and [`eval`] scores poses as the BOP toolkit does.
+//!
+//! The modules cite the method notes by section (`METHOD.md §2.3`): they are kept beside the
+//! repository, in `../shared/docs/METHOD.md`.
 //!
 //! Units: millimetres for lengths, radians for angles; a pose maps model coordinates into camera
 //! coordinates, `p_cam = R p_model + t`, OpenCV camera convention.

@@ -239,7 +239,8 @@ pub fn load_built_from_file(
         return Err(refuse(
             path,
             format!(
-                "built from another mesh file (CRC {built_from:08x}, the file now gives                  {source_crc:08x})"
+                "built from another mesh file (CRC {built_from:08x}, the file now gives \
+                 {source_crc:08x})"
             ),
         ));
     }

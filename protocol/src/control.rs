@@ -48,7 +48,8 @@ pub struct ControlRequest {
     pub request_id: u64,
     /// As [`crate::detect::DetectRequestHeader::reply_token`].
     pub reply_token: u64,
-    /// Object id for `LoadModel` (PLY input) and `DropModel`.
+    /// Object id for `LoadModel` (the id to give a model built from a PLY file; for a `.ppfm`
+    /// file, checked against the file's: 0 takes what the file gives) and `DropModel`.
     pub object_id: u32,
     /// Zero.
     pub reserved: u32,
@@ -147,7 +148,8 @@ pub struct ControlResponseHeader {
     pub request_id: u64,
     /// Statistics (filled for every command: they are cheap).
     pub stats: DaemonStats,
-    /// Human-readable detail of a refusal, NUL-padded UTF-8.
+    /// Human-readable detail of a refusal, or for `Statistics` the detector parameters the
+    /// daemon runs with; NUL-padded UTF-8.
     pub message: [u8; MESSAGE_BYTES],
 }
 

@@ -174,8 +174,9 @@ pub struct PoseHypothesis {
     pub rotation: [f32; 9],
     /// Translation `t`, millimetres.
     pub translation_mm: [f32; 3],
-    /// Score of the hypothesis after the last stage it passed: the fraction of the model's
-    /// visible points supported by the scene (0 to 1).
+    /// Score of the hypothesis after the last stage it passed (0 to 1); the PPF engine's is
+    /// the fraction of the model's surface the scene confirms, times the support (confirmed
+    /// over visible points) and the silhouette agreement, each to its weight's power.
     pub score: f32,
     /// Votes of the pose cluster the hypothesis came from.
     pub votes: u32,
@@ -251,13 +252,14 @@ pub enum Status {
     InvalidFrame = 5,
     /// The frame's intrinsics are zero, negative or not finite.
     InvalidIntrinsics = 6,
-    /// No camera service of that name exists.
+    /// No camera of that name with a driver publishing on it (none ever, or forgotten after
+    /// its driver was gone long enough).
     UnknownCamera = 7,
     /// The camera exists but no frame has arrived yet.
     NoFrame = 8,
     /// The camera's newest frame is older than allowed; `error_value` is its age in ns.
     CameraStale = 9,
-    /// The deadline passed before the detection could start.
+    /// The deadline passed before the detection started, or while it ran.
     DeadlineExceeded = 10,
     /// The daemon's queue is full; retry later.
     Busy = 11,
@@ -265,7 +267,7 @@ pub enum Status {
     Internal = 12,
     /// The daemon is shutting down.
     ShuttingDown = 13,
-    /// A model could not be loaded, built or dropped (control).
+    /// A model could not be loaded or built (control).
     ModelError = 14,
 }
 

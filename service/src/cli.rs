@@ -10,7 +10,7 @@ use crate::config::DaemonConfig;
 use crate::engine::DetectionEngine;
 
 /// The ppfd daemon: holds PPF object models in memory and answers detect requests over
-/// iceoryx2 shared memory. Stops cleanly on SIGINT/SIGTERM. Logs go to stderr (`RUST_LOG`).
+/// iceoryx2 shared memory. Stops cleanly on SIGINT, SIGTERM or SIGHUP. Logs go to stderr (`RUST_LOG`).
 #[derive(Debug, Parser)]
 #[command(name = "ppfd", version)]
 pub struct Args {
@@ -25,7 +25,8 @@ pub struct Args {
     #[arg(long)]
     pub model_cache: Option<PathBuf>,
     /// iceoryx2 resource prefix: daemons (and their clients) with different prefixes never
-    /// see each other [default: PPFD_PREFIX, as for the clients, else iceoryx2's].
+    /// see each other [default: PPFD_PREFIX, as for the clients, else the config file's, else
+    /// iceoryx2's].
     #[arg(long)]
     pub prefix: Option<String>,
     /// Detection worker threads, 0 to 256 (0: one per core) [default: 0].

@@ -1,10 +1,12 @@
-//! Daemon settings: defaults, then a TOML file (`--config`), then command-line flags, each
-//! overriding the one before. Every key of the file has a flag of the same name.
+//! Daemon settings: defaults, then a TOML file (`--config`), then `PPFD_PREFIX` (for the prefix),
+//! then command-line flags, each overriding the one before. Every top-level key of the file has a
+//! flag of the same name; the `[detector]` table's entries are `--set` flags.
 //!
 //! ```toml
 //! models = "/var/lib/ppfd/models"   # *.ppfm files, and PLY meshes to build models from
 //!                                   # (a relative path is relative to this file's folder)
-//! model_cache = "/var/cache/ppfd"   # where models built from PLY files are saved (default ~/.cache/ppfd)
+//! model_cache = "/var/cache/ppfd"   # where models built from PLY files are saved
+//!                                   # (default $PPFD_CACHE, $XDG_CACHE_HOME/ppfd or ~/.cache/ppfd)
 //! prefix = "ppfd_"                  # iceoryx2 resource prefix (isolates daemons)
 //! workers = 0                       # detection threads; 0 = one per core
 //! parallel_detections = 1           # detections running at once

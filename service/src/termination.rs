@@ -6,7 +6,7 @@
 //! and the slot is also read and reset by other code: every node's termination check consumes
 //! it, and iceoryx2 resets it before it zeroes a new shared-memory segment. A daemon was seen to
 //! serve on after a SIGTERM (twice in about 220 stops; not reproduced on demand), which a
-//! supervisor can only end with SIGKILL. Instead the daemon blocks both signals in every thread
+//! supervisor can only end with SIGKILL. Instead the daemon blocks the three signals in every thread
 //! and reads them from a `signalfd`: a blocked signal stays pending in the kernel until this
 //! module reads it, whatever the threads are doing when it arrives.
 
