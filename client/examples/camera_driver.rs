@@ -45,6 +45,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             println!("frame {seq}");
         }
         next += period;
-        std::thread::sleep(next.saturating_duration_since(Instant::now()));
+        // Not a plain sleep: a daemon that subscribes between frames gets the newest at once.
+        publisher.idle(next.saturating_duration_since(Instant::now()))?;
     }
 }

@@ -1,10 +1,12 @@
 //! The camera-driver side: publish depth frames into shared memory.
 
 use std::mem::MaybeUninit;
+use std::time::{Duration, Instant};
 
 use iceoryx2::node::Node;
 use iceoryx2::port::notifier::Notifier;
-use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
+use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 use iceoryx2::sample_mut::SampleMut;
 use iceoryx2::sample_mut_uninit::SampleMutUninit;
@@ -14,12 +16,23 @@ use ppfd_protocol::frame::{FrameHeader, Intrinsics};
 use ppfd_protocol::services::{self, limits, wake, CameraService, EventService};
 use ppfd_protocol::text;
 
-use crate::{iceoryx_config, transport, Result};
+use crate::{iceoryx_config, transport, Error, Result};
 
 type Ipc = ipc::Service;
 
+/// The longest [`CameraPublisher::idle`] sleeps before it looks for new subscribers again: a
+/// daemon that subscribes while the driver waits gets the newest frame within this.
+const IDLE_STEP: Duration = Duration::from_millis(20);
+
 /// Publishes the depth frames of one camera on `ppfd/camera/<name>/depth`. Not `Send`: keep it
 /// on the driver's thread.
+///
+/// The camera keeps its newest frame for a subscriber that comes late (a daemon started after
+/// the driver, or one that finds the camera at its next housekeeping round), but hands it over
+/// only when the publisher looks for new subscribers: at each frame it sends, and at
+/// [`CameraPublisher::update_connections`]. A driver that publishes rarely, or once and then
+/// waits, waits with [`CameraPublisher::idle`] instead of sleeping, or the daemon sees no frame
+/// until the next one.
 pub struct CameraPublisher {
     publisher: Publisher<Ipc, [u16], FrameHeader>,
     template: FrameHeader,
@@ -81,7 +94,13 @@ impl CameraPublisher {
             .max_loaned_samples(limits::MAX_LOANED_FRAMES)
             .backpressure_strategy(BackpressureStrategy::DiscardData)
             .create()
-            .map_err(transport("cannot create the camera publisher"))?;
+            .map_err(|e| match e {
+                PublisherCreateError::ExceedsMaxSupportedPublishers => Error::CameraTaken {
+                    camera: camera.to_owned(),
+                    drivers: limits::MAX_CAMERA_PUBLISHERS,
+                },
+                e => transport("cannot create the camera publisher")(e),
+            })?;
         // Wake a running daemon so that it subscribes before the first frame.
         let wake_service = services::daemon_wake_builder(&node).open_or_create().ok();
         let wake = wake_service
@@ -117,6 +136,30 @@ impl CameraPublisher {
             sample,
             sequence: &mut self.sequence,
         })
+    }
+
+    /// Hands the newest frame to subscribers that appeared since the last frame was sent (a
+    /// daemon that started, or found this camera, meanwhile). Sending a frame does this too;
+    /// call it while no frame is sent, or use [`CameraPublisher::idle`].
+    pub fn update_connections(&self) -> Result<()> {
+        self.publisher
+            .update_connections()
+            .map_err(transport("cannot connect the camera's new subscribers"))
+    }
+
+    /// Waits `duration` without publishing, staying reachable: every 20 ms it hands the newest
+    /// frame to subscribers that appeared meanwhile ([`CameraPublisher::update_connections`]).
+    /// Use it wherever a driver would sleep: between slow frames, and after its last one.
+    pub fn idle(&self, duration: Duration) -> Result<()> {
+        let until = Instant::now() + duration;
+        loop {
+            self.update_connections()?;
+            let left = until.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                return Ok(());
+            }
+            std::thread::sleep(left.min(IDLE_STEP));
+        }
     }
 
     /// Copies `depth` into a loaned frame and publishes it, captured now.

@@ -8,6 +8,8 @@
 //!   [`Client::load_model`], [`Client::drop_model`], [`Client::stats`].
 //! - [`CameraPublisher`] is the driver side: it loans a shared-memory slice, the driver writes
 //!   the depth straight into it, and [`ReadyFrame::send`] publishes it (no copy after that).
+//!   Between frames the driver waits with [`CameraPublisher::idle`], so that a daemon that
+//!   subscribes late still gets the newest frame.
 //!
 //! Ports are not `Send`: use one `Client` per thread.
 //!
@@ -64,6 +66,15 @@ pub enum Error {
         service: &'static str,
         /// The iceoryx2 prefix the client looked under.
         prefix: String,
+    },
+    /// The camera already has as many drivers as it may (its driver, and one that replaces a
+    /// dead one): another process publishes under that name.
+    #[error("another driver already publishes as camera {camera:?} (a camera takes {drivers} drivers at most: its own and one replacing a dead one): stop that driver, or publish under another camera name")]
+    CameraTaken {
+        /// The camera's name.
+        camera: String,
+        /// Drivers one camera may have at once.
+        drivers: usize,
     },
     /// The request was malformed before it was sent.
     #[error("{0}")]

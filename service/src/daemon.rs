@@ -386,7 +386,7 @@ impl Daemon {
             if stop() {
                 return Ok(None);
             }
-            if registry.len() == 0 && failures.is_empty() {
+            if registry.is_empty() && failures.is_empty() {
                 tracing::warn!(
                     dir = %dir.display(),
                     "no model in the models folder: nothing can be detected until one is loaded (ppf models --load)"

@@ -197,6 +197,84 @@ fn a_camera_that_stops_is_reported_stale_with_the_age_of_its_last_frame() {
         .expect("served with a larger age limit");
 }
 
+/// A driver that publishes one frame and then waits (`e2e-camera --frames 1`, `ppf replay`
+/// without `--loop`), started before the daemon: the daemon gets that frame. The camera keeps
+/// its newest frame for a late subscriber, but iceoryx2 hands it over only when the publisher
+/// looks for subscribers; a driver that slept never did, and every request was refused "camera
+/// has published no frame yet".
+#[test]
+fn a_frame_published_before_the_daemon_started_is_served() {
+    let prefix = Prefix::new("early");
+    let models = fake_model_dir("early", &[1]);
+    let mut cam = camera(&prefix, "cam0", &["--frames", "1"]);
+    cam.wait_line("camera stopped", STARTUP);
+    let _d = daemon(&prefix, &models, &[], "0");
+    let client = connect(&prefix);
+    // The frame is as old as the daemon's start: this request takes it at any age.
+    let opts = ppfd_client::DetectOptions {
+        max_frame_age: Some(Duration::from_secs(600)),
+        ..Default::default()
+    };
+    // The daemon subscribes when it finds the camera (at start, or within a housekeeping
+    // round, 100 ms here); until then a request is refused "unknown camera" or "no frame yet".
+    let deadline = std::time::Instant::now() + Duration::from_secs(5);
+    let found = loop {
+        match client.detect("cam0", &[1], &opts) {
+            Ok(found) => break found,
+            Err(e) if std::time::Instant::now() < deadline => {
+                eprintln!("not yet: {e}");
+                std::thread::sleep(Duration::from_millis(50));
+            }
+            Err(e) => panic!("the frame published before the daemon started never came: {e}"),
+        }
+    };
+    assert_eq!(found.frame_sequence, 1, "the driver's only frame");
+    assert!(
+        (found.hypotheses[0].translation_mm[2] - 800.0).abs() < 1e-3,
+        "its depth was read"
+    );
+}
+
+/// A camera takes its driver and one that replaces a dead one; a third is refused by name
+/// instead of with iceoryx2's "ExceedsMaxSupportedPublishers".
+#[test]
+fn a_third_driver_of_a_camera_is_told_another_driver_publishes_under_its_name() {
+    let prefix = Prefix::new("taken");
+    let _first = camera(&prefix, "cam0", &["--frames", "1"]);
+    let _second = camera(&prefix, "cam0", &["--frames", "1"]);
+    let third = ppfd_client::CameraPublisher::new(
+        Some(&prefix.0),
+        "cam0",
+        7,
+        640,
+        480,
+        ppfd_client::Intrinsics::LMO,
+        1.0,
+    );
+    match third {
+        Err(e @ ppfd_client::Error::CameraTaken { .. }) => {
+            let text = e.to_string();
+            assert!(
+                text.contains("\"cam0\"") && text.contains("another driver already publishes"),
+                "{text}"
+            );
+        }
+        Err(e) => panic!("refused, but not as a camera with its drivers: {e}"),
+        Ok(_) => panic!("a third driver of one camera was accepted"),
+    }
+    // Another name is free.
+    ppfd_client::CameraPublisher::new(
+        Some(&prefix.0),
+        "cam1",
+        7,
+        640,
+        480,
+        ppfd_client::Intrinsics::LMO,
+        1.0,
+    )
+    .expect("a driver under another name");
+}
+
 /// Detects on `camera` until served (a camera just started may not have published since the
 /// daemon subscribed); panics after 10 s with the last refusal.
 fn served_from(client: &ppfd_client::Client, camera: &str) {

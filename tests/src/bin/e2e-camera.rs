@@ -1,7 +1,8 @@
 //! A camera driver for the end-to-end tests: publishes VGA frames of a flat wall, one frame of a
 //! BOP dataset (`--bop <root> --scene <id> --image <id>`), or the generated scene of the generated
 //! parts (`--parts-seed <seed>`, Kinect-like noise unless `--noise none`), at `--fps`, `--frames`
-//! times (0: until killed), then stays alive without publishing (a camera that stopped). Prints
+//! times (0: until killed), then stays alive without publishing (a camera that stopped; a
+//! daemon that subscribes then still gets the last frame). Prints
 //! `scene <checksum>` for a generated scene (`ppfd_tests::depth_checksum`, hex), `camera ready`
 //! when its service exists and `frame <seq>` per frame.
 
@@ -135,11 +136,14 @@ fn main() {
         writeln!(out, "frame {seq}").unwrap();
         out.flush().unwrap();
         next += period;
-        std::thread::sleep(next.saturating_duration_since(Instant::now()));
+        publisher
+            .idle(next.saturating_duration_since(Instant::now()))
+            .expect("idle");
     }
     writeln!(out, "camera stopped").unwrap();
     out.flush().unwrap();
+    // Reachable while stopped: a daemon that subscribes now still gets the last frame.
     loop {
-        std::thread::sleep(Duration::from_secs(3600));
+        publisher.idle(Duration::from_secs(3600)).expect("idle");
     }
 }
