@@ -283,3 +283,220 @@ fn replaying_a_scene_that_is_not_there_lists_the_scenes() {
         "{e}"
     );
 }
+
+/// A folder given to `ppf model info` is named as one (it read "No such device (os error 19)").
+#[test]
+fn model_info_on_a_folder_says_it_wants_a_model_file() {
+    let scratch = Scratch::new("info-folder");
+    let out = run(ppf(&["model", "info"]).arg(&scratch.0));
+    assert_eq!(out.status.code(), Some(1));
+    let e = stderr(&out);
+    assert!(
+        e.contains("is a folder") && e.contains(".ppfm") && !e.contains("os error"),
+        "{e}"
+    );
+}
+
+/// `--out` naming a file is refused as not a folder (it read "File exists (os error 17)"),
+/// before anything is built, and the file is left as it was.
+#[test]
+fn model_build_into_a_file_says_out_takes_a_folder() {
+    let scratch = Scratch::new("build-out-file");
+    let mesh = scratch.join("obj_000001.ply");
+    write_part_mesh(&mesh);
+    let file = scratch.join("models");
+    std::fs::write(&file, "not a folder").unwrap();
+    let out = run(ppf(&["model", "build"]).arg(&mesh).arg("--out").arg(&file));
+    assert_eq!(out.status.code(), Some(1));
+    let e = stderr(&out);
+    assert!(
+        e.contains("--out") && e.contains("is a file") && e.contains("folder"),
+        "{e}"
+    );
+    assert!(!e.contains("os error"), "{e}");
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "not a folder");
+}
+
+/// As `ppf replay` does: a scene the dataset has not is refused with the scenes it has (it
+/// read "no image with depth to evaluate").
+#[test]
+fn evaluating_a_scene_that_is_not_there_lists_the_scenes() {
+    let Some(dataset) = common::lmo() else { return };
+    let scratch = Scratch::new("eval-scene");
+    let out = run(ppf(&["eval"])
+        .arg(&dataset)
+        .args(["--scene", "99", "--out"])
+        .arg(scratch.join("results.csv"))
+        .env("PPFD_CACHE", scratch.join("cache")));
+    assert_eq!(out.status.code(), Some(1));
+    let e = stderr(&out);
+    assert!(e.contains("no scene 99; the only scene is 2"), "{e}");
+    assert!(!scratch.join("cache").exists(), "nothing was built");
+}
+
+/// `--json` formats the score report and `--no-score` skips it: together a usage error, where
+/// `--json` was dropped without a word.
+#[test]
+fn eval_refuses_json_without_a_score() {
+    let out = run(&mut ppf(&["eval", "/nowhere", "--json", "--no-score"]));
+    assert_eq!(out.status.code(), Some(2));
+    let e = stderr(&out);
+    assert!(e.contains("--json") && e.contains("--no-score"), "{e}");
+}
+
+/// `--requests` counts the requests of all clients: fewer than one each is refused (it
+/// reported "1 requests from 4 clients", three of which sent none), before any daemon is asked.
+#[test]
+fn bench_refuses_fewer_requests_than_clients() {
+    let prefix = format!("cf_bench_{}_", std::process::id());
+    let out = run(&mut ppf(&[
+        "bench",
+        "--camera",
+        "k",
+        "--objects",
+        "1",
+        "--requests",
+        "1",
+        "--clients",
+        "4",
+        "--prefix",
+        &prefix,
+    ]));
+    assert_eq!(out.status.code(), Some(1));
+    let e = stderr(&out);
+    assert!(
+        e.contains("--requests 1 is fewer than --clients 4") && e.contains("--requests 4"),
+        "{e}"
+    );
+}
+
+/// `--image` picks a frame of a dataset; without `--dataset` it was ignored and the generated
+/// scene shown. Now a usage error, before anything is built or started.
+#[test]
+fn demo_refuses_an_image_without_a_dataset() {
+    let out = run(&mut ppf(&["demo", "--image", "2", "3"]));
+    assert_eq!(out.status.code(), Some(2));
+    let e = stderr(&out);
+    assert!(e.contains("--image") && e.contains("--dataset DIR"), "{e}");
+    assert!(String::from_utf8_lossy(&out.stdout).is_empty());
+}
+
+/// A daemon started by `ppf serve` in another folder, its lines read up to "ppfd ready"; stopped
+/// with SIGTERM when dropped.
+struct Serve(std::process::Child);
+
+impl Serve {
+    fn start(models: &Path, cache: &Path, cwd: &Path, prefix: &str) -> Serve {
+        use std::io::BufRead;
+        let mut child = ppf(&["serve", "--models"])
+            .arg(models)
+            .arg("--model-cache")
+            .arg(cache)
+            .args(["--prefix", prefix])
+            .current_dir(cwd)
+            .stdout(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let stdout = child.stdout.take().unwrap();
+        let serve = Serve(child);
+        let ready = std::io::BufReader::new(stdout)
+            .lines()
+            .map_while(Result::ok)
+            .any(|l| l.starts_with("ppfd ready"));
+        assert!(ready, "ppf serve stopped before it was ready");
+        serve
+    }
+}
+
+impl Drop for Serve {
+    fn drop(&mut self) {
+        // SAFETY: signals our own child.
+        unsafe { libc::kill(self.0.id() as i32, libc::SIGTERM) };
+        let _ = self.0.wait();
+    }
+}
+
+/// The daemon runs in a folder of its own: `--load` with a relative path was looked up there.
+/// The client sends the path from its own folder, and a refusal names that path.
+#[test]
+fn models_load_takes_a_relative_path_from_the_current_folder() {
+    let scratch = Scratch::new("load-relative");
+    for dir in ["models", "cache", "daemon-cwd", "meshes"] {
+        std::fs::create_dir(scratch.join(dir)).unwrap();
+    }
+    write_part_mesh(&scratch.join("meshes/obj_000003.ply"));
+    let prefix = format!("cf_load_{}_", std::process::id());
+    let _daemon = Serve::start(
+        &scratch.join("models"),
+        &scratch.join("cache"),
+        &scratch.join("daemon-cwd"),
+        &prefix,
+    );
+    let load = |file: &str| {
+        run(ppf(&["models", "--load", file, "--prefix", &prefix])
+            .current_dir(scratch.join("meshes")))
+    };
+    let out = load("obj_000003.ply");
+    assert!(out.status.success(), "{}", stderr(&out));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("loaded object 3"));
+
+    let out = load("../nowhere/obj_000004.ply");
+    assert_eq!(out.status.code(), Some(1));
+    let e = stderr(&out);
+    let named = scratch.join("meshes/../nowhere/obj_000004.ply");
+    assert!(e.contains(named.to_str().unwrap()), "{e}");
+}
+
+/// The processes whose parent is `pid`.
+fn children_of(pid: u32) -> Vec<u32> {
+    std::fs::read_dir("/proc")
+        .unwrap()
+        .flatten()
+        .filter_map(|e| e.file_name().to_str()?.parse::<u32>().ok())
+        .filter(|child| {
+            std::fs::read_to_string(format!("/proc/{child}/stat")).is_ok_and(|stat| {
+                // pid (comm) state ppid ...: the comm may hold spaces, not a ')'.
+                stat.rsplit_once(')')
+                    .and_then(|(_, rest)| rest.split_whitespace().nth(1)?.parse::<u32>().ok())
+                    == Some(pid)
+            })
+        })
+        .collect()
+}
+
+/// Stopped with SIGTERM mid-detection, the demo stops its daemon and removes its work folder
+/// before it exits (both were left behind: the default action ended the process at once).
+#[test]
+fn a_demo_stopped_by_sigterm_leaves_nothing_behind() {
+    use std::io::BufRead;
+    let scratch = Scratch::new("demo-stop");
+    let mut demo = ppf(&["demo", "--model-cache"])
+        .arg(scratch.join("cache"))
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let pid = demo.id();
+    let work = std::env::temp_dir().join(format!("ppf-demo-{pid}"));
+    let mut lines = std::io::BufReader::new(demo.stdout.take().unwrap()).lines();
+    let ready = lines
+        .by_ref()
+        .map_while(Result::ok)
+        .any(|l| l.starts_with("daemon ready"));
+    assert!(ready, "the demo's daemon never came up");
+    let daemons = children_of(pid);
+    assert_eq!(daemons.len(), 1, "one daemon: {daemons:?}");
+    assert!(work.is_dir(), "the demo works in {}", work.display());
+    // SAFETY: signals our own child.
+    unsafe { libc::kill(pid as i32, libc::SIGTERM) };
+    let status = demo.wait().unwrap();
+    let daemon_left = Path::new(&format!("/proc/{}", daemons[0])).exists();
+    let work_left = work.exists();
+    if daemon_left {
+        // SAFETY: the demo's daemon, left running by a failing demo.
+        unsafe { libc::kill(daemons[0] as i32, libc::SIGKILL) };
+    }
+    let _ = std::fs::remove_dir_all(&work);
+    assert_eq!(status.code(), Some(128 + libc::SIGTERM), "{status:?}");
+    assert!(!daemon_left, "the demo's daemon {} still runs", daemons[0]);
+    assert!(!work_left, "{} left behind", work.display());
+}

@@ -90,6 +90,13 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     if args.clients == 0 || args.requests == 0 {
         return Err("--clients and --requests must be at least 1".into());
     }
+    if args.requests < args.clients {
+        return Err(format!(
+            "--requests {} is fewer than --clients {}: --requests counts the requests of all \
+             clients together, at least one each; give --requests {} or more, or fewer clients",
+            args.requests, args.clients, args.clients
+        ));
+    }
     let options = DetectOptions {
         hypotheses_per_object: args.hypotheses,
         timeout: millis(args.timeout_ms),

@@ -71,26 +71,41 @@ pub fn print_latency(d: &Detections) {
     println!("  {:<18} {:>10}", "overhead", ms(d.latency.overhead_ns()));
 }
 
-/// Prints hypotheses as a table.
-pub fn print_hypotheses(d: &Detections) {
-    println!(
+/// Prints the hypotheses as a table: per object asked for (`objects`, in the request's order)
+/// its poses best first, or a line saying it has none.
+pub fn print_hypotheses(d: &Detections, objects: &[u32]) {
+    for line in hypothesis_table(d, objects) {
+        println!("{line}");
+    }
+}
+
+/// The lines of [`print_hypotheses`].
+fn hypothesis_table(d: &Detections, objects: &[u32]) -> Vec<String> {
+    let mut lines = vec![format!(
         "{:>6} {:>4} {:>7} {:>6} {:>6}  {:<28} rotation (row-major)",
         "object", "rank", "score", "votes", "checks", "translation (mm)"
-    );
-    for h in &d.hypotheses {
-        let t = h.translation_mm;
-        let r = h.rotation;
-        println!(
-            "{:>6} {:>4} {:>7.3} {:>6} {:>6}  {:<28} [{:.3} {:.3} {:.3}; {:.3} {:.3} {:.3}; {:.3} {:.3} {:.3}]",
-            h.object_id,
-            h.instance_rank + 1,
-            h.score,
-            h.votes,
-            checks_letters(h.checks),
-            format!("{:.1} {:.1} {:.1}", t[0], t[1], t[2]),
-            r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8]
-        );
+    )];
+    for &id in objects {
+        let mut poses = d.of(id).peekable();
+        if poses.peek().is_none() {
+            lines.push(format!("{id:>6} {:>4} (no hypothesis)", "-"));
+        }
+        for h in poses {
+            let t = h.translation_mm;
+            let r = h.rotation;
+            lines.push(format!(
+                "{:>6} {:>4} {:>7.3} {:>6} {:>6}  {:<28} [{:.3} {:.3} {:.3}; {:.3} {:.3} {:.3}; {:.3} {:.3} {:.3}]",
+                h.object_id,
+                h.instance_rank + 1,
+                h.score,
+                h.votes,
+                checks_letters(h.checks),
+                format!("{:.1} {:.1} {:.1}", t[0], t[1], t[2]),
+                r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8]
+            ));
+        }
     }
+    lines
 }
 
 /// The checks a hypothesis passed as `ppf detect --dataset` shows them: R re-scored, I refined
@@ -125,10 +140,15 @@ impl ScratchDir {
     /// Creates the folder empty (a leftover of an earlier process with this pid is removed
     /// first). It must be this process's own: one that someone made meanwhile is refused.
     pub fn create(name: &str) -> Result<ScratchDir, String> {
-        let dir = std::env::temp_dir().join(format!("{name}-{}", std::process::id()));
+        let dir = ScratchDir::path_of(name);
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir(&dir).map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
         Ok(ScratchDir(dir))
+    }
+
+    /// Where [`ScratchDir::create`] puts the folder `name` of this process.
+    pub fn path_of(name: &str) -> PathBuf {
+        std::env::temp_dir().join(format!("{name}-{}", std::process::id()))
     }
 
     pub fn path(&self) -> &Path {
@@ -139,5 +159,107 @@ impl ScratchDir {
 impl Drop for ScratchDir {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// Ids as ascending runs: `[1, 2, 3, 5, 7, 8]` → `1-3, 5, 7-8` (a split may have dozens).
+fn id_ranges(ids: &[u32]) -> String {
+    let mut runs: Vec<(u32, u32)> = Vec::new();
+    for &id in ids {
+        match runs.last_mut() {
+            Some((_, last)) if last.checked_add(1) == Some(id) => *last = id,
+            _ => runs.push((id, id)),
+        }
+    }
+    runs.iter()
+        .map(|&(a, b)| {
+            if a == b {
+                a.to_string()
+            } else {
+                format!("{a}-{b}")
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The scenes a dataset has, for a message about one it has not: "the scenes are 1-3, 5".
+pub fn scenes_there(scenes: &[u32]) -> String {
+    match scenes.len() {
+        0 => "there are no scenes".to_owned(),
+        1 => format!("the only scene is {}", id_ranges(scenes)),
+        _ => format!("the scenes are {}", id_ranges(scenes)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ppfd_client::PoseHypothesis;
+
+    fn pose(object_id: u32, instance_rank: u32, score: f32) -> PoseHypothesis {
+        PoseHypothesis {
+            object_id,
+            instance_rank,
+            rotation: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            translation_mm: [0.0, 0.0, 800.0],
+            score,
+            votes: 10,
+            checks: 0,
+        }
+    }
+
+    /// An object the daemon found no pose of gets a line saying so, in its place among the
+    /// objects asked for; it used to be left out, and with no pose at all the table was empty.
+    #[test]
+    fn an_object_without_a_pose_is_listed_as_such() {
+        let found = Detections {
+            request_id: 1,
+            hypotheses: vec![pose(5, 0, 0.3), pose(5, 1, 0.2), pose(8, 0, 0.1)],
+            latency: Default::default(),
+            counts: Default::default(),
+            frame_sequence: 1,
+            frame_age_ns: 0,
+        };
+        let lines = hypothesis_table(&found, &[1, 5, 8, 9]);
+        assert_eq!(lines.len(), 1 + 5, "{lines:#?}");
+        assert_eq!(lines[1].trim_start(), "1    - (no hypothesis)");
+        assert!(
+            lines[2].trim_start().starts_with("5    1   0.300"),
+            "{}",
+            lines[2]
+        );
+        assert!(
+            lines[3].trim_start().starts_with("5    2   0.200"),
+            "{}",
+            lines[3]
+        );
+        assert!(
+            lines[4].trim_start().starts_with("8    1   0.100"),
+            "{}",
+            lines[4]
+        );
+        assert_eq!(lines[5].trim_start(), "9    - (no hypothesis)");
+
+        let none = Detections {
+            hypotheses: vec![],
+            ..found
+        };
+        let lines = hypothesis_table(&none, &[1, 5]);
+        assert_eq!(
+            lines[1..],
+            ["     1    - (no hypothesis)", "     5    - (no hypothesis)"]
+        );
+    }
+
+    #[test]
+    fn scene_ids_are_listed_as_runs() {
+        assert_eq!(id_ranges(&[]), "");
+        assert_eq!(id_ranges(&[2]), "2");
+        assert_eq!(id_ranges(&[1, 2, 3, 5, 7, 8]), "1-3, 5, 7-8");
+        assert_eq!(id_ranges(&[0, u32::MAX]), format!("0, {}", u32::MAX));
+        assert_eq!(scenes_there(&[]), "there are no scenes");
+        assert_eq!(scenes_there(&[2]), "the only scene is 2");
+        assert_eq!(scenes_there(&[1, 2, 4]), "the scenes are 1-2, 4");
     }
 }

@@ -1,5 +1,6 @@
 //! `ppf models` and `ppf stats`: the daemon's control requests.
 
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use clap::Args;
@@ -9,9 +10,10 @@ use crate::common::{ms, Connect};
 
 #[derive(Args, Debug)]
 pub struct ModelsArgs {
-    /// Load a model file (`.ppfm`) or build one from a PLY mesh, as the daemon sees the path.
+    /// Load a model file (`.ppfm`) or build one from a PLY mesh; a relative path is taken
+    /// from the current folder (the daemon is sent the absolute path).
     #[arg(long)]
-    pub load: Option<String>,
+    pub load: Option<PathBuf>,
     /// Object id for `--load`; without it, the id the file gives (a `.ppfm` file's own, or the
     /// digits ending a PLY file's name).
     #[arg(long, requires = "load", value_parser = clap::value_parser!(u32).range(1..))]
@@ -32,10 +34,17 @@ pub fn models(args: ModelsArgs) -> Result<(), String> {
         .connect
         .client_with(Duration::from_millis(args.timeout_ms))?;
     if let Some(path) = &args.load {
+        let path = absolute_path(path)?;
         let before = client.models().map_err(|e| e.to_string())?;
         let m = client
-            .load_model(path, args.id.unwrap_or(0))
-            .map_err(|e| e.to_string())?;
+            .load_model(&path, args.id.unwrap_or(0))
+            .map_err(|e| match e {
+                // Whatever the daemon says, the message names the file.
+                ppfd_client::Error::Refused { ref message, .. } if message.contains(&path) => {
+                    e.to_string()
+                }
+                e => format!("{path}: {e}"),
+            })?;
         let replaced = before.iter().any(|b| b.object_id == m.object_id);
         println!(
             "{} object {} ({}): {} points, {} bytes",
@@ -68,6 +77,19 @@ pub fn models(args: ModelsArgs) -> Result<(), String> {
     }
     println!("{} models", models.len());
     Ok(())
+}
+
+/// `path` from the current folder, as text for the request: the daemon runs in a folder of
+/// its own, where a relative path would name another file or none.
+fn absolute_path(path: &Path) -> Result<String, String> {
+    let absolute =
+        std::path::absolute(path).map_err(|e| format!("--load {}: {e}", path.display()))?;
+    absolute.to_str().map(str::to_owned).ok_or_else(|| {
+        format!(
+            "--load {}: the path is not UTF-8, which a request to the daemon cannot carry",
+            absolute.display()
+        )
+    })
 }
 
 #[derive(Args, Debug)]

@@ -10,7 +10,8 @@ use std::time::{Duration, Instant};
 
 use clap::Args;
 use ppfd_client::{
-    isometry, monotonic_now_ns, CameraPublisher, Client, ClientOptions, DetectOptions, Intrinsics,
+    isometry, monotonic_now_ns, CameraPublisher, Client, ClientOptions, DetectOptions, Detections,
+    Intrinsics,
 };
 use ppfd_models::bop::BopDataset;
 use ppfd_models::camera::OwnedDepthFrame;
@@ -22,19 +23,23 @@ use ppfd_models::synthetic::{NoiseModel, SceneSpec};
 use ppfd_models::Pose;
 
 use crate::common::{print_latency, ScratchDir, MAX_HYPOTHESES};
+use crate::stop;
+
+/// The demo's work folder, `<temp>/ppf-demo-<pid>`.
+const WORK_DIR: &str = "ppf-demo";
 
 #[derive(Args, Debug)]
 pub struct DemoArgs {
     /// Take the scene and the object meshes from a BOP dataset instead of generating them.
     #[arg(long)]
     pub dataset: Option<PathBuf>,
-    /// Seed of the generated scene.
-    #[arg(long, default_value_t = 1)]
-    pub seed: u64,
+    /// Seed of the generated scene (default 1).
+    #[arg(long)]
+    pub seed: Option<u64>,
     /// Render the generated scene without sensor noise.
     #[arg(long)]
     pub no_noise: bool,
-    /// Scene and image of the dataset (default: the first with depth).
+    /// Scene and image of the dataset given with --dataset (default: the first with depth).
     #[arg(long, num_args = 2, value_names = ["SCENE", "IMAGE"])]
     pub image: Option<Vec<u32>>,
     /// Where models built from the meshes are kept between runs.
@@ -43,7 +48,7 @@ pub struct DemoArgs {
     /// A `ppfd` executable to start (default: this executable's built-in daemon, `ppf serve`).
     #[arg(long)]
     pub ppfd: Option<PathBuf>,
-    /// Hypotheses per object, 1 to 16.
+    /// Poses shown per object, best first, 1 to 16 (each against the nearest true instance).
     #[arg(long, default_value_t = 1,
           value_parser = clap::value_parser!(u32).range(1..=MAX_HYPOTHESES))]
     pub hypotheses: u32,
@@ -67,7 +72,8 @@ fn generated_scene(args: &DemoArgs, cache: &Path) -> Result<DemoScene, String> {
     } else {
         Some(NoiseModel::kinect())
     };
-    let mut spec = SceneSpec::new(args.seed).noise(noise);
+    let seed = args.seed.unwrap_or(1);
+    let mut spec = SceneSpec::new(seed).noise(noise);
     for (part, mesh) in &meshes {
         spec = spec.object(part.object_id(), mesh);
     }
@@ -96,7 +102,7 @@ fn generated_scene(args: &DemoArgs, cache: &Path) -> Result<DemoScene, String> {
         frame: scene.frame,
         truth: scene.ground_truth,
         model_files,
-        label: format!("generated parts on a table, seed {}{noise}", args.seed),
+        label: format!("generated parts on a table, seed {seed}{noise}"),
     })
 }
 
@@ -207,11 +213,20 @@ fn daemon_command(given: &Option<PathBuf>) -> Result<(PathBuf, Vec<&'static str>
     }
 }
 
-/// A child process stopped (SIGTERM, then SIGKILL) when dropped.
+/// A child process stopped (SIGTERM, then SIGKILL) when dropped, or when the demo is stopped
+/// by a signal ([`crate::stop`]).
 struct Daemon(Child);
+
+impl Daemon {
+    fn new(child: Child) -> Daemon {
+        stop::set_child(Some(child.id()));
+        Daemon(child)
+    }
+}
 
 impl Drop for Daemon {
     fn drop(&mut self) {
+        stop::set_child(None);
         // SAFETY: signals our own child.
         unsafe { libc::kill(self.0.id() as i32, libc::SIGTERM) };
         let end = Instant::now() + Duration::from_secs(5);
@@ -244,7 +259,7 @@ fn start_daemon(
         .spawn()
         .map_err(|e| format!("cannot start {} {}: {e}", exe.display(), first.join(" ")))?;
     let stdout = child.stdout.take().expect("piped stdout");
-    let daemon = Daemon(child);
+    let daemon = Daemon::new(child);
     let mut line = String::new();
     let mut reader = BufReader::new(stdout);
     loop {
@@ -265,7 +280,90 @@ fn rotation_error_deg(a: &Pose, b: &Pose) -> f32 {
     a.rotation.angle_to(&b.rotation).to_degrees()
 }
 
+/// A pose this near a true one is counted as found.
+const CORRECT_MM: f32 = 20.0;
+const CORRECT_DEG: f32 = 10.0;
+
+/// The lines of the pose table: per object of the truth (each once, in the truth's order) its
+/// poses best first, each against the nearest true instance of that object, or a line saying
+/// it has none; and how many true instances their object's best pose is within 20 mm and 10
+/// degrees of.
+fn pose_table(found: &Detections, truth: &[(u32, Pose)]) -> (Vec<String>, usize) {
+    let mut lines = vec![format!(
+        "{:>6} {:>4} {:>6} {:>10} {:>10} {:>8}",
+        "object", "rank", "score", "dt (mm)", "dR (deg)", "checks"
+    )];
+    let errors = |pose: &Pose, truth: &Pose| {
+        let dt = (pose.translation.vector - truth.translation.vector).norm();
+        (dt, rotation_error_deg(pose, truth))
+    };
+    let mut objects: Vec<u32> = Vec::new();
+    for (id, _) in truth {
+        if !objects.contains(id) {
+            objects.push(*id);
+        }
+    }
+    for id in objects {
+        let mut poses = found.of(id).peekable();
+        if poses.peek().is_none() {
+            lines.push(format!("{id:>6} {:>4} (no hypothesis)", "-"));
+        }
+        for h in poses {
+            let pose = isometry(h);
+            let (dt, dr) = truth
+                .iter()
+                .filter(|(t, _)| *t == id)
+                .map(|(_, t)| errors(&pose, t))
+                .min_by(|a, b| a.0.total_cmp(&b.0))
+                .expect("the object is in the truth");
+            lines.push(format!(
+                "{:>6} {:>4} {:>6.3} {:>10.1} {:>10.1} {:>8}",
+                id,
+                h.instance_rank + 1,
+                h.score,
+                dt,
+                dr,
+                crate::common::checks_letters(h.checks)
+            ));
+        }
+    }
+    let correct = truth
+        .iter()
+        .filter(|(id, t)| {
+            found.best(*id).is_some_and(|h| {
+                let (dt, dr) = errors(&isometry(h), t);
+                dt < CORRECT_MM && dr < CORRECT_DEG
+            })
+        })
+        .count();
+    (lines, correct)
+}
+
+impl DemoArgs {
+    /// A flag that the chosen scene cannot use: `--image` picks a dataset's frame, `--seed` and
+    /// `--no-noise` shape a generated scene.
+    pub fn flag_without_its_scene(&self) -> Option<&'static str> {
+        match &self.dataset {
+            None if self.image.is_some() => Some(
+                "--image SCENE IMAGE picks a frame of a BOP dataset: give --dataset DIR too \
+                 (without it the demo generates its scene; --seed N draws another)",
+            ),
+            Some(_) if self.seed.is_some() => Some(
+                "--seed draws a generated scene; with --dataset the scene is the dataset's \
+                 frame (--image SCENE IMAGE picks another)",
+            ),
+            Some(_) if self.no_noise => Some(
+                "--no-noise renders a generated scene without sensor noise; with --dataset \
+                 the frame is the sensor's own",
+            ),
+            _ => None,
+        }
+    }
+}
+
 pub fn run(args: DemoArgs) -> Result<(), String> {
+    // Before any thread starts (model building runs on a pool).
+    stop::handle_stop_signals(ScratchDir::path_of(WORK_DIR));
     let cache = args
         .model_cache
         .clone()
@@ -275,6 +373,7 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
         Some(root) => bop_scene(&args, root)?,
         None => generated_scene(&args, &cache)?,
     };
+    stop::check()?;
     println!(
         "scene: {} ({}x{}), objects {:?}",
         scene.label,
@@ -286,7 +385,7 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
     // The daemon loads the model files (or builds models from meshes once, into the cache).
     // Declared before the camera and the client, so dropped after them.
     let mut run = DemoRun {
-        work: ScratchDir::create("ppf-demo")?,
+        work: ScratchDir::create(WORK_DIR)?,
         daemon: None,
     };
     let models = run.work.path().join("models");
@@ -306,6 +405,7 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
     );
     let started = Instant::now();
     run.daemon = Some(start_daemon(&exe, &models, &cache, &prefix)?);
+    stop::check()?;
     println!("daemon ready in {:.1} s", started.elapsed().as_secs_f64());
 
     let f = &scene.frame;
@@ -343,6 +443,7 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
     // Publish until the daemon has subscribed and answers from this camera.
     let deadline = Instant::now() + Duration::from_secs(10);
     let found = loop {
+        stop::check()?;
         camera
             .loan()
             .and_then(|l| l.write_from_slice(&f.depth))
@@ -361,32 +462,12 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
             Err(e) => return Err(e.to_string()),
         }
     };
+    stop::check()?;
 
-    println!(
-        "\n{:>6} {:>6} {:>10} {:>10} {:>8}",
-        "object", "score", "dt (mm)", "dR (deg)", "checks"
-    );
-    let mut correct = 0;
-    for (id, truth) in &scene.truth {
-        match found.best(*id) {
-            Some(h) => {
-                let pose = isometry(h);
-                let dt = (pose.translation.vector - truth.translation.vector).norm();
-                let dr = rotation_error_deg(&pose, truth);
-                if dt < 20.0 && dr < 10.0 {
-                    correct += 1;
-                }
-                println!(
-                    "{:>6} {:>6.3} {:>10.1} {:>10.1} {:>8}",
-                    id,
-                    h.score,
-                    dt,
-                    dr,
-                    crate::common::checks_letters(h.checks)
-                );
-            }
-            None => println!("{id:>6}      - (no hypothesis)"),
-        }
+    println!();
+    let (rows, correct) = pose_table(&found, &scene.truth);
+    for row in rows {
+        println!("{row}");
     }
     println!(
         "{correct} of {} objects within 20 mm and 10 degrees\n",
@@ -426,6 +507,52 @@ mod tests {
                 Some(id)
             );
         }
+    }
+
+    /// `--hypotheses N` shows N poses per object, ranked, each against the nearest true
+    /// instance of its object (only the best was shown, so the flag changed nothing seen), and
+    /// an object without a pose gets a line saying so. Found counts the best poses, as before.
+    #[test]
+    fn the_pose_table_shows_every_pose_asked_for() {
+        let at = |x: f32| Pose::translation(x, 0.0, 800.0);
+        let pose = |object_id, instance_rank, x: f32, score| ppfd_client::PoseHypothesis {
+            object_id,
+            instance_rank,
+            rotation: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            translation_mm: [x, 0.0, 800.0],
+            score,
+            votes: 10,
+            checks: ppfd_client::checks::RESCORED,
+        };
+        let found = Detections {
+            request_id: 1,
+            // Object 5: the best pose 2 mm off the first instance, the second 3 mm off the
+            // other; object 8: one pose, 150 mm off.
+            hypotheses: vec![
+                pose(5, 0, 2.0, 0.3),
+                pose(5, 1, 303.0, 0.2),
+                pose(8, 0, 150.0, 0.1),
+            ],
+            latency: Default::default(),
+            counts: Default::default(),
+            frame_sequence: 1,
+            frame_age_ns: 0,
+        };
+        let truth = [(5, at(0.0)), (8, at(0.0)), (5, at(300.0)), (9, at(0.0))];
+        let (lines, correct) = pose_table(&found, &truth);
+        let cells: Vec<Vec<&str>> = lines
+            .iter()
+            .map(|l| l.split_whitespace().collect())
+            .collect();
+        assert_eq!(cells.len(), 1 + 4, "{lines:#?}");
+        assert_eq!(cells[1], ["5", "1", "0.300", "2.0", "0.0", "R"]);
+        assert_eq!(cells[2], ["5", "2", "0.200", "3.0", "0.0", "R"]);
+        assert_eq!(cells[3], ["8", "1", "0.100", "150.0", "0.0", "R"]);
+        assert_eq!(lines[4].trim_start(), "9    - (no hypothesis)");
+        assert_eq!(
+            correct, 1,
+            "the best pose of object 5 is at its first instance"
+        );
     }
 
     #[test]

@@ -80,7 +80,7 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
         found.counts.reference_points,
         found.counts.pairs
     );
-    print_hypotheses(&found);
+    print_hypotheses(&found, &args.objects);
     print_latency(&found);
     Ok(())
 }

@@ -11,6 +11,7 @@ use ppfd_models::detector::{DetectOptions, Detector};
 use ppfd_models::eval::csv::{write_results_file, EstimateRow};
 use ppfd_models::eval::score::{score_results, ScoreOptions};
 
+use crate::common::scenes_there;
 use crate::offline::dataset_models;
 
 #[derive(Args, Debug)]
@@ -34,8 +35,8 @@ pub struct EvalArgs {
     /// Only write the CSV, do not score it.
     #[arg(long)]
     pub no_score: bool,
-    /// Print the score report as JSON.
-    #[arg(long)]
+    /// Print the score report as JSON (there is none with --no-score).
+    #[arg(long, conflicts_with = "no_score")]
     pub json: bool,
     /// Override a detector parameter, `stage.field=value` (as `ppf detect --set`); repeatable.
     #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
@@ -44,6 +45,17 @@ pub struct EvalArgs {
 
 pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
     let dataset = BopDataset::open(&args.dataset)?;
+    if let Some(scene) = args.scene {
+        let scenes = dataset.scene_ids();
+        if !scenes.contains(&scene) {
+            return Err(format!(
+                "{}: no scene {scene}; {}",
+                args.dataset.display(),
+                scenes_there(&scenes)
+            )
+            .into());
+        }
+    }
     let mut images = Vec::new();
     for scene in dataset.scene_ids() {
         if args.scene.is_some_and(|s| s != scene) {
@@ -56,8 +68,12 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     if images.is_empty() {
+        let what = match args.scene {
+            Some(scene) => format!("scene {scene} has"),
+            None => "there is".to_owned(),
+        };
         return Err(format!(
-            "{}: no image with depth to evaluate",
+            "{}: {what} no image with depth to evaluate",
             args.dataset.display()
         )
         .into());

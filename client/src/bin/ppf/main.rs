@@ -12,6 +12,7 @@ mod offline;
 mod profile;
 mod replay;
 mod score;
+mod stop;
 
 use clap::{CommandFactory, Parser, Subcommand};
 
@@ -67,6 +68,16 @@ where
     T: Into<std::ffi::OsString> + Clone,
 {
     let cli = Cli::try_parse_from(args)?;
+    if let Command::Demo(demo) = &cli.command {
+        if let Some(e) = demo.flag_without_its_scene() {
+            let mut command = Cli::command();
+            command.build();
+            let demo = command
+                .find_subcommand_mut("demo")
+                .expect("demo is a subcommand");
+            return Err(demo.error(clap::error::ErrorKind::ArgumentConflict, e));
+        }
+    }
     if let Command::Detect(detect) = &cli.command {
         if !detect.has_mode() {
             let mut command = Cli::command();
@@ -124,6 +135,11 @@ fn main() {
         Command::Score(args) => score::run(args),
         Command::Eval(args) => eval::run(args),
     };
+    if let Some(signal) = stop::stop_signal() {
+        // What the command held is let go; the error it ended with is the signal's doing.
+        eprintln!("stopped by {}", stop::signal_name(signal));
+        std::process::exit(128 + signal);
+    }
     if let Err(e) = result {
         eprintln!("error: {e}");
         std::process::exit(1);
@@ -257,6 +273,36 @@ mod tests {
         }
         let cli = parse_cli(["ppf", "demo", "--hypotheses", "16"]).unwrap();
         assert!(matches!(cli.command, Command::Demo(ref a) if a.hypotheses == 16));
+    }
+
+    /// `--image` picks a dataset's frame, `--seed` and `--no-noise` shape the generated scene:
+    /// each given for the other kind of scene is a usage error that says so (they were
+    /// ignored).
+    #[test]
+    fn demo_refuses_flags_of_the_other_scene() {
+        for (args, named) in [
+            (&["ppf", "demo", "--image", "2", "3"][..], "--dataset DIR"),
+            (&["ppf", "demo", "--dataset", "/d", "--seed", "4"], "--seed"),
+            (
+                &["ppf", "demo", "--dataset", "/d", "--no-noise"],
+                "--no-noise",
+            ),
+        ] {
+            let e = parse_cli(args).unwrap_err();
+            assert_eq!(e.kind(), clap::error::ErrorKind::ArgumentConflict);
+            assert_eq!(e.exit_code(), 2);
+            let text = e.to_string();
+            assert!(
+                text.contains(named) && text.contains("Usage: ppf demo"),
+                "{text}"
+            );
+        }
+        for args in [
+            &["ppf", "demo", "--seed", "4", "--no-noise"][..],
+            &["ppf", "demo", "--dataset", "/d", "--image", "2", "3"],
+        ] {
+            parse_cli(args).unwrap_or_else(|e| panic!("{args:?}: {e}"));
+        }
     }
 
     #[test]

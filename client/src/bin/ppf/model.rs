@@ -32,7 +32,7 @@ pub struct BuildArgs {
     /// them needs `--id`.
     #[arg(required = true)]
     pub meshes: Vec<PathBuf>,
-    /// Directory to write the model files into.
+    /// Folder to write the model files into (made if missing).
     #[arg(long)]
     pub out: PathBuf,
     /// Object id for a single mesh, from 1 (instead of the digits ending its name).
@@ -127,6 +127,14 @@ pub fn run(cmd: ModelCommand) -> Result<(), Box<dyn std::error::Error>> {
 fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
     // All refusals before anything is built.
     let ids = object_ids(&args.meshes, args.id)?;
+    if args.out.exists() && !args.out.is_dir() {
+        return Err(format!(
+            "--out {}: is a file; --out takes a folder to write the model files into (made if \
+             missing)",
+            args.out.display()
+        )
+        .into());
+    }
     std::fs::create_dir_all(&args.out)
         .map_err(|e| format!("cannot create {}: {e}", args.out.display()))?;
     let bar = ProgressBar::new(args.meshes.len() as u64);
@@ -182,6 +190,17 @@ fn info(file: &Path) -> Result<(), Box<dyn std::error::Error>> {
         )
         .into());
     }
+    if file.is_dir() {
+        return Err(format!(
+            "{} is a folder; `ppf model info` reads one model file (.ppfm): {}",
+            file.display(),
+            match first_model_file(file) {
+                Some(model) => format!("give one, e.g. {}", model.display()),
+                None => "this folder holds none".to_owned(),
+            }
+        )
+        .into());
+    }
     let model = store::load(file)?;
     let p = model.params();
     let table = model.table();
@@ -220,6 +239,22 @@ fn info(file: &Path) -> Result<(), Box<dyn std::error::Error>> {
     println!("size            {:.2} MB", model.byte_size() as f64 / 1e6);
     println!("parameters      {p:?}");
     Ok(())
+}
+
+/// The first model file in `dir` by name, for an example.
+fn first_model_file(dir: &Path) -> Option<PathBuf> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .ok()?
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| {
+            p.is_file()
+                && p.extension()
+                    .is_some_and(|e| e.eq_ignore_ascii_case(store::EXTENSION))
+        })
+        .collect();
+    files.sort();
+    files.into_iter().next()
 }
 
 fn median(mut v: Vec<Duration>) -> Duration {

@@ -8,7 +8,7 @@ use ppfd_client::{monotonic_now_ns, CameraPublisher, Intrinsics};
 use ppfd_models::bop::BopDataset;
 use ppfd_models::camera::OwnedDepthFrame;
 
-use crate::common::Connect;
+use crate::common::{scenes_there, Connect};
 
 /// Decoded frames kept in memory when looping.
 const KEEP_DECODED_BYTES: usize = 1 << 30;
@@ -63,11 +63,7 @@ pub fn run(args: ReplayArgs) -> Result<(), String> {
             return Err(format!(
                 "{}: no scene {scene}{within}; {}",
                 args.dataset.display(),
-                match scenes.len() {
-                    0 => "there are no scenes".to_owned(),
-                    1 => format!("the only scene is {}", id_ranges(&scenes)),
-                    _ => format!("the scenes are {}", id_ranges(&scenes)),
-                }
+                scenes_there(&scenes)
             ));
         }
     }
@@ -179,7 +175,11 @@ pub fn run(args: ReplayArgs) -> Result<(), String> {
                 println!("{line}");
             }
             next += period;
-            std::thread::sleep(next.saturating_duration_since(Instant::now()));
+            // Not a plain sleep: a daemon that subscribes meanwhile gets this frame now, not
+            // the next one (at --fps 0.2, five seconds later).
+            camera
+                .idle(next.saturating_duration_since(Instant::now()))
+                .map_err(|e| e.to_string())?;
         }
         if !args.repeat {
             if let Some(line) = progress.finished(Instant::now()) {
@@ -188,8 +188,9 @@ pub fn run(args: ReplayArgs) -> Result<(), String> {
             // A frame whose publisher is gone before the daemon has read it is lost (iceoryx2
             // unmaps the publisher's memory; the daemon logs "Lost chunk"): stay until the
             // daemon has come round to it (it reads frames at requests and at least once a
-            // housekeeping period, 1 s by default).
-            std::thread::sleep(LINGER);
+            // housekeeping period, 1 s by default), handing the last frame to a daemon that
+            // subscribes meanwhile.
+            camera.idle(LINGER).map_err(|e| e.to_string())?;
             return Ok(());
         }
     }
@@ -254,27 +255,6 @@ impl Progress {
     }
 }
 
-/// Ids as ascending runs: `[1, 2, 3, 5, 7, 8]` → `1-3, 5, 7-8` (a split may have dozens).
-fn id_ranges(ids: &[u32]) -> String {
-    let mut runs: Vec<(u32, u32)> = Vec::new();
-    for &id in ids {
-        match runs.last_mut() {
-            Some((_, last)) if last.checked_add(1) == Some(id) => *last = id,
-            _ => runs.push((id, id)),
-        }
-    }
-    runs.iter()
-        .map(|&(a, b)| {
-            if a == b {
-                a.to_string()
-            } else {
-                format!("{a}-{b}")
-            }
-        })
-        .collect::<Vec<_>>()
-        .join(", ")
-}
-
 /// A frame rate from 0.01 to 1000 frames per second (NaN and infinity refused).
 fn parse_fps(text: &str) -> Result<f64, String> {
     let fps: f64 = text.parse().map_err(|e| format!("{text:?}: {e}"))?;
@@ -321,13 +301,5 @@ mod tests {
             assert_eq!(line.unwrap(), format!("frame {i}"));
         }
         assert!(verbose.finished(at(2_500)).is_none());
-    }
-
-    #[test]
-    fn scene_ids_are_listed_as_runs() {
-        assert_eq!(id_ranges(&[]), "");
-        assert_eq!(id_ranges(&[2]), "2");
-        assert_eq!(id_ranges(&[1, 2, 3, 5, 7, 8]), "1-3, 5, 7-8");
-        assert_eq!(id_ranges(&[0, u32::MAX]), format!("0, {}", u32::MAX));
     }
 }
