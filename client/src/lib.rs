@@ -1,5 +1,5 @@
 //! What robot and camera processes link to talk to the `ppfd` daemon over iceoryx2 shared memory.
-//! Light: the protocol and iceoryx2, no matching engine (depend on this crate with
+//! Light: the protocol, iceoryx2 and a few small crates, no matching engine (depend on this crate with
 //! `default-features = false`; the default `cli` feature only builds the `ppf` command line).
 //!
 //! - [`Client`] opens the daemon's services; [`Client::detect`] asks for objects in the newest

@@ -1,6 +1,6 @@
 //! A request the daemon lets go of without an answer ends at once with `Error::Dropped`, not at
-//! its timeout: the daemon does so with a dead client's request once more than a few are held,
-//! and the channel it closes may be a new client's.
+//! its timeout: the daemon does so with a dead client's request once more than 32 are held
+//! (`MAX_ABANDONED_HELD`), and the channel it closes may be a new client's.
 
 use std::sync::mpsc;
 use std::time::{Duration, Instant};

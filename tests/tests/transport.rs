@@ -768,6 +768,27 @@ fn models_are_listed_loaded_and_dropped_at_run_time() {
         }
         other => panic!("{other:?}"),
     }
+    // A relative path would name a file from the daemon's working directory, not the caller's.
+    match client.load_model("extra.fake", 0) {
+        Err(ppfd_client::Error::Refused {
+            status, message, ..
+        }) => {
+            assert_eq!(status, Status::InvalidRequest);
+            assert!(message.contains("relative path"), "{message}");
+        }
+        other => panic!("{other:?}"),
+    }
+    // A FIFO is refused at once: reading it would wait for a writer that never comes.
+    let fifo = models.join("pipe.fake");
+    let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+    assert!(made.is_ok_and(|s| s.success()), "mkfifo");
+    match client.load_model(fifo.to_str().unwrap(), 0) {
+        Err(ppfd_client::Error::Refused { message, .. }) => {
+            assert!(message.contains("not a regular file"), "{message}");
+        }
+        other => panic!("{other:?}"),
+    }
+    std::fs::remove_file(&fifo).unwrap();
     // Object id 0 is refused, as `ppf model build` refuses it.
     let zero = models.join("obj_000000.fake");
     std::fs::write(&zero, "0 nought\n").unwrap();

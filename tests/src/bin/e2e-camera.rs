@@ -2,9 +2,10 @@
 //! BOP dataset (`--bop <root> --scene <id> --image <id>`), or the generated scene of the generated
 //! parts (`--parts-seed <seed>`, Kinect-like noise unless `--noise none`), at `--fps`, `--frames`
 //! times (0: until killed), then stays alive without publishing (a camera that stopped; a
-//! daemon that subscribes then still gets the last frame). Prints
-//! `scene <checksum>` for a generated scene (`ppfd_tests::depth_checksum`, hex), `camera ready`
-//! when its service exists and `frame <seq>` per frame.
+//! daemon that subscribes then still gets the last frame). `--stamp-ahead-s S` stamps frames S
+//! seconds ahead of the monotonic clock (a driver stamping another clock). Prints `scene
+//! <checksum>` for a generated scene (`ppfd_tests::depth_checksum`, hex), `camera ready` when its
+//! service exists, `frame <seq>` per frame and `camera stopped` after the last.
 
 use std::io::Write;
 use std::time::{Duration, Instant};

@@ -1,7 +1,8 @@
 //! A robot process for the end-to-end tests: `--requests N` detect calls on `--camera` for
 //! `--objects a,b` (`--hypotheses K` each), `--pause-ms` apart. Prints `client ready`, then per
 //! request `ok <request id> <hypotheses> <frame sequence> <reference points>` or
-//! `err <status code> <value> <message>`, then `done`. With `--poses`, every `ok` line is followed by one line per hypothesis:
+//! `err <status code> <value> <message>` (`err transport 0 <message>` when the request never got
+//! an answer from the daemon), then `done`. With `--poses`, every `ok` line is followed by one line per hypothesis:
 //! `pose <object id> <rank> <score> <r00> <r01> … <r22> <tx> <ty> <tz>` (row-major rotation,
 //! translation in mm, model → camera). With `--wait-frame-ms T`, a request refused because the
 //! camera is not known yet or has no frame yet is retried for up to T ms.
