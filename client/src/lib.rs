@@ -104,3 +104,35 @@ pub(crate) fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::C
 }
 
 pub use ppfd_protocol::services::prefix_from_env;
+
+/// Removes the files iceoryx2 leaves behind under `prefix` once every process using it has
+/// ended: its global management segment (16 bytes in `/dev/shm`) outlives every node, and a
+/// process killed without cleanup leaves its node and service entries. For a prefix of one's
+/// own, made for one run (as `ppf demo` does), after its daemon, drivers and clients are gone;
+/// never for a prefix that processes still use. Returns how many entries were removed.
+pub fn remove_prefix_leftovers(prefix: &str) -> Result<usize> {
+    ppfd_protocol::services::check_prefix(prefix).map_err(Error::Transport)?;
+    let mut removed = 0;
+    for dir in [
+        "/dev/shm",
+        "/tmp/iceoryx2/services",
+        "/tmp/iceoryx2/nodes",
+        "/tmp/iceoryx2",
+    ] {
+        let Ok(entries) = std::fs::read_dir(dir) else {
+            continue;
+        };
+        for e in entries.flatten() {
+            if e.file_name().to_string_lossy().starts_with(prefix) {
+                let p = e.path();
+                let gone = if p.is_dir() {
+                    std::fs::remove_dir_all(&p)
+                } else {
+                    std::fs::remove_file(&p)
+                };
+                removed += usize::from(gone.is_ok());
+            }
+        }
+    }
+    Ok(removed)
+}

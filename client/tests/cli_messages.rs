@@ -499,4 +499,15 @@ fn a_demo_stopped_by_sigterm_leaves_nothing_behind() {
     assert_eq!(status.code(), Some(128 + libc::SIGTERM), "{status:?}");
     assert!(!daemon_left, "the demo's daemon {} still runs", daemons[0]);
     assert!(!work_left, "{} left behind", work.display());
+    // Nor anything of its iceoryx2 prefix (its global management segment outlived every run).
+    let prefix = format!("ppfd_demo_{pid}_");
+    let shm: Vec<String> = std::fs::read_dir("/dev/shm")
+        .map(|d| {
+            d.flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| n.starts_with(&prefix))
+                .collect()
+        })
+        .unwrap_or_default();
+    assert!(shm.is_empty(), "left in /dev/shm: {shm:?}");
 }

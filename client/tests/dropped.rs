@@ -47,7 +47,7 @@ fn a_request_let_go_of_without_an_answer_fails_at_once() {
     };
     assert_eq!(heard.recv_timeout(Duration::from_secs(20)), Ok("ready"));
     let client = Client::connect_with(&ClientOptions {
-        prefix: Some(prefix),
+        prefix: Some(prefix.clone()),
         ..Default::default()
     })
     .unwrap();
@@ -65,4 +65,6 @@ fn a_request_let_go_of_without_an_answer_fails_at_once() {
     assert_eq!(heard.recv_timeout(Duration::from_secs(1)), Ok("dropped"));
     assert!(waited < Duration::from_secs(5), "waited {waited:?}");
     server.join().unwrap();
+    drop(client);
+    ppfd_client::remove_prefix_leftovers(&prefix).unwrap();
 }

@@ -199,25 +199,7 @@ impl Prefix {
 
 impl Drop for Prefix {
     fn drop(&mut self) {
-        for dir in [
-            "/dev/shm",
-            "/tmp/iceoryx2/services",
-            "/tmp/iceoryx2/nodes",
-            "/tmp/iceoryx2",
-        ] {
-            if let Ok(entries) = std::fs::read_dir(dir) {
-                for e in entries.flatten() {
-                    if e.file_name().to_string_lossy().starts_with(&self.0) {
-                        let p = e.path();
-                        let _ = if p.is_dir() {
-                            std::fs::remove_dir_all(&p)
-                        } else {
-                            std::fs::remove_file(&p)
-                        };
-                    }
-                }
-            }
-        }
+        let _ = ppfd_client::remove_prefix_leftovers(&self.0);
     }
 }
 

@@ -191,12 +191,16 @@ fn link_name(id: u32, file: &Path) -> std::ffi::OsString {
 struct DemoRun {
     work: ScratchDir,
     daemon: Option<Daemon>,
+    /// The demo's own iceoryx2 prefix, whose leftover files go once the daemon has stopped
+    /// (the camera and the client, declared after this, are dropped before it).
+    prefix: String,
 }
 
 impl Drop for DemoRun {
     fn drop(&mut self) {
         // The daemon first: it has the folder open. `work` removes the folder after this.
         drop(self.daemon.take());
+        let _ = ppfd_client::remove_prefix_leftovers(&self.prefix);
     }
 }
 
@@ -384,9 +388,11 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
 
     // The daemon loads the model files (or builds models from meshes once, into the cache).
     // Declared before the camera and the client, so dropped after them.
+    let prefix = format!("ppfd_demo_{}_", std::process::id());
     let mut run = DemoRun {
         work: ScratchDir::create(WORK_DIR)?,
         daemon: None,
+        prefix: prefix.clone(),
     };
     let models = run.work.path().join("models");
     std::fs::create_dir_all(&models).map_err(|e| format!("{}: {e}", models.display()))?;
@@ -395,7 +401,6 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
         let abs = std::fs::canonicalize(file).map_err(|e| format!("{}: {e}", file.display()))?;
         std::os::unix::fs::symlink(&abs, &link).map_err(|e| format!("{}: {e}", link.display()))?;
     }
-    let prefix = format!("ppfd_demo_{}_", std::process::id());
     let exe = daemon_command(&args.ppfd)?;
     println!(
         "starting the daemon: {} {} (models cached in {})",
