@@ -89,3 +89,43 @@ fn a_closed_output_pipe_ends_the_command_quietly() {
         run.status
     );
 }
+
+/// A model file of another object is not overwritten: the mesh `obj_000003.ply` built as
+/// object 8 (`--id 8`) is saved as `obj_000003.ppfm`, and building the mesh again as object 3
+/// is refused, naming the file and both ids, with the object-8 model left as it was.
+#[test]
+fn a_model_of_another_object_is_not_overwritten() {
+    let scratch = Scratch::new("model-build-other");
+    let mesh = scratch.0.join("obj_000003.ply");
+    std::fs::write(&mesh, Part::ALL[0].mesh().to_ply_ascii()).unwrap();
+    let out = scratch.0.join("models");
+    let build = |extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_ppf"))
+            .args(["model", "build"])
+            .arg(&mesh)
+            .args(extra)
+            .arg("--out")
+            .arg(&out)
+            .output()
+            .unwrap()
+    };
+    assert!(build(&["--id", "8"]).status.success());
+    let saved = out.join("obj_000003.ppfm");
+    let before = std::fs::read(&saved).unwrap();
+
+    let again = build(&[]);
+    let stderr = String::from_utf8_lossy(&again.stderr);
+    assert!(!again.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("obj_000003.ppfm holds the model of object 8")
+            && stderr.contains("is object 3: not overwritten"),
+        "{stderr}"
+    );
+    assert_eq!(
+        std::fs::read(&saved).unwrap(),
+        before,
+        "the object-8 model changed"
+    );
+    // The same object again is rebuilt in place.
+    assert!(build(&["--id", "8"]).status.success());
+}

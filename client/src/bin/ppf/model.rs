@@ -135,6 +135,25 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
         )
         .into());
     }
+    // A model file of another object is not overwritten: built with --id, it is named after
+    // a mesh of another id, and the next build of that mesh would replace it unseen.
+    for (path, &id) in args.meshes.iter().zip(&ids) {
+        let out = args
+            .out
+            .join(format!("{}.{}", name_of(path), store::EXTENSION));
+        if let Ok(there) = store::load(&out) {
+            if there.object_id() != id {
+                return Err(format!(
+                    "{} holds the model of object {}, and {} is object {id}: not overwritten \
+                     (remove it, or give --out another folder)",
+                    out.display(),
+                    there.object_id(),
+                    path.display()
+                )
+                .into());
+            }
+        }
+    }
     std::fs::create_dir_all(&args.out)
         .map_err(|e| format!("cannot create {}: {e}", args.out.display()))?;
     let bar = ProgressBar::new(args.meshes.len() as u64);
