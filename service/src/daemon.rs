@@ -239,11 +239,12 @@ pub fn run(
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Ipc>()
         .map_err(fail("cannot create the iceoryx2 node"))?;
-    let cleaned = node.try_cleanup_dead_nodes();
-    if cleaned.cleanups + cleaned.failed_cleanups > 0 {
+    let sweep = crate::housekeeper::DeadNodes::default().sweep(node.config());
+    if sweep.cleaned + sweep.failed + sweep.leftovers > 0 {
         tracing::info!(
-            removed = cleaned.cleanups,
-            failed = cleaned.failed_cleanups,
+            removed = sweep.cleaned,
+            leftovers = sweep.leftovers,
+            failed = sweep.failed,
             "removed resources of crashed processes"
         );
     }

@@ -12,6 +12,7 @@ use std::sync::mpsc::{channel, sync_channel, Receiver, RecvTimeoutError, Sender}
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
+use iceoryx2::node::{NodeCleanupFailure, NodeView};
 use iceoryx2::prelude::*;
 use iceoryx2::service::static_config::messaging_pattern::MessagingPattern;
 
@@ -21,6 +22,150 @@ use crate::daemon::DaemonError;
 use crate::wakeup::Signaller;
 
 type Ipc = ipc::Service;
+
+/// The cleanup of processes that died without removing their iceoryx2 resources. iceoryx2's own
+/// cleanup counts a dead node as cleaned up even when it leaves some of its entries (a process
+/// killed in its first milliseconds, before it wrote its node's details): such a node is listed
+/// as dead again at every round, and was logged as "removed" once a second for as long as the
+/// daemon ran. Here each dead node is cleaned up once; one still listed at a later round, or
+/// one iceoryx2 finds nothing of to clean up, has what is left of it removed by name: its
+/// monitor files and its entries in its node folder.
+#[derive(Default)]
+pub struct DeadNodes {
+    /// Nodes cleaned up before, still listed at the last round.
+    cleaned: std::collections::HashSet<u128>,
+}
+
+/// What one round of [`DeadNodes::sweep`] did.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct Sweep {
+    /// Dead nodes cleaned up by iceoryx2.
+    pub cleaned: u64,
+    /// Dead nodes whose cleanup failed (another process may be at it).
+    pub failed: u64,
+    /// Nodes cleaned up before that were still listed: what was left of them is removed.
+    pub leftovers: u64,
+}
+
+impl DeadNodes {
+    /// Cleans up the dead nodes under `config`'s prefix.
+    pub fn sweep(&mut self, config: &iceoryx2::config::Config) -> Sweep {
+        let mut sweep = Sweep::default();
+        let mut listed = std::collections::HashSet::new();
+        let mut again = Vec::new();
+        let mut all = std::collections::HashSet::new();
+        let listing = Node::<Ipc>::list(config, |state| {
+            all.insert(match &state {
+                NodeState::Alive(v) => v.id().value(),
+                NodeState::Dead(v) => v.id().value(),
+                NodeState::Inaccessible(id) | NodeState::Undefined(id) => id.value(),
+            });
+            if let NodeState::Dead(view) = state {
+                let id = view.id().value();
+                listed.insert(id);
+                if self.cleaned.contains(&id) {
+                    again.push(id);
+                } else {
+                    match view.try_remove_stale_resources() {
+                        Ok(()) => {
+                            sweep.cleaned += 1;
+                            self.cleaned.insert(id);
+                        }
+                        // Listed as dead, yet iceoryx2 finds nothing of it to clean up.
+                        Err(NodeCleanupFailure::ResourcesAlreadyCleanedUp) => again.push(id),
+                        Err(_) => sweep.failed += 1,
+                    }
+                }
+            }
+            CallbackProgression::Continue
+        });
+        for id in again {
+            if remove_node_leftovers(config, id) > 0 {
+                sweep.leftovers += 1;
+            }
+        }
+        if listing.is_ok() {
+            sweep.leftovers += remove_orphan_monitors(config, &all);
+        }
+        self.cleaned.retain(|id| listed.contains(id));
+        sweep
+    }
+}
+
+/// A monitor file this old whose node iceoryx2 does not list is an orphan, not a node being
+/// made (that takes milliseconds).
+const ORPHAN_AGE: Duration = Duration::from_secs(10);
+
+/// Removes the monitor files (`<prefix><id>.node_monitor…`) of nodes that iceoryx2 does not list
+/// at all (`listed`), older than [`ORPHAN_AGE`]: a process killed while it made its node leaves
+/// some of them, without the one listing needs. Returns how many nodes' files went.
+fn remove_orphan_monitors(
+    config: &iceoryx2::config::Config,
+    listed: &std::collections::HashSet<u128>,
+) -> u64 {
+    let nodes = std::path::PathBuf::from(config.global.node_dir().to_string());
+    let prefix = config.global.prefix.to_string();
+    let Ok(entries) = std::fs::read_dir(&nodes) else {
+        return 0;
+    };
+    let mut orphans = std::collections::HashSet::new();
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some((id, kind)) = name
+            .strip_prefix(&prefix)
+            .and_then(|rest| rest.split_once('.'))
+        else {
+            continue;
+        };
+        let Ok(id) = id.parse::<u128>() else { continue };
+        let old = e
+            .metadata()
+            .and_then(|m| m.modified())
+            .ok()
+            .and_then(|t| t.elapsed().ok())
+            .is_some_and(|age| age >= ORPHAN_AGE);
+        if kind.starts_with("node_monitor") && !listed.contains(&id) && old {
+            orphans.insert(id);
+        }
+    }
+    orphans
+        .into_iter()
+        .filter(|&id| remove_node_leftovers(config, id) > 0)
+        .count() as u64
+}
+
+/// Removes the entries a dead node `id` left under `config`'s node directory: its monitor files
+/// (`<prefix><id>.node_monitor…`) and, in its folder `<id>/`, the files of the prefix (and the
+/// folder once empty). Returns how many entries went.
+fn remove_node_leftovers(config: &iceoryx2::config::Config, id: u128) -> usize {
+    let nodes = std::path::PathBuf::from(config.global.node_dir().to_string());
+    let prefix = config.global.prefix.to_string();
+    let monitor = format!("{prefix}{id}.");
+    let mut removed = 0;
+    if let Ok(entries) = std::fs::read_dir(&nodes) {
+        for e in entries.flatten() {
+            if e.file_name().to_string_lossy().starts_with(&monitor)
+                && std::fs::remove_file(e.path()).is_ok()
+            {
+                removed += 1;
+            }
+        }
+    }
+    let folder = nodes.join(id.to_string());
+    if let Ok(entries) = std::fs::read_dir(&folder) {
+        for e in entries.flatten() {
+            if e.file_name().to_string_lossy().starts_with(&prefix)
+                && std::fs::remove_file(e.path()).is_ok()
+            {
+                removed += 1;
+            }
+        }
+    }
+    if std::fs::remove_dir(&folder).is_ok() {
+        removed += 1;
+    }
+    removed
+}
 
 /// What the I/O thread asks of the housekeeper.
 enum Ask {
@@ -158,6 +303,7 @@ fn serve(
     // cameras (see `start`), and cleanup follows a period later.
     let mut next = Instant::now() + period;
     let mut reported = std::collections::HashSet::new();
+    let mut dead = DeadNodes::default();
     loop {
         let scan_only = match ask.recv_timeout(next.saturating_duration_since(Instant::now())) {
             Ok(Ask::Scan) => true,
@@ -171,12 +317,16 @@ fn serve(
         let started = Instant::now();
         if !scan_only {
             next = started + period;
-            let cleaned = node.try_cleanup_dead_nodes();
-            if cleaned.cleanups > 0 {
+            let sweep = dead.sweep(node.config());
+            if sweep.cleaned + sweep.leftovers > 0 {
                 tracing::info!(
-                    removed = cleaned.cleanups,
+                    removed = sweep.cleaned,
+                    leftovers = sweep.leftovers,
                     "removed resources of dead processes"
                 );
+            }
+            if sweep.failed > 0 {
+                tracing::debug!(failed = sweep.failed, "dead processes not cleaned up");
             }
         }
         let mut cameras = list_cameras(node.config());
@@ -215,6 +365,55 @@ mod tests {
         let mut config = iceoryx2::config::Config::default();
         config.global.prefix = FileName::new(prefix.as_bytes()).unwrap();
         config
+    }
+
+    /// Monitor files of a node that iceoryx2 does not list (a process killed while it made its
+    /// node leaves such) are removed once old enough, and only then; the files of a live node
+    /// stay. Before, nothing removed them, and their nodes were reported "removed" every round.
+    #[test]
+    fn orphaned_node_files_are_removed_once_and_live_nodes_kept() {
+        let prefix = format!("ppfdhk_{}_", std::process::id());
+        let config = config(&prefix);
+        let live = NodeBuilder::new()
+            .config(&config)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<Ipc>()
+            .unwrap();
+        let nodes = std::path::PathBuf::from(config.global.node_dir().to_string());
+        let ours = || -> Vec<String> {
+            let mut v: Vec<String> = std::fs::read_dir(&nodes)
+                .unwrap()
+                .flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| n.starts_with(&prefix))
+                .collect();
+            v.sort();
+            v
+        };
+        let live_files = ours();
+        assert!(!live_files.is_empty(), "the live node has monitor files");
+        // A killed process's partial monitor: two of the three files, one old, one fresh.
+        let write = |id: u128, age: Duration| {
+            for kind in ["node_monitor_context", "node_monitor_owner_lock"] {
+                let f = nodes.join(format!("{prefix}{id}.{kind}"));
+                let file = std::fs::File::create(&f).unwrap();
+                file.set_modified(std::time::SystemTime::now() - age)
+                    .unwrap();
+            }
+        };
+        write(111, Duration::from_secs(60));
+        write(222, Duration::ZERO);
+        let mut dead = DeadNodes::default();
+        let sweep = dead.sweep(&config);
+        assert_eq!(sweep.leftovers, 1, "{sweep:?}");
+        let left = ours();
+        assert!(!left.iter().any(|n| n.contains("111.")), "{left:?}");
+        assert_eq!(left.iter().filter(|n| n.contains("222.")).count(), 2);
+        assert!(live_files.iter().all(|f| left.contains(f)), "{left:?}");
+        // Nothing more to remove: the next round reports nothing.
+        assert_eq!(dead.sweep(&config).leftovers, 0);
+        let _ = remove_node_leftovers(&config, 222);
+        drop(live);
     }
 
     /// Waits up to 5 s for the housekeeper to report something.
