@@ -51,8 +51,23 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 std::thread::sleep(Duration::from_millis(200));
                 continue;
             }
+            // Waiting out the daemon (restarting, or not yet up), or a camera that has not
+            // published yet: retrying at once would spin; wait before the next cycle.
+            Err(
+                e @ (Error::NoDaemon { .. }
+                | Error::DaemonGone
+                | Error::Refused {
+                    status: Status::NoFrame | Status::UnknownCamera | Status::Busy,
+                    ..
+                }),
+            ) => {
+                println!("cycle {cycle}: {e}; retrying in 0.5 s");
+                std::thread::sleep(Duration::from_millis(500));
+                continue;
+            }
             Err(e) => {
                 println!("cycle {cycle}: {e}");
+                std::thread::sleep(Duration::from_millis(100));
                 continue;
             }
         };
