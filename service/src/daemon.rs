@@ -1055,9 +1055,11 @@ impl Daemon {
         match m.result.and_then(Registry::with_valid_id) {
             Ok(model) => {
                 let info = model.info;
+                // Named: a model file asked for by name may come from the mesh beside it.
+                let source = model.source.display().to_string();
                 let replaced = self.registry.insert(model).is_some();
                 let msg = format!(
-                    "{} object {} ({}), {} bytes",
+                    "{} object {} ({}), {} bytes, from {source}",
                     if replaced { "replaced" } else { "loaded" },
                     info.object_id,
                     info.name(),
