@@ -511,3 +511,53 @@ fn a_demo_stopped_by_sigterm_leaves_nothing_behind() {
         .unwrap_or_default();
     assert!(shm.is_empty(), "left in /dev/shm: {shm:?}");
 }
+
+/// Stopped with SIGTERM, a looping replay drops its camera before it exits: its shared memory
+/// (21 MB for the VGA frame) and its node's files go with it. They stayed: the default action
+/// ended the process at once.
+#[test]
+fn a_replay_stopped_by_sigterm_leaves_no_shared_memory_behind() {
+    use std::io::BufRead;
+    let Some(dataset) = common::lmo() else { return };
+    let prefix = format!("cf_replay_stop_{}_", std::process::id());
+    let leftovers = || -> Vec<String> {
+        ["/dev/shm", "/tmp/iceoryx2/nodes", "/tmp/iceoryx2/services"]
+            .iter()
+            .filter_map(|dir| std::fs::read_dir(dir).ok())
+            .flat_map(|d| d.flatten())
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n.starts_with(&prefix))
+            // The prefix's global management file outlives every process of it.
+            .filter(|n| !n.ends_with(".global_mgmt"))
+            .collect()
+    };
+    let mut replay = ppf(&["replay"])
+        .arg(&dataset)
+        .args(["--camera", "cf_stop", "--loop", "--prefix", &prefix])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = std::io::BufReader::new(replay.stdout.take().unwrap()).lines();
+    let published = lines
+        .by_ref()
+        .map_while(Result::ok)
+        .any(|l| l.starts_with("frame 1:"));
+    assert!(published, "the replay never published");
+    let segments = leftovers();
+    assert!(
+        segments.iter().any(|n| n.ends_with(".data")),
+        "the replay's frame memory is not under its prefix: {segments:?}"
+    );
+    // SAFETY: signals our own child.
+    unsafe { libc::kill(replay.id() as i32, libc::SIGTERM) };
+    let out = replay.wait_with_output().unwrap();
+    let left = leftovers();
+    let _ = ppfd_client::remove_prefix_leftovers(&prefix);
+    assert_eq!(out.status.code(), Some(128 + libc::SIGTERM), "{out:?}");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("stopped by SIGTERM"),
+        "{out:?}"
+    );
+    assert!(left.is_empty(), "left behind: {left:?}");
+}

@@ -367,7 +367,7 @@ impl DemoArgs {
 
 pub fn run(args: DemoArgs) -> Result<(), String> {
     // Before any thread starts (model building runs on a pool).
-    stop::handle_stop_signals(ScratchDir::path_of(WORK_DIR));
+    stop::handle_stop_signals(Some(ScratchDir::path_of(WORK_DIR)));
     let cache = args
         .model_cache
         .clone()

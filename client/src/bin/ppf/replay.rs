@@ -9,12 +9,16 @@ use ppfd_models::bop::BopDataset;
 use ppfd_models::camera::OwnedDepthFrame;
 
 use crate::common::{scenes_there, Connect};
+use crate::stop;
 
 /// Decoded frames kept in memory when looping.
 const KEEP_DECODED_BYTES: usize = 1 << 30;
 
 /// How long a replay without `--loop` keeps its last frame published before it exits.
 const LINGER: Duration = Duration::from_secs(2);
+
+/// The longest a replay idles before it looks whether SIGINT or SIGTERM has stopped it.
+const STOP_CHECK: Duration = Duration::from_millis(50);
 
 /// Without `--verbose`, the time between two summary lines.
 const SUMMARY_PERIOD: Duration = Duration::from_secs(10);
@@ -48,6 +52,9 @@ pub struct ReplayArgs {
 }
 
 pub fn run(args: ReplayArgs) -> Result<(), String> {
+    // Killed by the default action, a replay would leave its camera's shared memory (21 MB for
+    // a VGA frame) behind; stopped this way, the publisher is dropped and takes it along.
+    stop::handle_stop_signals(None);
     let dataset = match &args.split {
         Some(split) => BopDataset::open_split(&args.dataset, split),
         None => BopDataset::open(&args.dataset),
@@ -177,9 +184,7 @@ pub fn run(args: ReplayArgs) -> Result<(), String> {
             next += period;
             // Not a plain sleep: a daemon that subscribes meanwhile gets this frame now, not
             // the next one (at --fps 0.2, five seconds later).
-            camera
-                .idle(next.saturating_duration_since(Instant::now()))
-                .map_err(|e| e.to_string())?;
+            idle(&camera, next.saturating_duration_since(Instant::now()))?;
         }
         if !args.repeat {
             if let Some(line) = progress.finished(Instant::now()) {
@@ -190,8 +195,24 @@ pub fn run(args: ReplayArgs) -> Result<(), String> {
             // daemon has come round to it (it reads frames at requests and at least once a
             // housekeeping period, 1 s by default), handing the last frame to a daemon that
             // subscribes meanwhile.
-            camera.idle(LINGER).map_err(|e| e.to_string())?;
+            idle(&camera, LINGER)?;
             return Ok(());
+        }
+    }
+}
+
+/// [`CameraPublisher::idle`] for `duration`, ended early (with an error naming the signal) by
+/// SIGINT or SIGTERM.
+fn idle(camera: &CameraPublisher, duration: Duration) -> Result<(), String> {
+    let until = Instant::now() + duration;
+    loop {
+        stop::check()?;
+        let left = until.saturating_duration_since(Instant::now());
+        camera
+            .idle(left.min(STOP_CHECK))
+            .map_err(|e| e.to_string())?;
+        if left <= STOP_CHECK {
+            return stop::check();
         }
     }
 }

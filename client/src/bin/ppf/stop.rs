@@ -1,7 +1,8 @@
-//! Stopping a command that leaves things behind (`ppf demo`: a daemon and a work folder) with
-//! SIGINT or SIGTERM. By default either signal ends the process at once, and the daemon runs on
-//! and the folder stays; here both are blocked and read by a thread of their own, which stops
-//! the child so that the command's own way out (an error, then its cleanup) is taken.
+//! Stopping a command that leaves things behind with SIGINT or SIGTERM: `ppf demo` (a daemon
+//! and a work folder) and `ppf replay` (a camera's shared memory). By default either signal
+//! ends the process at once, and the daemon runs on, the folder stays and so does the camera's
+//! 21 MB segment; here both are blocked and read by a thread of their own, which stops the
+//! child so that the command's own way out (an error, then its cleanup) is taken.
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicI32, Ordering};
@@ -21,9 +22,10 @@ const GRACE: Duration = Duration::from_secs(10);
 
 /// Takes SIGINT and SIGTERM from their default action for the rest of the process: on either,
 /// the child (see [`set_child`]) is sent SIGTERM and [`stop_signal`] tells the command to end.
-/// `scratch` is removed if the command has not ended within 10 s. Call it before any thread
-/// is started (threads started later inherit the blocked signals; child processes do not).
-pub fn handle_stop_signals(scratch: PathBuf) {
+/// If the command has not ended within 10 s, `scratch` (if any) is removed and the process
+/// ends. Call it before any thread is started (threads started later inherit the blocked
+/// signals; child processes do not).
+pub fn handle_stop_signals(scratch: Option<PathBuf>) {
     // SAFETY: plain libc calls on a local signal set.
     let set = unsafe {
         let mut set: libc::sigset_t = std::mem::zeroed();
@@ -41,7 +43,9 @@ pub fn handle_stop_signals(scratch: PathBuf) {
         signal_child(libc::SIGTERM);
         std::thread::sleep(GRACE);
         signal_child(libc::SIGKILL);
-        let _ = std::fs::remove_dir_all(&scratch);
+        if let Some(scratch) = scratch {
+            let _ = std::fs::remove_dir_all(scratch);
+        }
         std::process::exit(128 + signal);
     });
 }
