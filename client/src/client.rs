@@ -494,9 +494,21 @@ impl Client {
         }
     }
 
-    /// The loaded models.
+    /// The loaded models, by object id; at most
+    /// [`MAX_LISTED_MODELS`](ppfd_protocol::services::limits::MAX_LISTED_MODELS) (256) of them,
+    /// the lowest ids. [`Client::model_listing`] also says how many are loaded.
     pub fn models(&self) -> Result<Vec<ModelInfo>> {
-        Ok(self.control(ControlCommand::ListModels, 0, "")?.1)
+        Ok(self.model_listing()?.models)
+    }
+
+    /// The loaded models as [`Client::models`] lists them, and how many are loaded: more than
+    /// listed when the daemon holds more than a listing carries.
+    pub fn model_listing(&self) -> Result<ModelListing> {
+        let (h, models) = self.control(ControlCommand::ListModels, 0, "")?;
+        Ok(ModelListing {
+            loaded: (h.stats.models_loaded as usize).max(models.len()),
+            models,
+        })
     }
 
     /// Loads a model file (or builds one from a PLY mesh) in the daemon; `path` as the daemon
@@ -610,5 +622,22 @@ mod tests {
             (p - nalgebra::Point3::new(1.0, 3.0, 3.0)).norm() < 1e-5,
             "{p}"
         );
+    }
+}
+
+/// What [`Client::model_listing`] answers.
+#[derive(Debug, Clone)]
+pub struct ModelListing {
+    /// The models listed, by object id, at most
+    /// [`MAX_LISTED_MODELS`](ppfd_protocol::services::limits::MAX_LISTED_MODELS).
+    pub models: Vec<ModelInfo>,
+    /// How many models the daemon holds.
+    pub loaded: usize,
+}
+
+impl ModelListing {
+    /// Whether some loaded models are not listed.
+    pub fn is_partial(&self) -> bool {
+        self.loaded > self.models.len()
     }
 }

@@ -28,7 +28,9 @@ mod camera;
 mod client;
 
 pub use camera::{CameraPublisher, FrameLoan, ReadyFrame};
-pub use client::{isometry, Client, ClientOptions, DetectOptions, Detections, Latency};
+pub use client::{
+    isometry, Client, ClientOptions, DetectOptions, Detections, Latency, ModelListing,
+};
 pub use ppfd_protocol as protocol;
 pub use ppfd_protocol::clock::monotonic_now_ns;
 pub use ppfd_protocol::control::{DaemonStats, ModelInfo};

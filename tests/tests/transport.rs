@@ -718,6 +718,21 @@ fn the_engine_reads_depth_in_place_in_shared_memory() {
     assert!((found.hypotheses[0].translation_mm[2] - 650.0).abs() < 1e-3);
 }
 
+/// A daemon holding more models than a listing carries lists the 256 of lowest id and says how
+/// many it holds (the listing was cut short without a word).
+#[test]
+fn a_listing_of_more_models_than_it_carries_says_how_many_are_loaded() {
+    let prefix = Prefix::new("manymodels");
+    let ids: Vec<u32> = (1..=300).collect();
+    let models = fake_model_dir("manymodels", &ids);
+    let _d = daemon(&prefix, &models, &[], "0");
+    let listing = connect(&prefix).model_listing().expect("models listed");
+    let listed: Vec<u32> = listing.models.iter().map(|m| m.object_id).collect();
+    assert_eq!(listed, (1..=256).collect::<Vec<u32>>());
+    assert_eq!(listing.loaded, 300);
+    assert!(listing.is_partial());
+}
+
 #[test]
 fn models_are_listed_loaded_and_dropped_at_run_time() {
     use ppfd_client::Status;
@@ -735,6 +750,8 @@ fn models_are_listed_loaded_and_dropped_at_run_time() {
             .collect::<Vec<_>>()
     };
     assert_eq!(ids(&client), vec![1, 2]);
+    let listing = client.model_listing().unwrap();
+    assert_eq!((listing.loaded, listing.is_partial()), (2, false));
 
     let extra = models.join("extra.fake");
     std::fs::write(&extra, "7 bolt\n").unwrap();

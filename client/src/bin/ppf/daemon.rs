@@ -59,12 +59,13 @@ pub fn models(args: ModelsArgs) -> Result<(), String> {
         client.drop_model(id).map_err(|e| e.to_string())?;
         println!("dropped object {id}");
     }
-    let models = client.models().map_err(|e| e.to_string())?;
+    let listing = client.model_listing().map_err(|e| e.to_string())?;
+    let models = &listing.models;
     println!(
         "{:>6}  {:<24} {:>8} {:>12} {:>12} {:>10}",
         "object", "name", "points", "table", "bytes", "diameter"
     );
-    for m in &models {
+    for m in models {
         println!(
             "{:>6}  {:<24} {:>8} {:>12} {:>12} {:>8.1}mm",
             m.object_id,
@@ -75,8 +76,23 @@ pub fn models(args: ModelsArgs) -> Result<(), String> {
             m.diameter_mm
         );
     }
-    println!("{} models", models.len());
+    println!("{}", count_line(&listing));
     Ok(())
+}
+
+/// The closing line of `ppf models`: how many models, and that the list is cut short when the
+/// daemon holds more than a listing carries.
+fn count_line(listing: &ppfd_client::ModelListing) -> String {
+    if listing.is_partial() {
+        format!(
+            "{} models, the {} of lowest id listed (a listing holds at most {})",
+            listing.loaded,
+            listing.models.len(),
+            ppfd_client::protocol::services::limits::MAX_LISTED_MODELS
+        )
+    } else {
+        format!("{} models", listing.loaded)
+    }
 }
 
 /// `path` from the current folder, as text for the request: the daemon runs in a folder of
@@ -184,4 +200,23 @@ fn stats_json(s: &DaemonStats) -> serde_json::Value {
         "in_flight": s.in_flight, "queued": s.queued,
         "total": l(&s.total), "overhead": l(&s.overhead), "detection": l(&s.detection),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ppfd_client::{ModelInfo, ModelListing};
+
+    #[test]
+    fn a_listing_cut_short_says_how_many_are_loaded() {
+        let listing = |listed: usize, loaded: usize| ModelListing {
+            models: vec![ModelInfo::default(); listed],
+            loaded,
+        };
+        assert_eq!(count_line(&listing(3, 3)), "3 models");
+        assert_eq!(
+            count_line(&listing(256, 300)),
+            "300 models, the 256 of lowest id listed (a listing holds at most 256)"
+        );
+    }
 }
