@@ -182,9 +182,126 @@ impl Camera {
     }
 }
 
+/// The models folder loading at start on a thread of its own, one model after the other; the
+/// I/O thread takes each as it comes.
+struct StartupLoad {
+    dir: PathBuf,
+    /// The folder's model files, in loading order.
+    files: Vec<PathBuf>,
+    /// Files done (loaded or failed), and failed.
+    done: usize,
+    failed: usize,
+    started: Instant,
+    stop: Arc<AtomicBool>,
+    events: Receiver<StartupEvent>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+enum StartupEvent {
+    Loaded(LoadedModel),
+    Failed,
+    /// Every file done, or the loading stopped.
+    Finished,
+}
+
+impl StartupLoad {
+    fn start(
+        engine: Arc<dyn DetectionEngine>,
+        dir: PathBuf,
+        files: Vec<PathBuf>,
+        cache_dir: PathBuf,
+        signaller: Signaller,
+    ) -> Result<StartupLoad, DaemonError> {
+        let stop = Arc::new(AtomicBool::new(false));
+        let (tx, events) = channel();
+        let thread = {
+            let (files, stop) = (files.clone(), stop.clone());
+            std::thread::Builder::new()
+                .name("ppfd-load".into())
+                .spawn(move || {
+                    block_termination_signals();
+                    let send = |event| {
+                        let _ = tx.send(event);
+                        signaller.signal();
+                    };
+                    Registry::load_files(
+                        engine.as_ref(),
+                        &files,
+                        Some(&cache_dir),
+                        &|| stop.load(Ordering::SeqCst),
+                        &mut |model| send(StartupEvent::Loaded(model)),
+                        &mut |_, _| send(StartupEvent::Failed),
+                    );
+                    send(StartupEvent::Finished);
+                })
+                .map_err(fail("cannot start the model loading thread"))?
+        };
+        Ok(StartupLoad {
+            dir,
+            files,
+            done: 0,
+            failed: 0,
+            started: Instant::now(),
+            stop,
+            events,
+            thread: Some(thread),
+        })
+    }
+
+    /// Puts the models loaded since the last call into `registry`; whether the loading is over.
+    fn take(&mut self, registry: &mut Registry) -> bool {
+        // Looked at first: a thread that has ended (even by a panic) has sent all it will.
+        let ended = self.thread.as_ref().is_none_or(|t| t.is_finished());
+        let mut finished = false;
+        while let Ok(event) = self.events.try_recv() {
+            match event {
+                StartupEvent::Loaded(model) => {
+                    self.done += 1;
+                    registry.insert(model);
+                }
+                StartupEvent::Failed => {
+                    self.done += 1;
+                    self.failed += 1;
+                }
+                StartupEvent::Finished => finished = true,
+            }
+        }
+        finished || ended
+    }
+
+    fn join(&mut self) {
+        if let Some(thread) = self.thread.take() {
+            if thread.join().is_err() {
+                tracing::error!("the model loading thread panicked");
+            }
+        }
+    }
+
+    /// The line statistics carry while the models load: `loading models: 3 of 12 files done
+    /// (1 failed), 14 s`.
+    fn progress(&self) -> String {
+        let failed = if self.failed > 0 {
+            format!(" ({} failed)", self.failed)
+        } else {
+            String::new()
+        };
+        format!(
+            "loading models: {} of {} files done{failed}, {} s",
+            self.done,
+            self.files.len(),
+            self.started.elapsed().as_secs()
+        )
+    }
+}
+
 /// The daemon's state, owned by the I/O thread. Field order is drop order: what workers may
 /// still read goes first, the ports after, the node last.
 pub struct Daemon {
+    /// The models folder's loading at start, until it ends.
+    startup: Option<StartupLoad>,
+    /// Control requests other than statistics that came while the models loaded at start,
+    /// handled once they have.
+    held_control: Vec<ControlActive>,
     /// Set once a stop is requested: new detect requests, and model loads and drops, are
     /// refused "shutting down" while the running detections finish.
     shutting_down: bool,
@@ -212,8 +329,9 @@ pub struct Daemon {
     node: Node<Ipc>,
 }
 
-/// Runs a daemon until SIGINT, SIGTERM or SIGHUP. `on_ready` is called once it serves; a stop
-/// requested while the models load at start ends it after the model being loaded, without
+/// Runs a daemon until SIGINT, SIGTERM or SIGHUP. `on_ready` is called once the models of the
+/// models folder are loaded and it serves detections; statistics are answered from the start.
+/// A stop requested while the models load ends it after the model being loaded, without
 /// serving.
 ///
 /// Call it before the process starts other threads, or block the termination signals in them
@@ -258,11 +376,7 @@ pub fn run(
         .map_err(fail("cannot listen on ppfd/daemon"))?;
     let wakeup = Wakeup::new().map_err(fail("cannot create an eventfd"))?;
 
-    let stop = || termination.requested();
-    let Some(mut daemon) = Daemon::new(config, engine, node, wakeup.signaller(), &stop)? else {
-        tracing::info!("stopped while loading models, before serving");
-        return Ok(());
-    };
+    let mut daemon = Daemon::new(config, engine, node, wakeup.signaller())?;
     let waitset = WaitSetBuilder::new()
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Ipc>()
@@ -281,15 +395,27 @@ pub fn run(
         .map_err(fail("WaitSet"))?;
 
     daemon.housekeeping();
-    on_ready(&ReadyInfo {
-        models: daemon.registry.len(),
-        pid: std::process::id(),
-    });
-    tracing::info!(
-        models = daemon.registry.len(),
-        engine = daemon.engine.name(),
-        "serving"
-    );
+    if daemon.startup.is_some() {
+        tracing::info!("loading models; statistics are answered meanwhile");
+    }
+    let mut on_ready = Some(on_ready);
+    let mut ready_when_loaded = |daemon: &Daemon| {
+        if daemon.startup.is_none() {
+            if let Some(on_ready) = on_ready.take() {
+                on_ready(&ReadyInfo {
+                    models: daemon.registry.len(),
+                    pid: std::process::id(),
+                });
+                tracing::info!(
+                    models = daemon.registry.len(),
+                    engine = daemon.engine.name(),
+                    "serving"
+                );
+            }
+        }
+    };
+    daemon.poll_startup();
+    ready_when_loaded(&daemon);
 
     loop {
         let outcome = waitset.wait_and_process_once(|_| CallbackProgression::Continue);
@@ -307,8 +433,13 @@ pub fn run(
         }
         wakeup.drain();
         daemon.step(&events);
+        ready_when_loaded(&daemon);
     }
-    tracing::info!("shutting down");
+    if daemon.startup.is_some() {
+        tracing::info!("stopped while loading models, before serving");
+    } else {
+        tracing::info!("shutting down");
+    }
     daemon.shutdown();
     Ok(())
 }
@@ -328,8 +459,7 @@ impl Daemon {
         engine: Arc<dyn DetectionEngine>,
         node: Node<Ipc>,
         signaller: Signaller,
-        stop: &dyn Fn() -> bool,
-    ) -> Result<Option<Daemon>, DaemonError> {
+    ) -> Result<Daemon, DaemonError> {
         let detect_service = services::detect_builder(&node)
             .open_or_create()
             .map_err(fail("cannot open the ppfd/detect service"))?;
@@ -378,30 +508,21 @@ impl Daemon {
             block_termination_signals,
         )?;
 
-        let mut registry = Registry::default();
-        if let Some(dir) = &config.models {
-            let started = Instant::now();
-            let failures = registry
-                .load_dir(engine.as_ref(), dir, Some(&config.model_cache_dir()), stop)
-                .map_err(DaemonError)?;
-            if stop() {
-                return Ok(None);
+        // The models folder loads on a thread of its own: statistics are answered meanwhile,
+        // and a stop requested then ends the daemon after the model being loaded.
+        let startup = match &config.models {
+            Some(dir) => {
+                let files = Registry::model_files(engine.as_ref(), dir).map_err(DaemonError)?;
+                Some(StartupLoad::start(
+                    engine.clone(),
+                    dir.clone(),
+                    files,
+                    config.model_cache_dir(),
+                    signaller,
+                )?)
             }
-            if registry.is_empty() && failures.is_empty() {
-                tracing::warn!(
-                    dir = %dir.display(),
-                    "no model in the models folder: nothing can be detected until one is loaded (ppf models --load)"
-                );
-            }
-            tracing::info!(
-                loaded = registry.len(),
-                failed = failures.len(),
-                bytes = registry.bytes(),
-                ms = started.elapsed().as_millis() as u64,
-                dir = %dir.display(),
-                "models loaded"
-            );
-        }
+            None => None,
+        };
 
         let (done_tx, done_rx) = channel();
         let (loaded_tx, loaded_rx) = channel();
@@ -412,7 +533,9 @@ impl Daemon {
                 "more detections at once than workers: the ones beyond take turns on the workers, each running slower"
             );
         }
-        Ok(Some(Daemon {
+        Ok(Daemon {
+            startup,
+            held_control: Vec::new(),
             shutting_down: false,
             in_flight: HashMap::new(),
             queue: VecDeque::new(),
@@ -422,7 +545,7 @@ impl Daemon {
             control_server,
             responder: Arc::new(Responder::new(detect_service, control_service, responses)),
             _responses_service: responses_service,
-            registry,
+            registry: Registry::default(),
             engine,
             pool,
             done_tx,
@@ -436,11 +559,51 @@ impl Daemon {
             last_housekeeping: Instant::now(),
             housekeeper,
             node,
-        }))
+        })
+    }
+
+    /// Takes the models loaded at start so far; once the folder is done, logs it, handles the
+    /// control requests held meanwhile and lets detections in.
+    fn poll_startup(&mut self) {
+        let Some(startup) = &mut self.startup else {
+            return;
+        };
+        if !startup.take(&mut self.registry) {
+            return;
+        }
+        let mut startup = self.startup.take().expect("loading");
+        startup.join();
+        if startup.files.is_empty() {
+            tracing::warn!(
+                dir = %startup.dir.display(),
+                "no model in the models folder: nothing can be detected until one is loaded (ppf models --load)"
+            );
+        }
+        tracing::info!(
+            loaded = self.registry.len(),
+            failed = startup.failed,
+            bytes = self.registry.bytes(),
+            ms = startup.started.elapsed().as_millis() as u64,
+            dir = %startup.dir.display(),
+            "models loaded"
+        );
+        for active in std::mem::take(&mut self.held_control) {
+            self.control(active);
+        }
+    }
+
+    /// Ends the loading at start, if it runs, after the model being loaded.
+    fn stop_startup(&mut self) {
+        if let Some(startup) = self.startup.as_mut() {
+            startup.stop.store(true, Ordering::SeqCst);
+            startup.join();
+            startup.take(&mut self.registry);
+        }
     }
 
     /// One turn of the loop: everything that can be done now.
     fn step(&mut self, events: &[EventId]) {
+        self.poll_startup();
         if events.contains(&wake::CAMERA_APPEARED) {
             self.housekeeper.scan_now();
         }
@@ -624,6 +787,11 @@ impl Daemon {
     // ---------------------------------------------------------------- detect
 
     fn take_detect_requests(&mut self) {
+        if self.startup.is_some() {
+            // They wait in their channels until every model of the folder is there: a request
+            // for a model not yet loaded would be refused "unknown object".
+            return;
+        }
         loop {
             match self.detect_server.receive() {
                 Ok(Some(active)) => self.accept(active),
@@ -936,6 +1104,12 @@ impl Daemon {
         } else {
             tracing::debug!(?command, "control request");
         }
+        if self.startup.is_some() && !matches!(command, ControlCommand::Statistics) {
+            // Listed, loaded or dropped once the models folder is: a load now could be undone
+            // by a file of the folder with the same id.
+            self.held_control.push(active);
+            return;
+        }
         if self.shutting_down
             && matches!(
                 command,
@@ -953,9 +1127,15 @@ impl Daemon {
             }
             ControlCommand::Statistics => {
                 // The message field holds MESSAGE_BYTES - 1 bytes and a NUL.
-                let m = self
+                let loading = self
+                    .startup
+                    .as_ref()
+                    .map(|s| format!("\n{}", s.progress()))
+                    .unwrap_or_default();
+                let mut m = self
                     .config
-                    .detector_summary(ppfd_protocol::MESSAGE_BYTES - 1);
+                    .detector_summary(ppfd_protocol::MESSAGE_BYTES - 1 - loading.len());
+                m.push_str(&loading);
                 self.control_answer(active, Status::Ok, &m, &[])
             }
             ControlCommand::DropModel => match self.registry.remove(request.object_id) {
@@ -1123,6 +1303,11 @@ impl Daemon {
 
     fn shutdown(&mut self) {
         self.shutting_down = true;
+        self.stop_startup();
+        for active in std::mem::take(&mut self.held_control) {
+            let m = "the daemon is shutting down";
+            self.control_answer(active, Status::ShuttingDown, m, &[]);
+        }
         while let Some(q) = self.queue.pop_front() {
             let e = EngineError::new(Status::ShuttingDown, "the daemon is shutting down");
             self.refuse(q.active, &q.header, q.received_ns, e);
@@ -1168,6 +1353,8 @@ impl Daemon {
 
 impl Drop for Daemon {
     fn drop(&mut self) {
+        // The loader signals the I/O thread's eventfd: end it while that is open.
+        self.stop_startup();
         // Workers read the frames held in `in_flight`: never release them under a worker.
         self.join_in_flight();
     }

@@ -28,16 +28,8 @@ pub struct Registry {
 }
 
 impl Registry {
-    /// Loads every file of `dir` that the engine takes, asking `stop` before each: once it says
-    /// yes, the files left are not loaded. Returns the errors of the files that failed (the
-    /// others stay loaded).
-    pub fn load_dir(
-        &mut self,
-        engine: &dyn DetectionEngine,
-        dir: &Path,
-        cache_dir: Option<&Path>,
-        stop: &dyn Fn() -> bool,
-    ) -> Result<Vec<(PathBuf, EngineError)>, String> {
+    /// The files of `dir` that the engine takes, in the order they load.
+    pub fn model_files(engine: &dyn DetectionEngine, dir: &Path) -> Result<Vec<PathBuf>, String> {
         let entries = std::fs::read_dir(dir)
             .map_err(|e| format!("model directory {}: {e}", dir.display()))?;
         let mut files: Vec<PathBuf> = entries
@@ -45,15 +37,32 @@ impl Registry {
             .filter(|p| p.is_file())
             .collect();
         files.sort();
-        let mut failures = Vec::new();
+        Ok(engine.select(files))
+    }
+
+    /// Loads `files` in order (see [`Registry::model_files`]), asking `stop` before each: once
+    /// it says yes, the files left are not loaded. Each model goes to `loaded` as it comes; a
+    /// file that fails (or gives an object id loaded from an earlier file: the first is kept)
+    /// is logged and goes to `failed`.
+    pub fn load_files(
+        engine: &dyn DetectionEngine,
+        files: &[PathBuf],
+        cache_dir: Option<&Path>,
+        stop: &dyn Fn() -> bool,
+        loaded: &mut dyn FnMut(LoadedModel),
+        failed: &mut dyn FnMut(PathBuf, EngineError),
+    ) {
         let mut loaded_from: BTreeMap<u32, PathBuf> = BTreeMap::new();
-        for path in engine.select(files) {
+        for path in files {
             if stop() {
-                tracing::info!(loaded = self.len(), "model loading stopped: stop requested");
+                tracing::info!(
+                    loaded = loaded_from.len(),
+                    "model loading stopped: stop requested"
+                );
                 break;
             }
             match engine
-                .load(&path, None, cache_dir)
+                .load(path, None, cache_dir)
                 .and_then(Self::with_valid_id)
             {
                 Ok(model) if loaded_from.contains_key(&model.info.object_id) => {
@@ -66,7 +75,7 @@ impl Registry {
                         ),
                     );
                     tracing::error!(path = %path.display(), error = %e, "model not loaded");
-                    failures.push((path, e));
+                    failed(path.clone(), e);
                 }
                 Ok(model) => {
                     loaded_from.insert(model.info.object_id, path.clone());
@@ -77,15 +86,14 @@ impl Registry {
                         path = %path.display(),
                         "model loaded"
                     );
-                    self.insert(model);
+                    loaded(model);
                 }
                 Err(e) => {
                     tracing::error!(path = %path.display(), error = %e, "model not loaded");
-                    failures.push((path, e));
+                    failed(path.clone(), e);
                 }
             }
         }
-        Ok(failures)
     }
 
     /// `model`, or the refusal of its object id 0: ids start at 1 (BOP's do; in a control

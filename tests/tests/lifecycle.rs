@@ -63,6 +63,53 @@ fn a_stop_while_the_models_load_ends_the_daemon_before_it_serves() {
     assert!(!out.contains("ppfd ready"), "it said it was ready: {out:?}");
 }
 
+/// While the daemon loads its models at start, statistics are answered at once and say how far
+/// it is; the model list waits until every model is loaded, then lists them all. Before, the
+/// daemon answered nothing until it had loaded every model, and a monitor asking whether it was
+/// up timed out (here after 2 s, with 4 s of loading to go).
+#[test]
+fn statistics_are_answered_while_the_models_load() {
+    let prefix = Prefix::new("loadstats");
+    let models = fake_model_dir("loadstats", &[1, 2, 3, 4, 5]);
+    let mut d = spawn_daemon(&prefix, &models, &[("PPFD_FAKE_LOAD_DELAY_MS", "1000")]);
+    // The node comes up at once; the first model takes a second.
+    std::thread::sleep(Duration::from_millis(300));
+    let client = connect(&prefix);
+    let asked = Instant::now();
+    let (stats, message) = client
+        .statistics()
+        .expect("statistics answered while the models load");
+    assert!(
+        asked.elapsed() < Duration::from_millis(1000),
+        "answered after {:?}",
+        asked.elapsed()
+    );
+    assert!(stats.models_loaded < 5, "{stats:?}");
+    let loading = message
+        .lines()
+        .find(|l| l.starts_with("loading models:"))
+        .unwrap_or_else(|| panic!("no loading line: {message:?}"));
+    assert!(loading.contains(" of 5 files done"), "{loading}");
+    // Held until the folder is loaded: the list is whole.
+    let options = ClientOptions {
+        prefix: Some(prefix.0.clone()),
+        control_timeout: Duration::from_secs(20),
+        ..Default::default()
+    };
+    let patient = Client::connect_with(&options).expect("client connects");
+    let listed: Vec<u32> = patient
+        .models()
+        .expect("models listed once loaded")
+        .iter()
+        .map(|m| m.object_id)
+        .collect();
+    assert_eq!(listed, [1, 2, 3, 4, 5]);
+    d.wait_line("ppfd ready", STARTUP);
+    let (stats, message) = client.statistics().unwrap();
+    assert_eq!(stats.models_loaded, 5);
+    assert!(!message.contains("loading"), "{message:?}");
+}
+
 /// While the daemon stops (here on SIGHUP, as when its terminal closes), a running detection
 /// finishes and is answered, and what comes meanwhile is answered at once: statistics and the
 /// model list as usual, detections and model loads "shutting down". Before, the new requests

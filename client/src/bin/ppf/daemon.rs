@@ -125,14 +125,17 @@ pub fn stats(args: StatsArgs) -> Result<(), String> {
     let client = args
         .connect
         .client_with(Duration::from_millis(args.timeout_ms))?;
-    let (s, detector) = client.statistics().map_err(|e| e.to_string())?;
+    let (s, message) = client.statistics().map_err(|e| e.to_string())?;
+    let (detector, loading) = message.split_once('\n').unwrap_or((&message, ""));
     let detector = detector
         .strip_prefix("detector:")
-        .unwrap_or(&detector)
+        .unwrap_or(detector)
         .trim();
+    let loading = loading.strip_prefix("loading models:").map(str::trim);
     if args.json {
         let mut json = stats_json(&s);
         json["detector"] = detector.into();
+        json["loading"] = loading.into();
         println!(
             "{}",
             serde_json::to_string_pretty(&json).map_err(|e| e.to_string())?
@@ -164,6 +167,9 @@ pub fn stats(args: StatsArgs) -> Result<(), String> {
         s.models_loaded,
         s.model_bytes as f64 / 1e6
     );
+    if let Some(loading) = loading {
+        println!("loading           {loading}; detections wait until every model is loaded");
+    }
     println!("resident memory   {:.1} MB", s.resident_bytes as f64 / 1e6);
     println!(
         "now               {} running, {} queued",
