@@ -91,6 +91,7 @@ pub fn save(model: &ObjectModel, path: &Path) -> Result<()> {
     header[8..12].copy_from_slice(&FORMAT_VERSION.to_le_bytes());
     header[16..24].copy_from_slice(&(payload.len() as u64).to_le_bytes());
     header[24..28].copy_from_slice(&crc32fast::hash(payload).to_le_bytes());
+    remove_dead_writers_files(path);
     let tmp = path.with_extension(format!(
         "{EXTENSION}.{}-{}.tmp",
         std::process::id(),
@@ -110,6 +111,43 @@ pub fn save(model: &ObjectModel, path: &Path) -> Result<()> {
         let _ = std::fs::remove_file(&tmp);
         io(path, e)
     })
+}
+
+/// Removes the temporary files of [`save`]s of `path` whose process is gone (killed while it
+/// wrote: a model file is tens of MB). A live process's file, or one whose name [`save`] does
+/// not give, stays.
+fn remove_dead_writers_files(path: &Path) {
+    let (Some(dir), Some(name)) = (path.parent(), path.file_name()) else {
+        return;
+    };
+    let dir = if dir.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        dir
+    };
+    if !Path::new("/proc/self").exists() {
+        return; // no way to tell a live writer from a dead one
+    }
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    let prefix = format!("{}.", name.to_string_lossy());
+    for entry in entries.flatten() {
+        let file = entry.file_name();
+        let Some(writer) = file
+            .to_str()
+            .and_then(|f| f.strip_prefix(&prefix))
+            .and_then(|rest| rest.strip_suffix(".tmp"))
+            .and_then(|rest| rest.split_once('-'))
+            .filter(|(_, n)| n.parse::<u64>().is_ok())
+            .and_then(|(pid, _)| pid.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        if !Path::new(&format!("/proc/{writer}")).exists() {
+            let _ = std::fs::remove_file(entry.path());
+        }
+    }
 }
 
 /// Reads `path` whole into a private read-only memory map (page aligned, as the archive needs);
@@ -364,6 +402,29 @@ mod tests {
             name.starts_with("obj_000001-") && name.ends_with(".ppfm"),
             "{name}"
         );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A save removes what a writer killed mid-write left of the same file, and keeps a live
+    /// writer's file and files it did not name (they stayed for ever, tens of MB each).
+    #[test]
+    fn a_save_removes_the_temporary_files_of_dead_writers() {
+        let dir = temp_dir("deadtmp");
+        let path = dir.join("obj_000003.ppfm");
+        // Beyond Linux's largest pid (2^22): no process has it.
+        let dead = dir.join("obj_000003.ppfm.4194305-0.tmp");
+        let live = dir.join(format!("obj_000003.ppfm.{}-77.tmp", std::process::id()));
+        let other = dir.join("obj_000003.ppfm.notes.tmp");
+        let other_model = dir.join("obj_000004.ppfm.4194305-0.tmp");
+        for f in [&dead, &live, &other, &other_model] {
+            std::fs::write(f, "half a model").unwrap();
+        }
+        save(&built(), &path).unwrap();
+        assert!(!dead.exists(), "a dead writer's file stayed");
+        for f in [&live, &other, &other_model] {
+            assert!(f.exists(), "{} removed", f.display());
+        }
+        assert_eq!(load(&path).unwrap().object_id(), 3);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
