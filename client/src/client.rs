@@ -23,6 +23,22 @@ use ppfd_protocol::text;
 
 use crate::{iceoryx_config, transport, Error, Result};
 
+/// The error of a client port that could not be made; the one of a daemon that serves as many
+/// clients as it can says so.
+fn client_port(
+    what: &'static str,
+) -> impl FnOnce(iceoryx2::service::port_factory::client::ClientCreateError) -> Error {
+    use iceoryx2::service::port_factory::client::ClientCreateError;
+    move |e| match e {
+        ClientCreateError::ExceedsMaxSupportedClients => Error::Transport(format!(
+            "{what}: {} clients are connected to the daemon, the most it serves at once; \
+             one must disconnect (or its process end) first",
+            services::limits::MAX_CLIENTS
+        )),
+        e => transport(what)(e),
+    }
+}
+
 /// How often a client waiting for an answer checks that the daemon still holds its request (an
 /// answer wakes it at once; a request let go of does not).
 const HELD_CHECK_PERIOD: Duration = Duration::from_millis(50);
@@ -252,14 +268,14 @@ impl Client {
             .initial_max_slice_len(options.inline_frame_capacity.max(1))
             .allocation_strategy(AllocationStrategy::PowerOfTwo)
             .create()
-            .map_err(transport("cannot create a ppfd/detect client"))?;
+            .map_err(client_port("cannot create a ppfd/detect client"))?;
         let control_service = services::control_builder(&node)
             .open_or_create()
             .map_err(transport("cannot open ppfd/control"))?;
         let control = control_service
             .client_builder()
             .create()
-            .map_err(transport("cannot create a ppfd/control client"))?;
+            .map_err(client_port("cannot create a ppfd/control client"))?;
         let wake_service = services::daemon_wake_builder(&node)
             .open_or_create()
             .map_err(transport("cannot open ppfd/daemon"))?;

@@ -718,6 +718,36 @@ fn the_engine_reads_depth_in_place_in_shared_memory() {
     assert!((found.hypotheses[0].translation_mm[2] - 650.0).abs() < 1e-3);
 }
 
+/// A client beyond the most a daemon serves at once is told so, and one can connect again once
+/// another has gone (it read "ExceedsMaxSupportedClients").
+#[test]
+fn a_client_beyond_the_most_the_daemon_serves_is_told_so() {
+    let prefix = Prefix::new("maxclients");
+    let models = fake_model_dir("maxclients", &[1]);
+    let _d = daemon(&prefix, &models, &[], "0");
+    let mut clients: Vec<ppfd_client::Client> = (0
+        ..ppfd_client::protocol::services::limits::MAX_CLIENTS)
+        .map(|_| connect(&prefix))
+        .collect();
+    let options = ppfd_client::ClientOptions {
+        prefix: Some(prefix.0.clone()),
+        ..Default::default()
+    };
+    match ppfd_client::Client::connect_with(&options) {
+        Err(ppfd_client::Error::Transport(message)) => assert!(
+            message.contains("32 clients are connected to the daemon, the most it serves"),
+            "{message}"
+        ),
+        other => panic!(
+            "a client beyond the limit: {:?}",
+            other.map(|_| "connected")
+        ),
+    }
+    clients.pop();
+    let again = ppfd_client::Client::connect_with(&options).expect("a client connects again");
+    again.models().expect("and is served");
+}
+
 /// A daemon holding more models than a listing carries lists the 256 of lowest id and says how
 /// many it holds (the listing was cut short without a word).
 #[test]
