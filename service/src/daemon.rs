@@ -186,8 +186,8 @@ impl Camera {
 /// I/O thread takes each as it comes.
 struct StartupLoad {
     dir: PathBuf,
-    /// The folder's model files, in loading order.
-    files: Vec<PathBuf>,
+    /// How many model files the folder holds.
+    files: usize,
     /// Files done (loaded or failed), and failed.
     done: usize,
     failed: usize,
@@ -214,8 +214,9 @@ impl StartupLoad {
     ) -> Result<StartupLoad, DaemonError> {
         let stop = Arc::new(AtomicBool::new(false));
         let (tx, events) = channel();
+        let file_count = files.len();
         let thread = {
-            let (files, stop) = (files.clone(), stop.clone());
+            let stop = stop.clone();
             std::thread::Builder::new()
                 .name("ppfd-load".into())
                 .spawn(move || {
@@ -238,7 +239,7 @@ impl StartupLoad {
         };
         Ok(StartupLoad {
             dir,
-            files,
+            files: file_count,
             done: 0,
             failed: 0,
             started: Instant::now(),
@@ -288,7 +289,7 @@ impl StartupLoad {
         format!(
             "loading models: {} of {} files done{failed}, {} s",
             self.done,
-            self.files.len(),
+            self.files,
             self.started.elapsed().as_secs()
         )
     }
@@ -573,7 +574,7 @@ impl Daemon {
         }
         let mut startup = self.startup.take().expect("loading");
         startup.join();
-        if startup.files.is_empty() {
+        if startup.files == 0 {
             tracing::warn!(
                 dir = %startup.dir.display(),
                 "no model in the models folder: nothing can be detected until one is loaded (ppf models --load)"
