@@ -14,7 +14,7 @@ use crate::grid::{cell_of, CellMap};
 use crate::model::ObjectModel;
 use crate::plane::SupportingPlane;
 use crate::scene::PreparedScene;
-use crate::table::{alpha_to_fixed, entry_model_point, fixed_difference_bin};
+use crate::table::{alpha_to_fixed, fixed_difference_bin};
 use crate::Pose;
 
 /// Parameters of voting.
@@ -117,17 +117,187 @@ const ROW: usize = 1 << ROW_SHIFT;
 /// Copies of the accumulator that take turns at a key's votes. Consecutive entries of a key
 /// often name the same cell; with one accumulator each increment waits for the one before it
 /// (a load behind a store to the same address). Measured on the LM-O frame (duck, hole
-/// puncher): voting in 0.74–0.78 of the time with 2 copies, 0.62–0.69 with 4.
+/// puncher): voting in 0.74–0.78 of the time with 2 copies, 0.62–0.69 with 4 (16-bit cells).
 const LANES: usize = 4;
+
+/// One reference point's votes per (model point, α bin), kept small enough to stay in the
+/// first-level cache: each of the [`LANES`] copies holds the low byte of its count, and a
+/// low byte that wraps carries 256 into `carries` (rare: a cell seldom takes 256 votes from
+/// one reference point). [`Accumulator::merge`] adds it all up into `totals`, exactly (up to
+/// 65 535, where a cell saturates).
+struct Accumulator {
+    /// `LANES` copies of `cells` low bytes, one after the other.
+    lanes: Vec<u8>,
+    /// Per cell, how many times a low byte wrapped (summed over the copies).
+    carries: Vec<u16>,
+    /// Whether any low byte wrapped since the last merge.
+    carried: bool,
+    /// Per cell the reference point's votes, after [`Accumulator::merge`].
+    totals: Vec<u16>,
+    cells: usize,
+}
+
+impl Accumulator {
+    fn new(cells: usize) -> Self {
+        Self {
+            lanes: vec![0; LANES * cells],
+            carries: vec![0; cells],
+            carried: false,
+            totals: vec![0; cells],
+            cells,
+        }
+    }
+
+    /// One vote into cell `c` of the copy `lane` (a slice of `cells` low bytes).
+    ///
+    /// # Safety
+    ///
+    /// `c` must be below `lane.len()` (which is `carries.len()`).
+    #[inline(always)]
+    unsafe fn bump(lane: &mut [u8], carries: &mut [u16], carried: &mut bool, c: usize) {
+        debug_assert!(c < lane.len() && lane.len() == carries.len());
+        let cell = lane.get_unchecked_mut(c);
+        let v = cell.wrapping_add(1);
+        *cell = v;
+        if v == 0 {
+            let carry = carries.get_unchecked_mut(c);
+            *carry = carry.saturating_add(1);
+            *carried = true;
+        }
+    }
+
+    /// The votes of every cast `(start, end, α_s)`: the table entries `start..end` of one
+    /// key, for a scene pair of angle `α_s` (fixed point). The cells of a batch of entries are
+    /// computed first (four at a time, see [`cells_of`]) and then counted, spread over the
+    /// copies; the entries of the cast after next are fetched into the cache meanwhile.
+    ///
+    /// # Safety
+    ///
+    /// Every entry must name a model point below `cells / ROW`, and `alpha_bins` be at most
+    /// [`ROW`].
+    unsafe fn add_casts(
+        &mut self,
+        entries: &[rkyv::Archived<u32>],
+        casts: &[Cast],
+        alpha_bins: u16,
+    ) {
+        const BATCH: usize = 64;
+        let cells_len = self.cells;
+        let mut copies = self.lanes.chunks_exact_mut(cells_len);
+        let lanes: [&mut [u8]; LANES] = std::array::from_fn(|_| copies.next().unwrap());
+        let (carries, carried) = (&mut self.carries[..], &mut self.carried);
+        let mut cells = [0u32; BATCH];
+        for (j, cast) in casts.iter().enumerate() {
+            if let Some(next) = casts.get(j + 2) {
+                prefetch(entries[next.start as usize..].as_ptr());
+            }
+            let key_entries = &entries[cast.start as usize..cast.end as usize];
+            for batch in key_entries.chunks(BATCH) {
+                let cells = &mut cells[..batch.len()];
+                cells_of(batch, cast.alpha_s, alpha_bins, cells);
+                let mut groups = cells.chunks_exact(LANES);
+                for g in &mut groups {
+                    for i in 0..LANES {
+                        // SAFETY: a cell is `(m << ROW_SHIFT) | bin` with `bin < alpha_bins
+                        // <= ROW` and `m < cells / ROW` (the caller's promise), so below
+                        // `cells_len`, the length of every copy.
+                        unsafe { Self::bump(&mut *lanes[i], carries, carried, g[i] as usize) };
+                    }
+                }
+                for (i, &c) in groups.remainder().iter().enumerate() {
+                    // SAFETY: as above.
+                    unsafe { Self::bump(&mut *lanes[i], carries, carried, c as usize) };
+                }
+            }
+        }
+    }
+
+    /// Adds the copies (and carries) into `totals` and clears them for the next reference
+    /// point.
+    fn merge(&mut self) {
+        let n = self.cells;
+        self.totals.fill(0);
+        for lane in self.lanes.chunks_exact(n) {
+            for (t, &v) in self.totals.iter_mut().zip(lane) {
+                *t += v as u16;
+            }
+        }
+        if self.carried {
+            for (t, c) in self.totals.iter_mut().zip(self.carries.iter_mut()) {
+                *t = (*t as u32 + ((*c as u32) << 8)).min(u16::MAX as u32) as u16;
+                *c = 0;
+            }
+            self.carried = false;
+        }
+        self.lanes.fill(0);
+    }
+}
+
+/// One key's votes for one scene pair: the key's range of table entries and the pair's
+/// `α_s` in fixed point (see [`alpha_to_fixed`]).
+#[derive(Clone, Copy, Debug)]
+struct Cast {
+    start: u32,
+    end: u32,
+    alpha_s: u16,
+}
+
+/// The accumulator cell of each table entry for a scene pair of angle `alpha_s` (fixed
+/// point): `(model point << ROW_SHIFT) | bin(α_m − α_s)`, with the bin as
+/// [`crate::table::fixed_difference_bin`] gives it.
+#[inline(always)]
+fn cells_of(entries: &[rkyv::Archived<u32>], alpha_s: u16, alpha_bins: u16, out: &mut [u32]) {
+    debug_assert_eq!(entries.len(), out.len());
+    let mut done = 0;
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::*;
+        // SSE2 is part of x86-64: four entries at a time in 16-bit lanes. The low half of
+        // each entry is α_m; `(α_m − α_s) ^ 0x8000` is the wrapped difference plus half a turn,
+        // and its high 16 bits times the bin count (a 16-bit `mulhi`) is the bin.
+        // SAFETY: SSE2 is always available on x86-64; the loads and stores stay inside
+        // `entries` and `out` (four `u32` each, `done + 4 <= len`). Archived `u32` is a plain
+        // little-endian `u32`, as x86-64 is.
+        unsafe {
+            let alpha = _mm_set1_epi32(alpha_s as i32);
+            let half = _mm_set1_epi32(0x8000);
+            let bins = _mm_set1_epi32(alpha_bins as i32);
+            let row_mask = _mm_set1_epi32(!((ROW as i32) - 1));
+            while done + 4 <= entries.len() {
+                let e = _mm_loadu_si128(entries.as_ptr().add(done) as *const __m128i);
+                let d = _mm_xor_si128(_mm_sub_epi16(e, alpha), half);
+                let bin = _mm_mulhi_epu16(d, bins);
+                let point = _mm_and_si128(_mm_srli_epi32(e, 16 - ROW_SHIFT as i32), row_mask);
+                let cell = _mm_or_si128(point, bin);
+                _mm_storeu_si128(out.as_mut_ptr().add(done) as *mut __m128i, cell);
+                done += 4;
+            }
+        }
+    }
+    for (c, e) in out[done..].iter_mut().zip(&entries[done..]) {
+        let e = e.to_native();
+        let bin = fixed_difference_bin(e as u16, alpha_s, alpha_bins as u32);
+        *c = ((e >> 16) << ROW_SHIFT) | bin;
+    }
+}
+
+/// Asks for the cache line at `p` ahead of its use (nothing on other architectures).
+#[inline(always)]
+fn prefetch<T>(p: *const T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: a prefetch does not access memory; any address is allowed.
+    unsafe {
+        std::arch::x86_64::_mm_prefetch(p as *const i8, std::arch::x86_64::_MM_HINT_T0);
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = p;
+}
 
 /// Per-thread scratch: the accumulator and vote-once flags, reused across reference points.
 struct Scratch {
-    /// Votes per (model point, α bin); 16 bits: one reference point pairs with a few thousand
-    /// scene points at most, and a cell saturates rather than wraps.
-    accumulator: Vec<u16>,
-    /// The other [`LANES`] − 1 copies, added into `accumulator` (and cleared) after each
-    /// reference point's votes.
-    lanes: [Vec<u16>; LANES - 1],
+    accumulator: Accumulator,
+    /// The reference point's casts, in the order its pairs made them.
+    casts: Vec<Cast>,
     flags: Vec<u32>,
     touched_keys: Vec<u32>,
     neighbours: Vec<usize>,
@@ -229,9 +399,19 @@ pub fn vote_from(
 
     let offsets = &data.table_offsets;
     let entries_all = &data.table_entries;
+    // What the accumulator's unchecked counting relies on (a model file's entries are
+    // checked on load, and a built table's are in range; this costs a pass over the table).
+    assert!(
+        entries_all
+            .iter()
+            .all(|e| ((e.to_native() >> 16) as usize) < n_model),
+        "a table entry names a model point past the model's {n_model}"
+    );
+    assert!(nb <= ROW, "{nb} α bins, at most {ROW}");
     // A few blocks per thread, each with its own scratch: enough to balance the load, few
-    // enough that the scratch (270 KB of flags, and 256 bytes per model point for the four
-    // accumulator copies) is set up only a handful of times.
+    // enough that the scratch (270 KB of flags, and 256 bytes per model point for the
+    // accumulator: four copies of its low bytes, its carries and its totals) is set up only a
+    // handful of times.
     let block = references
         .len()
         .div_ceil(4 * rayon::current_num_threads())
@@ -240,8 +420,8 @@ pub fn vote_from(
         .par_chunks(block)
         .map(|chunk| {
             let mut scratch = Scratch {
-                accumulator: vec![0; n_model * ROW],
-                lanes: std::array::from_fn(|_| vec![0; n_model * ROW]),
+                accumulator: Accumulator::new(n_model * ROW),
+                casts: Vec::new(),
                 flags: vec![0; key_count],
                 touched_keys: Vec::new(),
                 neighbours: Vec::new(),
@@ -255,7 +435,6 @@ pub fn vote_from(
                 let frame = LocalFrame::new(&sr, &nr);
                 s.neighbours.clear();
                 scene.within(&sr, diameter, |i| s.neighbours.push(i));
-                s.accumulator.fill(0);
                 let mut keys = [0u32; MAX_KEYS];
                 for &i in &s.neighbours {
                     if i == r || skip_partner(i) {
@@ -301,50 +480,33 @@ pub fn vote_from(
                             }
                             *flag |= bit;
                         }
-                        let entries = &entries_all[start..end];
-                        votes += entries.len() as u64;
-                        let cell = |e: u32| {
-                            let m = entry_model_point(e) as usize;
-                            let a = fixed_difference_bin(e as u16, alpha_s_fixed, alpha_bins);
-                            (m << ROW_SHIFT) | a as usize
-                        };
-                        let [l1, l2, l3] = &mut s.lanes;
-                        let l0 = &mut s.accumulator;
-                        let mut groups = entries.chunks_exact(LANES);
-                        for g in &mut groups {
-                            let c = [0, 1, 2, 3].map(|i| cell(g[i].to_native()));
-                            l0[c[0]] = l0[c[0]].saturating_add(1);
-                            l1[c[1]] = l1[c[1]].saturating_add(1);
-                            l2[c[2]] = l2[c[2]].saturating_add(1);
-                            l3[c[3]] = l3[c[3]].saturating_add(1);
-                        }
-                        let rest = groups.remainder();
-                        for (lane, e) in [l0, l1, l2].into_iter().zip(rest) {
-                            let c = cell(e.to_native());
-                            lane[c] = lane[c].saturating_add(1);
-                        }
+                        votes += (end - start) as u64;
+                        s.casts.push(Cast {
+                            start: start as u32,
+                            end: end as u32,
+                            alpha_s: alpha_s_fixed,
+                        });
                     }
                 }
-                let [l1, l2, l3] = &mut s.lanes;
-                for (((a, b), c), d) in s
-                    .accumulator
-                    .iter_mut()
-                    .zip(l1.iter_mut())
-                    .zip(l2.iter_mut())
-                    .zip(l3.iter_mut())
-                {
-                    *a = a.saturating_add(*b).saturating_add(*c).saturating_add(*d);
-                    (*b, *c, *d) = (0, 0, 0);
-                }
+                // SAFETY: every entry names a model point below `n_model` and there are at
+                // most `ROW` α bins (both checked above); the accumulator has `n_model * ROW`
+                // cells.
+                unsafe {
+                    s.accumulator
+                        .add_casts(entries_all, &s.casts, alpha_bins as u16)
+                };
+                s.casts.clear();
+                s.accumulator.merge();
                 for &k in &s.touched_keys {
                     s.flags[k as usize] = 0;
                 }
                 s.touched_keys.clear();
-                peaks(&s.accumulator, nb, params, |cell, votes| {
+                let totals = &s.accumulator.totals;
+                peaks(totals, nb, params, |cell, votes| {
                     let (m, a) = (cell >> ROW_SHIFT, (cell & (ROW - 1)) as u32);
                     let mut alpha = alpha_of_bin(a, alpha_bins);
                     if params.interpolate_alpha {
-                        let row = &s.accumulator[m * ROW..m * ROW + nb];
+                        let row = &totals[m * ROW..m * ROW + nb];
                         let below = row[(a as usize + nb - 1) % nb];
                         let above = row[(a as usize + 1) % nb];
                         alpha += sub_bin_offset(below as u32, votes, above as u32)
@@ -430,6 +592,51 @@ fn peaks(acc: &[u16], _nb: usize, params: &VotingParams, mut emit: impl FnMut(us
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::table::entry_model_point;
+
+    /// Counts past a byte carry exactly, whichever copy takes the votes, and saturate at
+    /// 65 535; a merge leaves every copy and carry cleared for the next reference point.
+    #[test]
+    fn the_accumulator_counts_past_a_byte_and_saturates_at_sixteen_bits() {
+        let bins = 30u16;
+        let mut acc = Accumulator::new(4 * ROW);
+        // Entries of model point 2 at α_m = 0 (fixed point): with α_s = 0 they vote for bin
+        // 15 (the bins start at −π).
+        let entries: Vec<rkyv::Archived<u32>> = (0..1001)
+            .map(|_| rkyv::Archived::<u32>::from_native(2 << 16))
+            .collect();
+        let cast = Cast {
+            start: 0,
+            end: entries.len() as u32,
+            alpha_s: 0,
+        };
+        let cell = (2 << ROW_SHIFT) | 15;
+        // 1001 votes from one cast, then 3 casts of 7 entries each: 1022 in all.
+        let casts = [
+            cast,
+            Cast { end: 7, ..cast },
+            Cast { end: 7, ..cast },
+            Cast { end: 7, ..cast },
+        ];
+        // SAFETY: every entry names model point 2 < 4, and 30 bins <= ROW.
+        unsafe { acc.add_casts(&entries, &casts, bins) };
+        acc.merge();
+        assert_eq!(acc.totals[cell], 1022);
+        assert_eq!(acc.totals.iter().map(|&v| v as u32).sum::<u32>(), 1022);
+        assert!(acc.lanes.iter().all(|&v| v == 0) && acc.carries.iter().all(|&c| c == 0));
+
+        // The next reference point starts from nothing.
+        unsafe { acc.add_casts(&entries, &casts[1..2], bins) };
+        acc.merge();
+        assert_eq!(acc.totals[cell], 7);
+
+        // 70 070 votes saturate.
+        let many = vec![cast; 70];
+        unsafe { acc.add_casts(&entries, &many, bins) };
+        acc.merge();
+        assert_eq!(acc.totals[cell], u16::MAX);
+        assert_eq!(acc.totals.iter().filter(|&&v| v > 0).count(), 1);
+    }
 
     #[test]
     fn sub_bin_offset_moves_towards_the_stronger_neighbour() {
