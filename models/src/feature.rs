@@ -137,20 +137,19 @@ impl Quantizer {
         key_count(self.distance_bins, self.angle_bins)
     }
 
-    #[inline]
-    fn angle_step(&self) -> f32 {
-        PI / self.angle_bins as f32
-    }
-
     /// Continuous bin coordinates of the four dimensions (bin index + fraction inside the bin).
+    ///
+    /// Multiplied by the bins per unit rather than divided by the bin width: the voting loop
+    /// computes these for every pair, and the reciprocals are the same for all of them.
     #[inline]
     fn coordinates(&self, f: &PointPairFeature) -> [f32; 4] {
-        let a = self.angle_step();
+        let per_mm = 1.0 / self.distance_step_mm;
+        let per_radian = self.angle_bins as f32 * std::f32::consts::FRAC_1_PI;
         [
-            f.distance_mm / self.distance_step_mm,
-            f.angle_n1_d / a,
-            f.angle_n2_d / a,
-            f.angle_n1_n2 / a,
+            f.distance_mm * per_mm,
+            f.angle_n1_d * per_radian,
+            f.angle_n2_d * per_radian,
+            f.angle_n1_n2 * per_radian,
         ]
     }
 
@@ -203,42 +202,42 @@ impl Quantizer {
     /// uses the bin below, one in the upper third also the bin above. Writes the cartesian
     /// product (the exact key first, at most [`MAX_KEYS`]) into `out` and returns how many.
     /// Angle bins clamp at 0 and π; distance bins outside the table are dropped.
+    ///
+    /// Whether a dimension has a neighbour is a coin toss per pair, and the voting loop calls
+    /// this for every pair: so the product is formed without branches on it. Each of the 16
+    /// choices (bit `i`: the neighbour in dimension `i`) is written, and the count moves on
+    /// only past those whose dimensions all have their neighbour; the others are written over.
     #[inline]
     pub fn keys_with_neighbours(&self, f: &PointPairFeature, out: &mut [u32; MAX_KEYS]) -> usize {
         let c = self.coordinates(f);
         let n = self.bins();
-        // Per dimension: the exact bin and, optionally, one neighbour.
-        let mut choices = [[0u32; 2]; 4];
-        let mut counts = [1usize; 4];
+        let a = self.angle_bins;
+        // A key's stride per dimension, distance first (as `pack`).
+        let stride = [a * a * a, a * a, a, 1];
+        let mut exact = 0u32;
+        // Per dimension, the step from the exact key to the neighbour's (0: no neighbour).
+        let mut step = [0i32; 4];
+        let mut present = 0u32;
         for i in 0..4 {
             let Some(b) = Self::bin_of(c[i], n[i], i > 0) else {
                 return 0;
             };
-            choices[i][0] = b;
+            exact += b * stride[i];
             let frac = c[i] - b as f32;
-            if frac < 1.0 / 3.0 && b > 0 {
-                choices[i][1] = b - 1;
-                counts[i] = 2;
-            } else if frac > 2.0 / 3.0 && b + 1 < n[i] {
-                choices[i][1] = b + 1;
-                counts[i] = 2;
-            }
+            let down = (frac < 1.0 / 3.0) & (b > 0);
+            let up = (frac > 2.0 / 3.0) & (b + 1 < n[i]);
+            step[i] = (up as i32 - down as i32) * stride[i] as i32;
+            present |= ((up | down) as u32) << i;
         }
         let mut len = 0;
-        for i0 in 0..counts[0] {
-            for i1 in 0..counts[1] {
-                for i2 in 0..counts[2] {
-                    for i3 in 0..counts[3] {
-                        out[len] = self.pack([
-                            choices[0][i0],
-                            choices[1][i1],
-                            choices[2][i2],
-                            choices[3][i3],
-                        ]);
-                        len += 1;
-                    }
-                }
+        for choice in 0..MAX_KEYS as u32 {
+            let mut key = exact as i32;
+            for (i, s) in step.iter().enumerate() {
+                key += ((choice >> i) & 1) as i32 * s;
             }
+            // `len <= choice` here, so the write stays inside `out`.
+            out[len] = key as u32;
+            len += (choice & !present == 0) as usize;
         }
         len
     }
