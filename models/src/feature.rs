@@ -204,9 +204,9 @@ impl Quantizer {
     /// Angle bins clamp at 0 and π; distance bins outside the table are dropped.
     ///
     /// Whether a dimension has a neighbour is a coin toss per pair, and the voting loop calls
-    /// this for every pair: so the product is formed without branches on it. Each of the 16
-    /// choices (bit `i`: the neighbour in dimension `i`) is written, and the count moves on
-    /// only past those whose dimensions all have their neighbour; the others are written over.
+    /// this for every pair: so the product is formed without branches on it, from a table of
+    /// which neighbours each of its keys takes (see [`NEIGHBOUR_MASKS`]). All 16 slots of
+    /// `out` are written; those past the returned count hold repeats of the exact key.
     #[inline]
     pub fn keys_with_neighbours(&self, f: &PointPairFeature, out: &mut [u32; MAX_KEYS]) -> usize {
         let c = self.coordinates(f);
@@ -229,18 +229,47 @@ impl Quantizer {
             step[i] = (up as i32 - down as i32) * stride[i] as i32;
             present |= ((up | down) as u32) << i;
         }
-        let mut len = 0;
-        for choice in 0..MAX_KEYS as u32 {
-            let mut key = exact as i32;
-            for (i, s) in step.iter().enumerate() {
-                key += ((choice >> i) & 1) as i32 * s;
+        // The product's keys, the exact one first: each takes the neighbours of the dimensions
+        // its slot's masks name, in a loop of fixed length that vectorises.
+        let p = present as usize;
+        for (j, key) in out.iter_mut().enumerate() {
+            let mut k = exact;
+            for (i, &s) in step.iter().enumerate() {
+                k = k.wrapping_add(NEIGHBOUR_MASKS[i][p][j] & s as u32);
             }
-            // `len <= choice` here, so the write stays inside `out`.
-            out[len] = key as u32;
-            len += (choice & !present == 0) as usize;
+            *key = k;
         }
-        len
+        1 << present.count_ones()
     }
+}
+
+/// `NEIGHBOUR_MASKS[i][p][j]`: whether the `j`-th key of the product takes the neighbour of
+/// dimension `i` (all ones) or its exact bin (zero), when the dimensions with a neighbour are
+/// the bits of `p`. The keys run through the subsets of `p` in increasing order, so the first
+/// takes no neighbour: the exact key. Slots past the product's `2^|p|` keys are unused.
+const NEIGHBOUR_MASKS: [[[u32; MAX_KEYS]; 16]; 4] = neighbour_masks();
+
+const fn neighbour_masks() -> [[[u32; MAX_KEYS]; 16]; 4] {
+    let mut masks = [[[0u32; MAX_KEYS]; 16]; 4];
+    let mut p = 0;
+    while p < 16 {
+        let (mut slot, mut choice) = (0, 0);
+        while choice < 16 {
+            if choice & !p == 0 {
+                let mut i = 0;
+                while i < 4 {
+                    if (choice >> i) & 1 == 1 {
+                        masks[i][p][slot] = u32::MAX;
+                    }
+                    i += 1;
+                }
+                slot += 1;
+            }
+            choice += 1;
+        }
+        p += 1;
+    }
+    masks
 }
 
 /// The transform of a reference point into its local coordinates: the point to the origin, its
@@ -520,6 +549,72 @@ mod tests {
             angle_n1_n2: 0.1 * step,
         };
         assert_eq!(q.keys_with_neighbours(&edge, &mut out), 1);
+    }
+
+    /// Against the rule written out plainly, on features spread over the whole table and
+    /// beyond it: the same keys, the exact one first, none twice.
+    #[test]
+    fn neighbour_keys_are_the_plain_product() {
+        let q = Quantizer::new(100.0, 20, 15);
+        let mut rng = crate::rng::Rng::new(5);
+        let mut counts = [0usize; MAX_KEYS + 1];
+        for _ in 0..20_000 {
+            let f = PointPairFeature {
+                distance_mm: 105.0 * rng.uniform() as f32,
+                angle_n1_d: PI * rng.uniform() as f32,
+                angle_n2_d: PI * rng.uniform() as f32,
+                angle_n1_n2: PI * rng.uniform() as f32,
+            };
+            let mut out = [0u32; MAX_KEYS];
+            let n = q.keys_with_neighbours(&f, &mut out);
+            counts[n] += 1;
+            let Some(exact) = q.key(&f) else {
+                assert_eq!(n, 0, "{f:?}");
+                continue;
+            };
+            // The plain rule: per dimension the bin and, in an outer third, the one beside it.
+            let c = [
+                f.distance_mm / q.distance_step_mm,
+                f.angle_n1_d * 15.0 / PI,
+                f.angle_n2_d * 15.0 / PI,
+                f.angle_n1_n2 * 15.0 / PI,
+            ];
+            let bins = [20i64, 15, 15, 15];
+            let mut options: Vec<Vec<i64>> = Vec::new();
+            for i in 0..4 {
+                let b = (c[i].floor() as i64).min(bins[i] - 1);
+                let frac = c[i] - b as f32;
+                let mut o = vec![b];
+                if frac < 1.0 / 3.0 && b > 0 {
+                    o.push(b - 1);
+                } else if frac > 2.0 / 3.0 && b + 1 < bins[i] {
+                    o.push(b + 1);
+                }
+                options.push(o);
+            }
+            let mut plain = Vec::new();
+            for &d in &options[0] {
+                for &a1 in &options[1] {
+                    for &a2 in &options[2] {
+                        for &a3 in &options[3] {
+                            plain.push((((d * 15 + a1) * 15 + a2) * 15 + a3) as u32);
+                        }
+                    }
+                }
+            }
+            assert_eq!(out[0], exact, "{f:?}");
+            let mut got = out[..n].to_vec();
+            got.sort();
+            got.dedup();
+            assert_eq!(got.len(), n, "a key twice for {f:?}");
+            plain.sort();
+            assert_eq!(got, plain, "{f:?}");
+        }
+        // Every product size turns up, and 16 keys about (2/3)^4 of the time.
+        for n in [1, 2, 4, 8, 16] {
+            assert!(counts[n] > 100, "{counts:?}");
+        }
+        assert!(counts[16] > 2_500 && counts[16] < 4_300, "{counts:?}");
     }
 
     #[test]
