@@ -132,9 +132,9 @@ struct Accumulator {
     carries: Vec<u16>,
     /// Whether any low byte wrapped since the last merge.
     carried: bool,
-    /// Per cell the reference point's votes, after [`Accumulator::merge`].
+    /// Per cell the reference point's votes, after [`Accumulator::merge`]; its length is the
+    /// number of cells.
     totals: Vec<u16>,
-    cells: usize,
 }
 
 impl Accumulator {
@@ -144,7 +144,6 @@ impl Accumulator {
             carries: vec![0; cells],
             carried: false,
             totals: vec![0; cells],
-            cells,
         }
     }
 
@@ -173,8 +172,8 @@ impl Accumulator {
     ///
     /// # Safety
     ///
-    /// Every entry must name a model point below `cells / ROW`, and `alpha_bins` be at most
-    /// [`ROW`].
+    /// Every entry must name a model point below the number of cells over [`ROW`], and
+    /// `alpha_bins` be at most [`ROW`].
     unsafe fn add_casts(
         &mut self,
         entries: &[rkyv::Archived<u32>],
@@ -182,7 +181,7 @@ impl Accumulator {
         alpha_bins: u16,
     ) {
         const BATCH: usize = 64;
-        let cells_len = self.cells;
+        let cells_len = self.totals.len();
         let mut copies = self.lanes.chunks_exact_mut(cells_len);
         let lanes: [&mut [u8]; LANES] = std::array::from_fn(|_| copies.next().unwrap());
         let (carries, carried) = (&mut self.carries[..], &mut self.carried);
@@ -199,8 +198,8 @@ impl Accumulator {
                 for g in &mut groups {
                     for i in 0..LANES {
                         // SAFETY: a cell is `(m << ROW_SHIFT) | bin` with `bin < alpha_bins
-                        // <= ROW` and `m < cells / ROW` (the caller's promise), so below
-                        // `cells_len`, the length of every copy.
+                        // <= ROW` and `m` below the cells over `ROW` (the caller's promise),
+                        // so below `cells_len`, the length of every copy.
                         unsafe { Self::bump(&mut *lanes[i], carries, carried, g[i] as usize) };
                     }
                 }
@@ -215,7 +214,7 @@ impl Accumulator {
     /// Adds the copies (and carries) into `totals` and clears them for the next reference
     /// point.
     fn merge(&mut self) {
-        let n = self.cells;
+        let n = self.totals.len();
         self.totals.fill(0);
         for lane in self.lanes.chunks_exact(n) {
             for (t, &v) in self.totals.iter_mut().zip(lane) {
