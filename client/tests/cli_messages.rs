@@ -11,7 +11,7 @@ use common::{shared_data, Scratch};
 use std::path::Path;
 use std::process::{Command, Output};
 
-use ppfd_models::parts::Part;
+use ppfd_models::synthetic::parts::Part;
 
 fn ppf(args: &[&str]) -> Command {
     let mut command = Command::new(env!("CARGO_BIN_EXE_ppf"));

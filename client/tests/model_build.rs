@@ -7,7 +7,7 @@ mod common;
 use std::process::Command;
 
 use common::Scratch;
-use ppfd_models::parts::Part;
+use ppfd_models::synthetic::parts::Part;
 
 #[test]
 fn each_mesh_reports_its_model_or_why_it_failed_without_a_terminal() {

@@ -5,10 +5,10 @@ use std::collections::HashMap;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion};
-use ppfd_models::camera::Intrinsics;
-use ppfd_models::mesh::Mesh;
-use ppfd_models::parts::Part;
-use ppfd_models::render::{bounding_sphere, Renderer, Roi};
+use ppfd_models::geometry::camera::Intrinsics;
+use ppfd_models::geometry::mesh::Mesh;
+use ppfd_models::geometry::render::{bounding_sphere, Renderer, Roi};
+use ppfd_models::synthetic::parts::Part;
 
 /// Splits every triangle into four (midpoints shared between neighbours), `levels` times: the
 /// part's shape at LM-O's mesh density (10k–45k triangles, about half as many vertices).

@@ -2,17 +2,17 @@
 //! noise and occluders. Runs anywhere (no data files).
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
-use ppfd_models::clustering::cluster_poses;
-use ppfd_models::detector::DetectParams;
-use ppfd_models::mesh::Mesh;
+use ppfd_models::detect::clustering::cluster_poses;
+use ppfd_models::detect::detector::DetectParams;
+use ppfd_models::detect::scene::{prepare, PreparedScene};
+use ppfd_models::detect::voting::vote;
+use ppfd_models::geometry::mesh::Mesh;
+use ppfd_models::geometry::render::bounding_sphere;
 use ppfd_models::model::{ModelParams, ObjectModel};
-use ppfd_models::parts::Part;
-use ppfd_models::render::bounding_sphere;
-use ppfd_models::scene::{prepare, PreparedScene};
-use ppfd_models::synthetic::{
+use ppfd_models::synthetic::parts::Part;
+use ppfd_models::synthetic::scene::{
     random_pose_in_view, NoiseModel, Occluder, Placement, Rng, SceneSpec, SyntheticScene,
 };
-use ppfd_models::voting::vote;
 use ppfd_models::Pose;
 
 fn errors(est: &Pose, gt: &Pose) -> (f32, f32) {
@@ -278,7 +278,7 @@ fn model_points_moved_by_a_pose_vote_for_that_pose() {
         let d = model.diameter_mm();
         let pose = random_pose_in_view(&mut rng, d, (600.0, 1000.0));
         let pts = model.surface_points();
-        let mut moved = ppfd_models::subsample::OrientedPoints::default();
+        let mut moved = ppfd_models::model::subsample::OrientedPoints::default();
         for (p, n) in pts.positions.iter().zip(&pts.normals) {
             moved.push(pose * p, pose * n);
         }
@@ -298,7 +298,7 @@ fn model_points_moved_by_a_pose_vote_for_that_pose() {
 /// with the default parameters that prepared them.
 fn bracket_on_table() -> (
     ObjectModel,
-    ppfd_models::subsample::OrientedPoints,
+    ppfd_models::model::subsample::OrientedPoints,
     DetectParams,
 ) {
     let part = Part::LBracket;
@@ -318,9 +318,9 @@ fn bracket_on_table() -> (
 /// reference point, and voting gives exactly what it gives on the scene without them.
 #[test]
 fn table_points_are_no_partners() {
-    use ppfd_models::plane::SupportingPlane;
-    use ppfd_models::subsample::OrientedPoints;
-    use ppfd_models::voting::{vote_from, Selection};
+    use ppfd_models::detect::plane::SupportingPlane;
+    use ppfd_models::detect::voting::{vote_from, Selection};
+    use ppfd_models::model::subsample::OrientedPoints;
     let (model, points, params) = bracket_on_table();
     let d = model.diameter_mm();
     let planes = SupportingPlane::find_all(&points, &params.plane);
@@ -339,7 +339,7 @@ fn table_points_are_no_partners() {
         &model,
         &cloud,
         &selection,
-        &ppfd_models::voting::VotingParams {
+        &ppfd_models::detect::voting::VotingParams {
             plane_partners: true,
             ..params.voting
         },
@@ -362,7 +362,7 @@ fn table_points_are_no_partners() {
     // A leaf far below the points' spacing keeps every point as it is (in another order).
     let bare = PreparedScene::new(
         &kept,
-        &ppfd_models::subsample::SubsampleParams {
+        &ppfd_models::model::subsample::SubsampleParams {
             leaf_mm: 1e-3,
             cluster_angle: 1e-3,
             neighbour_filtering: false,
@@ -398,8 +398,8 @@ fn table_points_are_no_partners() {
 /// it does.
 #[test]
 fn points_behind_the_table_are_neither_references_nor_partners() {
-    use ppfd_models::plane::{PlaneParams, SupportingPlane};
-    use ppfd_models::voting::Selection;
+    use ppfd_models::detect::plane::{PlaneParams, SupportingPlane};
+    use ppfd_models::detect::voting::Selection;
     let (model, seen, params) = bracket_on_table();
     let d = model.diameter_mm();
     let table = SupportingPlane::find(&seen, &params.plane).expect("no table found");
@@ -441,7 +441,7 @@ fn points_behind_the_table_are_neither_references_nor_partners() {
 /// `DetectParams::nms_distance_fraction`).
 #[test]
 fn instances_of_a_part_are_told_apart_and_duplicates_suppressed() {
-    use ppfd_models::detector::{DetectOptions, Detector};
+    use ppfd_models::detect::detector::{DetectOptions, Detector};
     let detector = Detector::new(DetectParams::new());
     let options = |n| DetectOptions {
         hypotheses_per_object: n,

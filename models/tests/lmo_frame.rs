@@ -8,8 +8,8 @@
 use std::path::PathBuf;
 
 use ppfd_models::bop::BopDataset;
-use ppfd_models::detector::{DetectOptions, DetectParams, Detections, Detector};
-use ppfd_models::mesh::Mesh;
+use ppfd_models::detect::detector::{DetectOptions, DetectParams, Detections, Detector};
+use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_models::Pose;
 
@@ -85,7 +85,7 @@ fn detect_frame(dir: &PathBuf) -> Outcome {
     assert!(clusters_kept >= 10);
     // Each object's own counts, in request order, add up to the frame's.
     assert_eq!(det.per_object_counts.len(), models.len());
-    let sum = |f: fn(&ppfd_models::detector::Counts) -> u64| -> u64 {
+    let sum = |f: fn(&ppfd_models::detect::detector::Counts) -> u64| -> u64 {
         det.per_object_counts.iter().map(f).sum()
     };
     assert_eq!(

@@ -4,9 +4,9 @@
 use std::path::PathBuf;
 
 use ppfd_models::bop::BopDataset;
-use ppfd_models::mesh::Mesh;
+use ppfd_models::geometry::mesh::Mesh;
+use ppfd_models::model::store;
 use ppfd_models::model::{ModelParams, ObjectModel};
-use ppfd_models::store;
 
 fn lmo() -> Option<PathBuf> {
     let root = std::env::var_os("PPFD_SHARED_DATA")

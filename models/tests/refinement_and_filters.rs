@@ -3,16 +3,16 @@
 //! table top, its body hidden under the table) while keeping the true pose.
 
 use nalgebra::{Translation3, Unit, UnitQuaternion, Vector3};
-use ppfd_models::detector::DetectParams;
-use ppfd_models::filters::{is_consistent, silhouette_fraction, EdgeMap};
-use ppfd_models::icp::refine;
-use ppfd_models::mesh::Mesh;
+use ppfd_models::detect::detector::DetectParams;
+use ppfd_models::detect::filters::{is_consistent, silhouette_fraction, EdgeMap};
+use ppfd_models::detect::icp::refine;
+use ppfd_models::detect::rescoring::fit;
+use ppfd_models::detect::scene::{prepare, SceneImage};
+use ppfd_models::geometry::mesh::Mesh;
+use ppfd_models::geometry::render::{bounding_sphere, Renderer};
 use ppfd_models::model::{ModelParams, ObjectModel};
-use ppfd_models::parts::Part;
-use ppfd_models::render::{bounding_sphere, Renderer};
-use ppfd_models::rescoring::fit;
-use ppfd_models::scene::{prepare, SceneImage};
-use ppfd_models::synthetic::{NoiseModel, Rng, SceneSpec};
+use ppfd_models::synthetic::parts::Part;
+use ppfd_models::synthetic::scene::{NoiseModel, Rng, SceneSpec};
 use ppfd_models::Pose;
 
 fn errors(est: &Pose, gt: &Pose) -> (f32, f32) {
@@ -168,7 +168,7 @@ fn coarse_iterations_fit_a_sample_and_end_where_full_icp_ends() {
     let run = |icp| refine(&surface, &start, &image, d, &icp);
 
     // One iteration: the coarse one pairs about a quarter of what the full one pairs.
-    let one = |coarse_iterations| ppfd_models::icp::IcpParams {
+    let one = |coarse_iterations| ppfd_models::detect::icp::IcpParams {
         iterations: 1,
         coarse_iterations,
         ..params.icp
@@ -188,7 +188,7 @@ fn coarse_iterations_fit_a_sample_and_end_where_full_icp_ends() {
 
     // The whole run ends at the same pose, as close to the truth.
     let coarse = run(params.icp);
-    let full = run(ppfd_models::icp::IcpParams {
+    let full = run(ppfd_models::detect::icp::IcpParams {
         coarse_stride: 1,
         ..params.icp
     });
@@ -300,8 +300,8 @@ fn filters_reject_a_planar_impostor_and_keep_the_true_pose() {
 /// border scored its silhouette on the border and beat a true pose.)
 #[test]
 fn the_image_border_is_no_depth_edge() {
-    use ppfd_models::camera::{Intrinsics, OwnedDepthFrame};
-    use ppfd_models::filters::outline_counts;
+    use ppfd_models::detect::filters::outline_counts;
+    use ppfd_models::geometry::camera::{Intrinsics, OwnedDepthFrame};
     let params = DetectParams::new();
     let k = Intrinsics::LMO;
     let (width, height) = (640u32, 480u32);
@@ -320,7 +320,7 @@ fn the_image_border_is_no_depth_edge() {
         "a flat wall has no depth edge, not even at the border"
     );
 
-    let mesh = ppfd_models::parts::box_mesh(Vector3::new(120.0, 120.0, 60.0));
+    let mesh = ppfd_models::synthetic::parts::box_mesh(Vector3::new(120.0, 120.0, 60.0));
     let sphere = bounding_sphere(&mesh);
     let z = 800.0;
     // The box's centre projects onto the image's last row: half of it lies past the border.
@@ -347,7 +347,7 @@ fn the_image_border_is_no_depth_edge() {
 /// full-resolution outline gives, and still tells the true pose from nearby wrong ones.
 #[test]
 fn near_outlines_are_measured_coarser_with_the_same_agreement() {
-    use ppfd_models::filters::{outline_counts, FilterParams};
+    use ppfd_models::detect::filters::{outline_counts, FilterParams};
     let params = DetectParams::new();
     let part = Part::LBracket;
     let (mesh, model) = part_model(part);

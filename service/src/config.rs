@@ -135,11 +135,11 @@ impl Default for DaemonConfig {
 }
 
 impl DaemonConfig {
-    /// [`DaemonConfig::model_cache`], or the default cache ([`ppfd_models::store::default_cache_dir`]).
+    /// [`DaemonConfig::model_cache`], or the default cache ([`ppfd_models::model::store::default_cache_dir`]).
     pub fn model_cache_dir(&self) -> PathBuf {
         self.model_cache
             .clone()
-            .unwrap_or_else(ppfd_models::store::default_cache_dir)
+            .unwrap_or_else(ppfd_models::model::store::default_cache_dir)
     }
 
     /// Reads a TOML file; unknown keys are refused so that a typo does not pass silently.
@@ -166,8 +166,8 @@ impl DaemonConfig {
 
     /// The detector's parameters: the defaults with [`DaemonConfig::detector`] applied in
     /// order.
-    pub fn detect_params(&self) -> Result<ppfd_models::detector::DetectParams, String> {
-        let mut p = ppfd_models::detector::DetectParams::new();
+    pub fn detect_params(&self) -> Result<ppfd_models::detect::detector::DetectParams, String> {
+        let mut p = ppfd_models::detect::detector::DetectParams::new();
         for (key, value) in &self.detector {
             p.set(key, value)?;
         }
@@ -295,12 +295,12 @@ mod tests {
         assert_eq!(p.voting.reference_step, 4);
         assert_eq!(
             p.scene.normal_estimation,
-            ppfd_models::scene::NormalEstimation::CentralDifferences
+            ppfd_models::detect::scene::NormalEstimation::CentralDifferences
         );
         assert_eq!(p.filters.min_silhouette_fraction, 0.5);
         assert!(c.validate().is_ok());
         // Everything else keeps its default.
-        let mut expected = ppfd_models::detector::DetectParams::new();
+        let mut expected = ppfd_models::detect::detector::DetectParams::new();
         expected.voting.reference_step = 4;
         expected.scene.normal_estimation = p.scene.normal_estimation;
         expected.filters.min_silhouette_fraction = 0.5;

@@ -3,11 +3,11 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use ppfd_models::camera::{DepthFrame, Intrinsics};
-use ppfd_models::detector::{DetectOptions as ModelOptions, Detector};
-use ppfd_models::mesh::Mesh;
+use ppfd_models::detect::detector::{DetectOptions as ModelOptions, Detector};
+use ppfd_models::geometry::camera::{DepthFrame, Intrinsics};
+use ppfd_models::geometry::mesh::Mesh;
+use ppfd_models::model::store;
 use ppfd_models::model::{ModelParams, ObjectModel};
-use ppfd_models::store;
 use ppfd_protocol::control::ModelInfo;
 use ppfd_protocol::detect::{DetectCounts, LatencyBreakdown, PoseHypothesis, Status};
 use ppfd_protocol::text;
@@ -19,7 +19,7 @@ use crate::engine::{
 /// Extension of model files.
 pub const MODEL_EXTENSION: &str = "ppfm";
 
-/// Detection with `ppfd_models::detector::Detector`; models are `.ppfm` files (read without
+/// Detection with `ppfd_models::detect::detector::Detector`; models are `.ppfm` files (read without
 /// decoding) or PLY meshes, built once and saved as `.ppfm` for the next start.
 ///
 /// A model file beside a PLY mesh of the same name, or in the model cache, is that mesh's
@@ -455,7 +455,7 @@ mod tests {
 
     /// An ASCII PLY file of a closed box of `size` mm.
     fn write_box_ply(path: &Path, [sx, sy, sz]: [f32; 3]) {
-        let mesh = ppfd_models::parts::box_mesh(nalgebra::Vector3::new(sx, sy, sz));
+        let mesh = ppfd_models::synthetic::parts::box_mesh(nalgebra::Vector3::new(sx, sy, sz));
         std::fs::write(path, mesh.to_ply_ascii()).unwrap();
     }
 
@@ -555,7 +555,8 @@ mod tests {
             // mesh fingerprint is not the file's.)
             let crc = store::source_crc(&std::fs::read(&ply).unwrap());
             assert_eq!(store::load(&saved).unwrap().source_crc(), crc);
-            let cube = ppfd_models::parts::box_mesh(nalgebra::Vector3::new(30.0, 30.0, 30.0));
+            let cube =
+                ppfd_models::synthetic::parts::box_mesh(nalgebra::Vector3::new(30.0, 30.0, 30.0));
             let stand_in = ObjectModel::build(&cube, 1, "by-file", &ModelParams::default())
                 .unwrap()
                 .with_source_crc(crc)

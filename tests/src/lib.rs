@@ -12,8 +12,8 @@ use ppfd::engine::{
     DetectOptions, DetectionEngine, EngineError, EngineOutput, FrameView, LoadedModel,
 };
 use ppfd_models::model::{ModelParams, ObjectModel};
-use ppfd_models::parts::Part;
-use ppfd_models::synthetic::{NoiseModel, SceneSpec, SyntheticScene};
+use ppfd_models::synthetic::parts::Part;
+use ppfd_models::synthetic::scene::{NoiseModel, SceneSpec, SyntheticScene};
 use ppfd_protocol::control::ModelInfo;
 use ppfd_protocol::detect::{checks, DetectCounts, LatencyBreakdown, PoseHypothesis, Status};
 use ppfd_protocol::text;
@@ -367,7 +367,7 @@ pub fn write_part_models(dir: &Path) -> Vec<f32> {
         .map(|&part| {
             let model = part_model(part);
             let path = dir.join(format!("{}_{:06}.ppfm", part.name(), part.object_id()));
-            ppfd_models::store::save(&model, &path).unwrap();
+            ppfd_models::model::store::save(&model, &path).unwrap();
             model.diameter_mm()
         })
         .collect()

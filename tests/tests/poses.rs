@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use ppfd_models::bop::BopDataset;
-use ppfd_models::parts::Part;
+use ppfd_models::synthetic::parts::Part;
 use ppfd_models::Pose;
 use ppfd_tests::{
     depth_checksum, part_model, parts_scene, write_part_models, Prefix, Proc, WorkDir,
@@ -380,7 +380,7 @@ fn lmo_object_built_from_its_mesh_by_the_daemon_is_found_through_the_whole_path(
 /// setting, and fewer than with every second.
 #[test]
 fn detector_parameters_given_to_the_daemon_are_the_ones_it_detects_with() {
-    use ppfd_models::detector::{DetectOptions, DetectParams, Detector};
+    use ppfd_models::detect::detector::{DetectOptions, DetectParams, Detector};
     let test = "daemon_params";
     let scene = parts_scene(SEED, true);
     let part = Part::ALL[0];

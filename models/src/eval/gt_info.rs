@@ -19,11 +19,11 @@ use std::sync::{Arc, Mutex};
 use nalgebra::Point3;
 
 use crate::bop::{BopDataset, GtInfo, ModelInfo};
-use crate::camera::Intrinsics;
 use crate::eval::vsd::{depth_to_distance, visibility_mask, VisibilityMode};
-use crate::mesh::Mesh;
-use crate::render::{Renderer, Roi};
-use crate::sampling::diameter;
+use crate::geometry::camera::Intrinsics;
+use crate::geometry::mesh::Mesh;
+use crate::geometry::render::{Renderer, Roi};
+use crate::model::sampling::diameter;
 use crate::{Pose, Result};
 
 /// δ of BOP's `calc_gt_info`, mm.
@@ -195,8 +195,8 @@ pub fn image_gt_info(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::parts::box_mesh;
-    use crate::render::render_depth;
+    use crate::geometry::render::render_depth;
+    use crate::synthetic::parts::box_mesh;
     use nalgebra::{Translation3, UnitQuaternion, Vector3};
 
     const K: Intrinsics = Intrinsics {
@@ -292,7 +292,7 @@ mod tests {
     /// Against the BOP toolkit's own figures: the LM-O frame's `scene_gt_info.json`.
     #[test]
     fn visibility_agrees_with_the_lmo_frames_own_file() {
-        let Some(shared) = crate::mesh::shared_test_data() else {
+        let Some(shared) = crate::geometry::mesh::shared_test_data() else {
             return;
         };
         let data = BopDataset::open(shared.join("lmo")).unwrap();

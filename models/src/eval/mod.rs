@@ -7,7 +7,7 @@
 //!   distance, pixels), the last two minimised over the object's [`symmetry`] transforms.
 //! - [`recall`] matches each target's estimates, best score first, to the ground truth greedily.
 //! - [`score_results`] puts it together for a [`BopDataset`](crate::bop::BopDataset): it renders
-//!   the `models_eval/` meshes with [`crate::render`], computes every error of every estimate
+//!   the `models_eval/` meshes with [`crate::geometry::render`], computes every error of every estimate
 //!   against every instance of its object, and reports per object and overall
 //!   ([`ScoreReport`]):
 //!   - the BOP 2018 recall: VSD with δ 15 mm, τ 20 mm and the 2018 visibility rule, correct

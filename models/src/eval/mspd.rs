@@ -4,7 +4,7 @@
 
 use nalgebra::{Isometry3, Point3, Vector2};
 
-use crate::camera::Intrinsics;
+use crate::geometry::camera::Intrinsics;
 use crate::Pose;
 
 fn project(k: &[f64; 4], p: &Point3<f64>) -> Vector2<f64> {

@@ -10,7 +10,7 @@
 //! outside their intersection or where the two renderings differ by τ or more; VSD is the mean
 //! cost ([`vsd_errors`]). An empty union costs 1.
 
-use crate::camera::Intrinsics;
+use crate::geometry::camera::Intrinsics;
 use crate::{Error, Result};
 
 /// How a rendered pixel is judged visible against the test image.

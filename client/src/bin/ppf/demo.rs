@@ -14,12 +14,12 @@ use ppfd_client::{
     Intrinsics,
 };
 use ppfd_models::bop::BopDataset;
-use ppfd_models::camera::OwnedDepthFrame;
-use ppfd_models::mesh::Mesh;
+use ppfd_models::geometry::camera::OwnedDepthFrame;
+use ppfd_models::geometry::mesh::Mesh;
+use ppfd_models::model::store;
 use ppfd_models::model::{ModelParams, ObjectModel};
-use ppfd_models::parts::Part;
-use ppfd_models::store;
-use ppfd_models::synthetic::{NoiseModel, SceneSpec};
+use ppfd_models::synthetic::parts::Part;
+use ppfd_models::synthetic::scene::{NoiseModel, SceneSpec};
 use ppfd_models::Pose;
 
 use crate::common::{print_latency, ScratchDir, MAX_HYPOTHESES};
@@ -492,7 +492,7 @@ mod tests {
 
     /// A closed box of `size` mm.
     fn box_mesh([sx, sy, sz]: [f32; 3]) -> Mesh {
-        ppfd_models::parts::box_mesh(nalgebra::Vector3::new(sx, sy, sz))
+        ppfd_models::synthetic::parts::box_mesh(nalgebra::Vector3::new(sx, sy, sz))
     }
 
     /// The daemon takes a mesh's object id from the digits ending its name: a dataset's mesh

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 use ppfd_models::bop::BopDataset;
-use ppfd_models::detector::{DetectOptions, Detector};
+use ppfd_models::detect::detector::{DetectOptions, Detector};
 use rayon::prelude::*;
 
 use crate::offline::{dataset_models, symmetric_pose_errors};
@@ -178,8 +178,8 @@ pub struct DatasetDetectArgs {
 
 impl DatasetDetectArgs {
     /// The detector's parameters with this command's overrides.
-    pub fn params(&self) -> Result<ppfd_models::detector::DetectParams, String> {
-        let mut p = ppfd_models::detector::DetectParams::new();
+    pub fn params(&self) -> Result<ppfd_models::detect::detector::DetectParams, String> {
+        let mut p = ppfd_models::detect::detector::DetectParams::new();
         if let Some(s) = self.reference_step {
             p.voting.reference_step = s;
         }
@@ -292,15 +292,15 @@ fn ms(d: std::time::Duration) -> f64 {
 /// Runs the stages one by one for each object and prints where the first correct pose (within
 /// 0.1 D and 15° of the ground truth) ranks after each.
 pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
-    use ppfd_models::clustering::cluster_poses;
-    use ppfd_models::detector::shared_clouds;
-    use ppfd_models::filters::{simplified_mesh, EdgeMap};
-    use ppfd_models::icp::refine;
-    use ppfd_models::plane::SupportingPlane;
-    use ppfd_models::render::bounding_sphere;
-    use ppfd_models::rescoring::{score_poses, Outline};
-    use ppfd_models::scene::{prepare, PreparedScene};
-    use ppfd_models::voting::{vote_from, Selection};
+    use ppfd_models::detect::clustering::cluster_poses;
+    use ppfd_models::detect::detector::shared_clouds;
+    use ppfd_models::detect::filters::{simplified_mesh, EdgeMap};
+    use ppfd_models::detect::icp::refine;
+    use ppfd_models::detect::plane::SupportingPlane;
+    use ppfd_models::detect::rescoring::{score_poses, Outline};
+    use ppfd_models::detect::scene::{prepare, PreparedScene};
+    use ppfd_models::detect::voting::{vote_from, Selection};
+    use ppfd_models::geometry::render::bounding_sphere;
     let dataset = BopDataset::open(&args.dataset)?;
     let gt = dataset.ground_truth(args.scene, args.image)?.to_vec();
     let ids = if args.objects.is_empty() {

@@ -7,7 +7,7 @@ use std::time::Instant;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use ppfd_models::bop::BopDataset;
-use ppfd_models::detector::{DetectOptions, Detector};
+use ppfd_models::detect::detector::{DetectOptions, Detector};
 use ppfd_models::eval::csv::{write_results_file, EstimateRow};
 use ppfd_models::eval::score::{score_results, ScoreOptions};
 
@@ -84,7 +84,7 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
         args.objects.clone()
     };
     // Parameters before models: a mistyped name fails at once, not after the builds.
-    let mut params = ppfd_models::detector::DetectParams::new();
+    let mut params = ppfd_models::detect::detector::DetectParams::new();
     for kv in &args.set {
         params.set_from(kv)?;
     }

@@ -344,7 +344,7 @@ mod tests {
             "RS"
         );
         // The offline table passes the detector's bits straight in, as the daemon sends them.
-        use ppfd_models::detector::Checks;
+        use ppfd_models::detect::detector::Checks;
         assert_eq!(
             [
                 Checks::RESCORED,

@@ -6,9 +6,9 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
-use ppfd_models::mesh::Mesh;
+use ppfd_models::geometry::mesh::Mesh;
+use ppfd_models::model::store;
 use ppfd_models::model::{ModelParams, ObjectModel};
-use ppfd_models::store;
 
 use crate::common::ScratchDir;
 

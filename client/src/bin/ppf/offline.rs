@@ -4,9 +4,10 @@ use std::path::Path;
 
 use indicatif::{ProgressBar, ProgressStyle};
 use ppfd_models::bop::BopDataset;
-use ppfd_models::mesh::Mesh;
+use ppfd_models::geometry::mesh::Mesh;
+use ppfd_models::model::store;
 use ppfd_models::model::{ModelParams, ObjectModel};
-use ppfd_models::{store, Pose};
+use ppfd_models::Pose;
 
 /// Loads the model of `mesh_path` from the cache ([`store::default_cache_dir`], the daemon's
 /// default too), or builds it and caches it.
@@ -124,7 +125,7 @@ mod tests {
 
     /// An ASCII PLY file of a closed box of `size` mm.
     fn write_box_ply(path: &Path, [sx, sy, sz]: [f32; 3]) {
-        let mesh = ppfd_models::parts::box_mesh(nalgebra::Vector3::new(sx, sy, sz));
+        let mesh = ppfd_models::synthetic::parts::box_mesh(nalgebra::Vector3::new(sx, sy, sz));
         std::fs::write(path, mesh.to_ply_ascii()).unwrap();
     }
 

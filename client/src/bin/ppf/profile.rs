@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use clap::Args;
 use ppfd_models::bop::BopDataset;
-use ppfd_models::detector::{DetectOptions, DetectParams, Detector, StageTimings};
+use ppfd_models::detect::detector::{DetectOptions, DetectParams, Detector, StageTimings};
 
 use crate::offline::dataset_models;
 

@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 use clap::Args;
 use ppfd_client::{monotonic_now_ns, CameraPublisher, Intrinsics};
 use ppfd_models::bop::BopDataset;
-use ppfd_models::camera::OwnedDepthFrame;
+use ppfd_models::geometry::camera::OwnedDepthFrame;
 
 use crate::common::{scenes_there, Connect};
 use crate::stop;

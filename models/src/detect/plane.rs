@@ -10,7 +10,7 @@
 //! normal) are not taken as reference points, nor as their partners: they cannot be model
 //! points, so their pairs with a point on an object only add votes for wrong poses. On the LM-O
 //! frame dropping them as partners cut voting by about a tenth and left every result as it was;
-//! on synth-lmo-dev recall went from 0.926 to 0.931 ([`crate::voting::VotingParams::plane_partners`]
+//! on synth-lmo-dev recall went from 0.926 to 0.931 ([`crate::detect::voting::VotingParams::plane_partners`]
 //! keeps them).
 //!
 //! An object resting on the supporting plane lies on the camera's side of it. Points behind it
@@ -19,7 +19,7 @@
 //! the duck's reference points lay there: the eight objects took 6.4–6.5 s instead of 11.2 s
 //! (`ppf profile`, both in one run; the slower one also shared clouds between diameters 10 %
 //! apart, as the detector did until this change, see
-//! [`crate::detector::DetectParams::shared_cloud_diameter_ratio`]), the same six of eight best
+//! [`crate::detect::detector::DetectParams::shared_cloud_diameter_ratio`]), the same six of eight best
 //! poses correct; synth-lmo-dev's recall stayed 0.935 in 0.85 of the time.
 //!
 //! This takes the dominant plane for the support. Where it need not be, a cell turns the
@@ -34,8 +34,8 @@
 
 use nalgebra::{Matrix3, Point3, SymmetricEigen, Vector3};
 
-use crate::rng::Rng;
-use crate::subsample::OrientedPoints;
+use crate::geometry::rng::Rng;
+use crate::model::subsample::OrientedPoints;
 
 /// Parameters of the supporting plane search.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -12,7 +12,7 @@
 //! floor 750 mm below it).
 //!
 //! ```
-//! use ppfd_models::{parts::Part, synthetic::SceneSpec};
+//! use ppfd_models::synthetic::{parts::Part, scene::SceneSpec};
 //! let (bracket, gear) = (Part::LBracket.mesh(), Part::ToothedDisc.mesh());
 //! let scene = SceneSpec::new(7).object(1, &bracket).object(3, &gear).clutter(2).build().unwrap();
 //! assert_eq!(scene.ground_truth.len(), 2);
@@ -26,13 +26,13 @@ use nalgebra::{
     Vector3,
 };
 
-use crate::camera::{Intrinsics, OwnedDepthFrame};
-use crate::mesh::Mesh;
-use crate::parts::{box_mesh, cylinder_mesh};
-use crate::render::{render_scene, DepthImage, Renderer, Roi, NO_OBJECT};
+use crate::geometry::camera::{Intrinsics, OwnedDepthFrame};
+use crate::geometry::mesh::Mesh;
+use crate::geometry::render::{render_scene, DepthImage, Renderer, Roi, NO_OBJECT};
+use crate::synthetic::parts::{box_mesh, cylinder_mesh};
 use crate::{Error, Pose, Result};
 
-pub use crate::rng::Rng;
+pub use crate::geometry::rng::Rng;
 
 /// Kinect-v1-like depth noise, applied to the rendered depth before it is quantised to 1 mm.
 /// Defaults follow Nguyen et al. (2012) for the axial term and what the real LM-O frames show for
@@ -421,7 +421,7 @@ impl<'a> SceneSpec<'a> {
         let mut footprints: Vec<(nalgebra::Vector2<f32>, f32)> = Vec::new();
         for o in &self.objects {
             if let Placement::At(pose) = o.placement {
-                let (c, r) = crate::render::bounding_sphere(o.mesh);
+                let (c, r) = crate::geometry::render::bounding_sphere(o.mesh);
                 let c = pose * c;
                 footprints.push((nalgebra::Vector2::new(c.x, c.y), r));
             }
@@ -840,8 +840,8 @@ fn free_spot(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::parts::Part;
-    use crate::render::render_depth;
+    use crate::geometry::render::render_depth;
+    use crate::synthetic::parts::Part;
 
     fn parts() -> Vec<(u32, Mesh)> {
         Part::ALL
@@ -1100,7 +1100,7 @@ mod tests {
     #[test]
     fn random_poses_stay_in_view() {
         let mesh = Part::TPipe.mesh();
-        let (_, radius) = crate::render::bounding_sphere(&mesh);
+        let (_, radius) = crate::geometry::render::bounding_sphere(&mesh);
         let mut rng = Rng::new(9);
         for _ in 0..20 {
             let pose = random_pose_in_view(&mut rng, 2.0 * radius, (500.0, 1500.0));

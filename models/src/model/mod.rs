@@ -2,8 +2,14 @@
 //! subsampled oriented points, the PPF lookup table and what rendering needs.
 //!
 //! [`ObjectModel`] is the same in memory whether just built or read from a model file
-//! ([`crate::store`], into a private memory map): a byte buffer holding an rkyv archive of
+//! ([`crate::model::store`], into a private memory map): a byte buffer holding an rkyv archive of
 //! [`ModelData`], read in place.
+
+pub mod feature;
+pub mod sampling;
+pub mod store;
+pub mod subsample;
+pub mod table;
 
 use std::f32::consts::PI;
 use std::sync::{Arc, Mutex};
@@ -13,11 +19,11 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 use rkyv::util::AlignedVec;
 
-use crate::feature::{key_count, LocalFrame, PointPairFeature, Quantizer};
-use crate::mesh::Mesh;
-use crate::sampling::{diameter, sample_surface};
-use crate::subsample::{subsample, OrientedPoints, SubsampleParams};
-use crate::table::{pack_entry, LookupTable};
+use crate::geometry::mesh::Mesh;
+use crate::model::feature::{key_count, LocalFrame, PointPairFeature, Quantizer};
+use crate::model::sampling::{diameter, sample_surface};
+use crate::model::subsample::{subsample, OrientedPoints, SubsampleParams};
+use crate::model::table::{pack_entry, LookupTable};
 use crate::{Error, Result};
 
 /// Parameters of model building. Defaults are the paper's (Vidal et al. 2018, §V) where it gives
@@ -145,11 +151,11 @@ pub struct ModelData {
     /// The parameters it was built with.
     pub params: ModelParams,
     /// [`Mesh::fingerprint`] of the mesh it was built from: a cached model is reused only for
-    /// the same mesh ([`crate::store::load_expecting`]).
+    /// the same mesh ([`crate::model::store::load_expecting`]).
     pub mesh_fingerprint: u32,
     /// CRC-32 of the bytes of the file the mesh was read from, 0 when unknown: a cached model
     /// whose file is unchanged is reused without reading the mesh again
-    /// ([`crate::store::load_built_from_file`]). Set with [`ObjectModel::with_source_crc`].
+    /// ([`crate::model::store::load_built_from_file`]). Set with [`ObjectModel::with_source_crc`].
     pub source_crc: u32,
     /// Subsampled oriented points (mm, unit normals): the model points of the lookup table.
     pub points: Vec<[f32; 3]>,
@@ -159,7 +165,7 @@ pub struct ModelData {
     pub surface_normals: Vec<[f32; 3]>,
     /// Lookup table offsets: `key_count + 1` values.
     pub table_offsets: Vec<u32>,
-    /// Lookup table entries (see [`crate::table::pack_entry`]).
+    /// Lookup table entries (see [`crate::model::table::pack_entry`]).
     pub table_entries: Vec<u32>,
     /// The mesh, for rendering: vertex positions (mm) and triangles.
     pub mesh_positions: Vec<[f32; 3]>,
@@ -271,7 +277,7 @@ impl ObjectModel {
         })
     }
 
-    /// A model over an already validated archive in a private memory map (see [`crate::store`]).
+    /// A model over an already validated archive in a private memory map (see [`crate::model::store`]).
     pub(crate) fn from_validated_map(map: Mmap, offset: usize) -> Self {
         Self {
             backing: Backing::Mapped { map, offset },
@@ -326,7 +332,7 @@ impl ObjectModel {
     }
 
     /// The same model, recording that its mesh was read from a file whose bytes have the CRC-32
-    /// `crc` ([`crate::store::source_crc`]).
+    /// `crc` ([`crate::model::store::source_crc`]).
     pub fn with_source_crc(self, crc: u32) -> Result<Self> {
         Self::clone_with_source_crc(&self, crc)
     }
@@ -410,7 +416,7 @@ impl ObjectModel {
         }
     }
 
-    /// The mesh with vertices merged on a grid of `cell_mm` ([`crate::filters::simplified_mesh`])
+    /// The mesh with vertices merged on a grid of `cell_mm` ([`crate::detect::filters::simplified_mesh`])
     /// that silhouettes are rendered from; kept after the first call for the same cell.
     pub fn silhouette_mesh(&self, cell_mm: f32) -> Arc<Mesh> {
         let mut kept = self.silhouette.lock().unwrap_or_else(|p| p.into_inner());
@@ -419,7 +425,7 @@ impl ObjectModel {
                 return mesh.clone();
             }
         }
-        let mesh = Arc::new(crate::filters::simplified_mesh(
+        let mesh = Arc::new(crate::detect::filters::simplified_mesh(
             &self.render_mesh(),
             cell_mm,
         ));
@@ -491,7 +497,7 @@ pub fn alpha_step(alpha_bins: u32) -> f32 {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::table::{entry_alpha, entry_model_point};
+    use crate::model::table::{entry_alpha, entry_model_point};
 
     /// A closed box with split vertices per face (so normals are exact), for tests that must not
     /// depend on the mesh reader or the generated parts.
@@ -534,7 +540,7 @@ pub(crate) mod tests {
         )
         .unwrap();
         let first = model.silhouette_mesh(4.0);
-        let made = crate::filters::simplified_mesh(&model.render_mesh(), 4.0);
+        let made = crate::detect::filters::simplified_mesh(&model.render_mesh(), 4.0);
         assert_eq!(first.positions, made.positions);
         assert_eq!(first.faces, made.faces);
         assert!(Arc::ptr_eq(&first, &model.silhouette_mesh(4.0)), "kept");
@@ -542,7 +548,7 @@ pub(crate) mod tests {
         assert!(!Arc::ptr_eq(&first, &finer), "another cell, another mesh");
         assert_eq!(
             finer.faces,
-            crate::filters::simplified_mesh(&model.render_mesh(), 1.0).faces
+            crate::detect::filters::simplified_mesh(&model.render_mesh(), 1.0).faces
         );
     }
 

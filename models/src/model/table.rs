@@ -131,7 +131,7 @@ mod tests {
 
     #[test]
     fn fixed_point_bins_match_float_bins() {
-        use crate::feature::{alpha_bin, wrap_angle};
+        use crate::model::feature::{alpha_bin, wrap_angle};
         let mut mismatches = 0;
         let n = 200;
         for i in 0..n {

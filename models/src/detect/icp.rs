@@ -7,9 +7,9 @@
 
 use nalgebra::{Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
 
-use crate::rescoring::{facing_projection, PoseMatrix};
-use crate::scene::SceneImage;
-use crate::subsample::OrientedPoints;
+use crate::detect::rescoring::{facing_projection, PoseMatrix};
+use crate::detect::scene::SceneImage;
+use crate::model::subsample::OrientedPoints;
 use crate::Pose;
 
 /// Parameters of projective ICP.

@@ -556,7 +556,7 @@ mod tests {
     #[test]
     fn neighbour_keys_are_the_plain_product() {
         let q = Quantizer::new(100.0, 20, 15);
-        let mut rng = crate::rng::Rng::new(5);
+        let mut rng = crate::geometry::rng::Rng::new(5);
         let mut counts = [0usize; MAX_KEYS + 1];
         for _ in 0..20_000 {
             let f = PointPairFeature {

@@ -12,7 +12,7 @@
 //!
 //! A model file used as a cache of a mesh is checked with [`load_built_from_file`] (the same
 //! parameters and the same bytes of the mesh file: no need to read the mesh) or, failing that,
-//! [`load_expecting`] (the same parameters and the same mesh, [`crate::mesh::Mesh::fingerprint`],
+//! [`load_expecting`] (the same parameters and the same mesh, [`crate::geometry::mesh::Mesh::fingerprint`],
 //! whatever the file looks like).
 
 use std::fs::File;
@@ -21,7 +21,7 @@ use std::path::{Path, PathBuf};
 
 use memmap2::Mmap;
 
-use crate::feature::key_count;
+use crate::model::feature::key_count;
 use crate::model::{ArchivedModelData, ModelParams, ObjectModel};
 use crate::{Error, Result};
 
@@ -30,7 +30,7 @@ pub const EXTENSION: &str = "ppfm";
 /// Bumped whenever [`crate::model::ModelData`], the table encoding or what a model is built
 /// from a mesh changes. Version 2 added the mesh fingerprint, version 3 the CRC of the mesh
 /// file; version 4 takes the normals of a mesh without normals from its faces split at creases
-/// ([`crate::mesh::CREASE_ANGLE_DEG`]). Only the models of such meshes differ, but every file
+/// ([`crate::geometry::mesh::CREASE_ANGLE_DEG`]). Only the models of such meshes differ, but every file
 /// of an earlier version is refused: a cached model is rebuilt from its mesh, a model file
 /// without one has to be rebuilt (`ppf model build`).
 pub const FORMAT_VERSION: u32 = 4;
@@ -225,7 +225,7 @@ pub fn load(path: &Path) -> Result<ObjectModel> {
 /// `expected` or from another mesh than the one whose [`Mesh::fingerprint`] is
 /// `mesh_fingerprint`. A refusal means "rebuild": the caller has the mesh at hand.
 ///
-/// [`Mesh::fingerprint`]: crate::mesh::Mesh::fingerprint
+/// [`Mesh::fingerprint`]: crate::geometry::mesh::Mesh::fingerprint
 pub fn load_expecting(
     path: &Path,
     expected: &ModelParams,

@@ -9,10 +9,10 @@
 
 use nalgebra::Point3;
 
-use crate::mesh::Mesh;
-use crate::render::{Renderer, Roi};
-use crate::rescoring::Fit;
-use crate::scene::SceneImage;
+use crate::detect::rescoring::Fit;
+use crate::detect::scene::SceneImage;
+use crate::geometry::mesh::Mesh;
+use crate::geometry::render::{Renderer, Roi};
 use crate::Pose;
 
 /// Parameters of the two filters. Defaults were measured on generated scenes and the LM-O
@@ -314,20 +314,20 @@ pub fn outline_counts(
 /// tens of thousands of triangles of a millimetre or so, most smaller than a pixel at working
 /// distance; merging them keeps the outline within a cell and makes rendering several times
 /// cheaper. The detector's cell is 0.04 D (see
-/// [`crate::rescoring::RescoringParams::silhouette_mesh_cell_fraction`]): 4–10 mm for the LM-O
+/// [`crate::detect::rescoring::RescoringParams::silhouette_mesh_cell_fraction`]): 4–10 mm for the LM-O
 /// objects, 2–6 pixels at 1 m.
 pub fn simplified_mesh(mesh: &Mesh, cell_mm: f32) -> Mesh {
     if cell_mm.is_nan() || cell_mm <= 0.0 {
         return mesh.clone();
     }
     let inv = 1.0 / cell_mm;
-    let mut cell_of: crate::grid::CellMap<u32> = Default::default();
+    let mut cell_of: crate::geometry::grid::CellMap<u32> = Default::default();
     let mut sums: Vec<(nalgebra::Vector3<f32>, u32)> = Vec::new();
     let remap: Vec<u32> = mesh
         .positions
         .iter()
         .map(|p| {
-            let key = crate::grid::cell_of(p, inv);
+            let key = crate::geometry::grid::cell_of(p, inv);
             let id = *cell_of.entry(key).or_insert_with(|| {
                 sums.push((nalgebra::Vector3::zeros(), 0));
                 (sums.len() - 1) as u32

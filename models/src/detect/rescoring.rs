@@ -26,9 +26,9 @@
 use nalgebra::{Matrix3, Point3, Vector3};
 use rayon::prelude::*;
 
-use crate::camera::Intrinsics;
-use crate::scene::SceneImage;
-use crate::subsample::OrientedPoints;
+use crate::detect::scene::SceneImage;
+use crate::geometry::camera::Intrinsics;
+use crate::model::subsample::OrientedPoints;
 use crate::Pose;
 
 /// Parameters of re-scoring.
@@ -58,7 +58,7 @@ pub struct RescoringParams {
     /// Exponent of the silhouette agreement in the score; 0 scores by the fit alone.
     pub silhouette_weight: f32,
     /// The silhouette agreement divides by at least this fraction of the whole outline, hidden
-    /// parts included (see [`crate::filters::OutlineCounts::fraction_of_at_least`]).
+    /// parts included (see [`crate::detect::filters::OutlineCounts::fraction_of_at_least`]).
     pub min_visible_outline: f32,
     /// Silhouettes are rendered from a copy of the model's mesh with vertices merged on a grid
     /// of this fraction of the diameter: the outline moves by less than a cell, and the copy has
@@ -274,9 +274,9 @@ pub fn rescore(
 /// [`RescoringParams::silhouette_mesh_cell_fraction`]), its bounding sphere in model
 /// coordinates, and the scene's depth edges.
 pub struct Outline<'a> {
-    pub mesh: &'a crate::mesh::Mesh,
+    pub mesh: &'a crate::geometry::mesh::Mesh,
     pub sphere: &'a (Point3<f32>, f32),
-    pub edges: &'a crate::filters::EdgeMap,
+    pub edges: &'a crate::detect::filters::EdgeMap,
 }
 
 /// The whole re-scoring of `poses`: [`rescore`] with inlier tolerance `tolerance` (mm), then,
@@ -332,9 +332,9 @@ pub fn with_silhouettes(
         }
         let end = (measured + batch).min(scored.len());
         scored[measured..end].par_iter_mut().for_each_init(
-            crate::render::Renderer::new,
+            crate::geometry::render::Renderer::new,
             |renderer, s| {
-                let f = crate::filters::outline_counts(
+                let f = crate::detect::filters::outline_counts(
                     renderer,
                     outline.mesh,
                     outline.sphere,
@@ -364,13 +364,13 @@ pub fn with_silhouettes(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::filters::{simplified_mesh, EdgeMap, FilterParams};
+    use crate::detect::filters::{simplified_mesh, EdgeMap, FilterParams};
+    use crate::detect::scene::{prepare, SceneParams};
+    use crate::geometry::render::bounding_sphere;
+    use crate::geometry::rng::Rng;
     use crate::model::{ModelParams, ObjectModel};
-    use crate::parts::Part;
-    use crate::render::bounding_sphere;
-    use crate::rng::Rng;
-    use crate::scene::{prepare, SceneParams};
-    use crate::synthetic::SceneSpec;
+    use crate::synthetic::parts::Part;
+    use crate::synthetic::scene::SceneSpec;
     use nalgebra::{Translation3, UnitQuaternion};
 
     #[test]

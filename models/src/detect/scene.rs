@@ -5,8 +5,8 @@ use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
-use crate::camera::{DepthFrame, Intrinsics};
-use crate::subsample::{subsample, OrientedPoints, SubsampleParams};
+use crate::geometry::camera::{DepthFrame, Intrinsics};
+use crate::model::subsample::{subsample, OrientedPoints, SubsampleParams};
 use crate::{Error, Result};
 
 /// Parameters of scene preparation.
@@ -761,7 +761,7 @@ mod tests {
     /// what nalgebra refuses.
     #[test]
     fn symmetric_solve_matches_nalgebra() {
-        let mut rng = crate::rng::Rng::new(9);
+        let mut rng = crate::geometry::rng::Rng::new(9);
         for _ in 0..1000 {
             // The normal equations of a 7 × 7 window with some samples left out.
             let (mut a, mut b) = ([0f64; 6], [0f64; 3]);

@@ -3,7 +3,7 @@
 //! give them.
 //!
 //! ```
-//! use ppfd_models::detector::DetectParams;
+//! use ppfd_models::detect::detector::DetectParams;
 //!
 //! let mut p = DetectParams::new();
 //! p.set("voting.reference_step", "4").unwrap();
@@ -12,8 +12,8 @@
 //! assert!(p.set("rescoring.support_weight", "NaN").is_err());
 //! ```
 
-use crate::detector::DetectParams;
-use crate::scene::NormalEstimation;
+use crate::detect::detector::DetectParams;
+use crate::detect::scene::NormalEstimation;
 
 /// A parameter's value as text, both ways.
 trait Value: Sized {

@@ -11,7 +11,7 @@
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
-use crate::grid::CellMap;
+use crate::geometry::grid::CellMap;
 
 /// Oriented points: positions (mm) with unit normals, index-aligned.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -50,7 +50,7 @@ type VoxelKey = (i32, i32, i32);
 
 #[inline]
 fn voxel_of(p: &Point3<f32>, inv_leaf: f32) -> VoxelKey {
-    crate::grid::cell_of(p, inv_leaf)
+    crate::geometry::grid::cell_of(p, inv_leaf)
 }
 
 struct Cluster {
@@ -252,7 +252,7 @@ mod tests {
     /// coordinates, and a cloud too wide to pack sorts the tuples.
     #[test]
     fn voxels_sort_like_their_tuples() {
-        let mut rng = crate::rng::Rng::new(3);
+        let mut rng = crate::geometry::rng::Rng::new(3);
         for (spread, leaf) in [(500.0f32, 5.0f32), (3000.0, 0.7), (1e9, 1e-3)] {
             let mut pts = OrientedPoints::default();
             for _ in 0..20_000 {

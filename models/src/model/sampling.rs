@@ -6,9 +6,9 @@
 
 use nalgebra::{Point3, Vector3};
 
-use crate::mesh::Mesh;
-use crate::rng::Rng;
-use crate::subsample::OrientedPoints;
+use crate::geometry::mesh::Mesh;
+use crate::geometry::rng::Rng;
+use crate::model::subsample::OrientedPoints;
 use crate::{Error, Result};
 
 /// Samples the surface of `mesh` uniformly by area with about `count` points. Normals are the
@@ -151,7 +151,7 @@ mod tests {
     #[test]
     fn a_cube_without_normals_is_sampled_with_its_face_normals() {
         // Eight shared corners: the mean normal of a corner's faces is 55° off each of them.
-        let mesh = crate::mesh::welded_cube(50.0);
+        let mesh = crate::geometry::mesh::welded_cube(50.0);
         let pts = sample_surface(&mesh, 20_000, 3).unwrap();
         // The face a sample lies on is the axis along which it is furthest out.
         let errors = sorted_degrees(pts.positions.iter().zip(&pts.normals).map(|(p, n)| {

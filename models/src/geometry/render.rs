@@ -18,7 +18,8 @@
 //!
 //! ```
 //! use nalgebra::{Isometry3, Vector3};
-//! use ppfd_models::{camera::Intrinsics, parts::Part, render::render_depth};
+//! use ppfd_models::geometry::{camera::Intrinsics, render::render_depth};
+//! use ppfd_models::synthetic::parts::Part;
 //! let pose = Isometry3::translation(0.0, 0.0, 1000.0);
 //! let image = render_depth(&Part::FlangedCylinder.mesh(), &pose, &Intrinsics::LMO, 640, 480).unwrap();
 //! assert!(image.foreground_count() > 1000);
@@ -26,8 +27,8 @@
 
 use nalgebra::{Matrix3, Point3, Vector3};
 
-use crate::camera::{Intrinsics, OwnedDepthFrame};
-use crate::mesh::Mesh;
+use crate::geometry::camera::{Intrinsics, OwnedDepthFrame};
+use crate::geometry::mesh::Mesh;
 use crate::{Error, Pose, Result};
 
 /// The object index of pixels no object covers.
@@ -848,7 +849,7 @@ fn row_span(row: &[i64; 3], step_u: &[i64; 3], inv_step: &[f64; 3], last: i64) -
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::parts::{box_mesh, cylinder_mesh, Part};
+    use crate::synthetic::parts::{box_mesh, cylinder_mesh, Part};
     use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector2};
 
     const K: Intrinsics = Intrinsics::LMO;

@@ -527,7 +527,7 @@ mod tests {
 
     #[test]
     fn ascii_ply_reads_back_to_the_same_mesh() {
-        let mesh = crate::parts::Part::TPipe.mesh();
+        let mesh = crate::synthetic::parts::Part::TPipe.mesh();
         let text = mesh.to_ply_ascii();
         let back = Mesh::from_ply_reader(text.as_bytes(), "t_pipe.ply").unwrap();
         assert!(back.positions == mesh.positions, "positions differ");

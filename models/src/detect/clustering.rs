@@ -4,8 +4,8 @@
 
 use nalgebra::{Point3, Quaternion, Translation3, UnitQuaternion, Vector3, Vector4};
 
-use crate::grid::CellMap;
-use crate::voting::Hypothesis;
+use crate::detect::voting::Hypothesis;
+use crate::geometry::grid::CellMap;
 use crate::Pose;
 
 /// Members of one cluster tried as the start of its refined average, at most.
@@ -120,7 +120,7 @@ pub fn cluster_poses(
     // |q1 · q2| = cos(θ/2) for the angle θ between two rotations.
     let min_dot = (params.rotation_deg.to_radians() / 2.0).cos();
     let inv_cell = 1.0 / max_t;
-    let cell_of = |t: &Vector3<f32>| crate::grid::cell_of(&Point3::from(*t), inv_cell);
+    let cell_of = |t: &Vector3<f32>| crate::geometry::grid::cell_of(&Point3::from(*t), inv_cell);
     let mut clusters: Vec<Accumulating> = Vec::new();
     let mut grid: CellMap<Vec<u32>> = CellMap::default();
     for i in order {

@@ -9,12 +9,14 @@
 
 use rayon::prelude::*;
 
-use crate::feature::{alpha_of_bin, pose_from_alignment, LocalFrame, PointPairFeature, MAX_KEYS};
-use crate::grid::{cell_of, CellMap};
+use crate::detect::plane::SupportingPlane;
+use crate::detect::scene::PreparedScene;
+use crate::geometry::grid::{cell_of, CellMap};
+use crate::model::feature::{
+    alpha_of_bin, pose_from_alignment, LocalFrame, PointPairFeature, MAX_KEYS,
+};
+use crate::model::table::{alpha_to_fixed, fixed_difference_bin};
 use crate::model::ObjectModel;
-use crate::plane::SupportingPlane;
-use crate::scene::PreparedScene;
-use crate::table::{alpha_to_fixed, fixed_difference_bin};
 use crate::Pose;
 
 /// Parameters of voting.
@@ -243,7 +245,7 @@ struct Cast {
 
 /// The accumulator cell of each table entry for a scene pair of angle `alpha_s` (fixed
 /// point): `(model point << ROW_SHIFT) | bin(α_m − α_s)`, with the bin as
-/// [`crate::table::fixed_difference_bin`] gives it.
+/// [`crate::model::table::fixed_difference_bin`] gives it.
 #[inline(always)]
 fn cells_of(entries: &[rkyv::Archived<u32>], alpha_s: u16, alpha_bins: u16, out: &mut [u32]) {
     debug_assert_eq!(entries.len(), out.len());
@@ -314,13 +316,13 @@ pub fn vote(
 }
 
 /// Which scene points an object's voting uses: its reference points, and which points are left
-/// out: those on a large plane, and those behind the supporting plane (see [`crate::plane`]).
+/// out: those on a large plane, and those behind the supporting plane (see [`crate::detect::plane`]).
 #[derive(Clone, Debug, Default)]
 pub struct Selection {
     /// Indices into the scene's points.
     pub references: Vec<usize>,
     /// Per scene point: on one of the planes too large to be a face of the object, or behind
-    /// the supporting plane ([`crate::plane::PlaneParams::exclude_behind`]).
+    /// the supporting plane ([`crate::detect::plane::PlaneParams::exclude_behind`]).
     pub excluded: Vec<bool>,
 }
 
@@ -536,7 +538,7 @@ pub fn vote_from(
 }
 
 /// The bin of an angle given in fixed point (as [`alpha_to_fixed`] makes it) among `bins`:
-/// the same bins as [`crate::feature::alpha_bin`] (both start at −π).
+/// the same bins as [`crate::model::feature::alpha_bin`] (both start at −π).
 #[inline]
 fn fixed_bin(alpha_fixed: u16, bins: u32) -> u32 {
     (alpha_fixed as u32 * bins) >> 16
@@ -591,7 +593,7 @@ fn peaks(acc: &[u16], _nb: usize, params: &VotingParams, mut emit: impl FnMut(us
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::table::entry_model_point;
+    use crate::model::table::entry_model_point;
 
     /// Counts past a byte carry exactly, whichever copy takes the votes, and saturate at
     /// 65 535; a merge leaves every copy and carry cleared for the next reference point.
@@ -656,13 +658,13 @@ mod tests {
     /// flags as a set, one counter per (model point, α bin).
     #[test]
     fn votes_match_a_plain_count() {
-        use crate::feature::PointPairFeature;
+        use crate::model::feature::PointPairFeature;
+        use crate::model::subsample::OrientedPoints;
         use crate::model::{ModelParams, ObjectModel};
-        use crate::subsample::OrientedPoints;
         use nalgebra::{Translation3, UnitQuaternion};
         use std::collections::HashSet;
 
-        let part = crate::parts::Part::LBracket;
+        let part = crate::synthetic::parts::Part::LBracket;
         let model = ObjectModel::build(&part.mesh(), 1, "l", &ModelParams::default()).unwrap();
         let d = model.diameter_mm();
         let pose = Pose::from_parts(
@@ -744,7 +746,7 @@ mod tests {
     /// point off the planes has one, and it is the cube's first point in the cloud's order.
     #[test]
     fn reference_points_are_spread_one_per_cube() {
-        use crate::subsample::OrientedPoints;
+        use crate::model::subsample::OrientedPoints;
         use nalgebra::{Point3, Vector3};
         use std::collections::{HashMap, HashSet};
 
@@ -759,7 +761,7 @@ mod tests {
         }
         let scene = PreparedScene::new(
             &sheet,
-            &crate::subsample::SubsampleParams {
+            &crate::model::subsample::SubsampleParams {
                 leaf_mm: 2.5,
                 cluster_angle: 0.5,
                 neighbour_filtering: false,

@@ -11,7 +11,7 @@
 //! and clutter in synthetic scenes.
 //!
 //! ```
-//! use ppfd_models::parts::Part;
+//! use ppfd_models::synthetic::parts::Part;
 //! let mesh = Part::ToothedDisc.mesh();
 //! assert_eq!(mesh.positions.len(), mesh.normals.len());
 //! assert_eq!(Part::ToothedDisc.object_id(), 3);
@@ -22,7 +22,7 @@ use std::f64::consts::{PI, TAU};
 
 use nalgebra::{Point3, Vector2, Vector3};
 
-use crate::mesh::{split_creases, Mesh};
+use crate::geometry::mesh::{split_creases, Mesh};
 
 /// Edges whose faces meet at a larger angle than this keep one normal per side.
 pub const CREASE_ANGLE_DEG: f64 = 35.0;

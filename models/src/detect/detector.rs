@@ -9,19 +9,19 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
-use crate::camera::DepthFrame;
+use crate::geometry::camera::DepthFrame;
 use rayon::prelude::*;
 
-use crate::clustering::{cluster_poses, ClusteringParams};
-use crate::filters::{is_consistent, silhouette_fraction, EdgeMap, FilterParams};
-use crate::icp::{refine, IcpParams};
+use crate::detect::clustering::{cluster_poses, ClusteringParams};
+use crate::detect::filters::{is_consistent, silhouette_fraction, EdgeMap, FilterParams};
+use crate::detect::icp::{refine, IcpParams};
+use crate::detect::plane::{PlaneParams, SupportingPlane};
+use crate::detect::rescoring::{score_poses, Outline, RescoringParams};
+use crate::detect::scene::{prepare, PreparedScene, SceneImage, SceneParams};
+use crate::detect::voting::{vote_from, Selection, VotingParams};
+use crate::geometry::render::{bounding_sphere, Renderer};
+use crate::model::subsample::SubsampleParams;
 use crate::model::ObjectModel;
-use crate::plane::{PlaneParams, SupportingPlane};
-use crate::render::{bounding_sphere, Renderer};
-use crate::rescoring::{score_poses, Outline, RescoringParams};
-use crate::scene::{prepare, PreparedScene, SceneImage, SceneParams};
-use crate::subsample::SubsampleParams;
-use crate::voting::{vote_from, Selection, VotingParams};
 use crate::{Error, Pose, Result};
 
 /// Parameters of the whole detection pipeline, one struct per stage.
@@ -195,7 +195,7 @@ pub struct Detections {
     pub per_object_counts: Vec<Counts>,
 }
 
-fn clusters_as_poses(clusters: &[crate::clustering::PoseCluster]) -> Vec<(Pose, u32)> {
+fn clusters_as_poses(clusters: &[crate::detect::clustering::PoseCluster]) -> Vec<(Pose, u32)> {
     clusters.iter().map(|c| (c.pose, c.votes)).collect()
 }
 
@@ -472,7 +472,7 @@ impl Detector {
 mod tests {
     use super::*;
     use crate::model::ModelParams;
-    use crate::parts::Part;
+    use crate::synthetic::parts::Part;
 
     /// A cancel flag set before the call (as the daemon sets it when the client is gone) stops
     /// the detection at its first look, with `Cancelled`; unset, the same call detects.
@@ -485,8 +485,8 @@ mod tests {
             nalgebra::Translation3::new(0.0, 0.0, 700.0),
             nalgebra::UnitQuaternion::identity(),
         );
-        let scene =
-            crate::synthetic::SyntheticScene::single(&part.mesh(), 1, pose, None, 1).unwrap();
+        let scene = crate::synthetic::scene::SyntheticScene::single(&part.mesh(), 1, pose, None, 1)
+            .unwrap();
         let detector = Detector::new(DetectParams::new());
         let cancel = Arc::new(AtomicBool::new(true));
         let opts = DetectOptions {

@@ -1,0 +1,14 @@
+//! Detection at run time, one module per stage in the order they run: [`scene`] preparation,
+//! [`voting`] (with the supporting [`plane`]), [`clustering`], [`rescoring`], [`icp`] and the
+//! [`filters`]. [`detector::Detector`] runs all of it with [`detector::DetectParams`], whose
+//! fields [`settings`] names for `--set` and configuration files.
+
+pub mod clustering;
+pub mod detector;
+pub mod filters;
+pub mod icp;
+pub mod plane;
+pub mod rescoring;
+pub mod scene;
+pub mod settings;
+pub mod voting;
