@@ -6,7 +6,8 @@
 //!
 //! - [`geometry`]: [`mesh::Mesh`] is an object's surface as read from a PLY file (or generated
 //!   by [`parts`]); [`camera::DepthFrame`] is a depth image with its intrinsics; [`render`]
-//!   draws meshes into depth images (silhouettes, generated scenes, the VSD metric).
+//!   draws meshes into depth images (silhouettes, generated scenes, the VSD metric), from
+//!   coarser copies of them ([`simplify`]) where a silhouette needs no more.
 //! - [`model`]: [`model::ObjectModel`] is built from a mesh once, offline: dense surface samples
 //!   ([`sampling`]) are subsampled with normal clustering ([`subsample`]) and every ordered pair
 //!   of the remaining oriented points is stored under its quantised point pair feature
@@ -15,7 +16,9 @@
 //! - [`detect`]: at run time a depth frame becomes oriented scene points ([`scene`]), which vote
 //!   for model-point/angle pairs ([`voting`]); the votes become poses that are clustered
 //!   ([`clustering`]), re-scored from the camera's view ([`rescoring`]), refined by projective
-//!   ICP ([`icp`]) and filtered ([`filters`]). [`detector::Detector`] runs all of it.
+//!   ICP ([`icp`]) and filtered ([`filters`]); re-scoring and the filters both measure a pose's
+//!   outline against the scene's depth edges ([`silhouette`]). [`detector::Detector`] runs all
+//!   of it.
 //! - [`synthetic`]: generated parts ([`parts`]) and table-top scenes with ground truth and sensor
 //!   noise ([`synthetic::scene`]), so that all of the above can be tested without data files.
 //!
@@ -26,6 +29,7 @@
 //! [`parts`]: synthetic::parts
 //! [`camera::DepthFrame`]: geometry::camera::DepthFrame
 //! [`render`]: geometry::render
+//! [`simplify`]: geometry::simplify
 //! [`sampling`]: model::sampling
 //! [`subsample`]: model::subsample
 //! [`feature`]: model::feature
@@ -37,6 +41,7 @@
 //! [`rescoring`]: detect::rescoring
 //! [`icp`]: detect::icp
 //! [`filters`]: detect::filters
+//! [`silhouette`]: detect::silhouette
 //! [`detector::Detector`]: detect::detector::Detector
 //!
 //! The modules cite the method notes by section (`METHOD.md §2.3`): they are kept beside the

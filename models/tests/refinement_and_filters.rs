@@ -4,10 +4,11 @@
 
 use nalgebra::{Translation3, Unit, UnitQuaternion, Vector3};
 use ppfd_models::detect::detector::DetectParams;
-use ppfd_models::detect::filters::{is_consistent, silhouette_fraction, EdgeMap};
+use ppfd_models::detect::filters::is_consistent;
 use ppfd_models::detect::icp::refine;
 use ppfd_models::detect::rescoring::fit;
 use ppfd_models::detect::scene::{prepare, SceneImage};
+use ppfd_models::detect::silhouette::{silhouette_fraction, EdgeMap};
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::geometry::render::{bounding_sphere, Renderer};
 use ppfd_models::model::{ModelParams, ObjectModel};
@@ -300,7 +301,7 @@ fn filters_reject_a_planar_impostor_and_keep_the_true_pose() {
 /// border scored its silhouette on the border and beat a true pose.)
 #[test]
 fn the_image_border_is_no_depth_edge() {
-    use ppfd_models::detect::filters::outline_counts;
+    use ppfd_models::detect::silhouette::outline_counts;
     use ppfd_models::geometry::camera::{Intrinsics, OwnedDepthFrame};
     let params = DetectParams::new();
     let k = Intrinsics::LMO;
@@ -347,7 +348,8 @@ fn the_image_border_is_no_depth_edge() {
 /// full-resolution outline gives, and still tells the true pose from nearby wrong ones.
 #[test]
 fn near_outlines_are_measured_coarser_with_the_same_agreement() {
-    use ppfd_models::detect::filters::{outline_counts, FilterParams};
+    use ppfd_models::detect::filters::FilterParams;
+    use ppfd_models::detect::silhouette::outline_counts;
     let params = DetectParams::new();
     let part = Part::LBracket;
     let (mesh, model) = part_model(part);

@@ -13,11 +13,12 @@ use crate::geometry::camera::DepthFrame;
 use rayon::prelude::*;
 
 use crate::detect::clustering::{cluster_poses, ClusteringParams};
-use crate::detect::filters::{is_consistent, silhouette_fraction, EdgeMap, FilterParams};
+use crate::detect::filters::{is_consistent, FilterParams};
 use crate::detect::icp::{refine, IcpParams};
 use crate::detect::plane::{PlaneParams, SupportingPlane};
 use crate::detect::rescoring::{score_poses, Outline, RescoringParams};
 use crate::detect::scene::{prepare, PreparedScene, SceneImage, SceneParams};
+use crate::detect::silhouette::{silhouette_fraction, EdgeMap};
 use crate::detect::voting::{vote_from, Selection, VotingParams};
 use crate::geometry::render::{bounding_sphere, Renderer};
 use crate::model::subsample::SubsampleParams;

@@ -1,7 +1,8 @@
 //! Detection at run time, one module per stage in the order they run: [`scene`] preparation,
 //! [`voting`] (with the supporting [`plane`]), [`clustering`], [`rescoring`], [`icp`] and the
-//! [`filters`]. [`detector::Detector`] runs all of it with [`detector::DetectParams`], whose
-//! fields [`settings`] names for `--set` and configuration files.
+//! [`filters`]. [`silhouette`] holds what re-scoring and the filters both measure of a pose.
+//! [`detector::Detector`] runs all of it with [`detector::DetectParams`], whose fields
+//! [`settings`] names for `--set` and configuration files.
 
 pub mod clustering;
 pub mod detector;
@@ -11,4 +12,5 @@ pub mod plane;
 pub mod rescoring;
 pub mod scene;
 pub mod settings;
+pub mod silhouette;
 pub mod voting;

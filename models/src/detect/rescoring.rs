@@ -27,6 +27,7 @@ use nalgebra::{Matrix3, Point3, Vector3};
 use rayon::prelude::*;
 
 use crate::detect::scene::SceneImage;
+use crate::detect::silhouette::Fit;
 use crate::geometry::camera::Intrinsics;
 use crate::model::subsample::OrientedPoints;
 use crate::Pose;
@@ -58,7 +59,7 @@ pub struct RescoringParams {
     /// Exponent of the silhouette agreement in the score; 0 scores by the fit alone.
     pub silhouette_weight: f32,
     /// The silhouette agreement divides by at least this fraction of the whole outline, hidden
-    /// parts included (see [`crate::detect::filters::OutlineCounts::fraction_of_at_least`]).
+    /// parts included (see [`crate::detect::silhouette::OutlineCounts::fraction_of_at_least`]).
     pub min_visible_outline: f32,
     /// Silhouettes are rendered from a copy of the model's mesh with vertices merged on a grid
     /// of this fraction of the diameter: the outline moves by less than a cell, and the copy has
@@ -100,36 +101,6 @@ impl Default for RescoringParams {
             silhouette_weight: 1.5,
             min_visible_outline: 0.5,
             silhouette_mesh_cell_fraction: 0.04,
-        }
-    }
-}
-
-/// How the visible part of a model at a pose meets the scene.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Fit {
-    /// Surface points facing the camera and projecting into the image.
-    pub facing: u32,
-    /// Facing points where the scene has depth.
-    pub measured: u32,
-    /// Facing points within tolerance of the scene (and with agreeing normals).
-    pub inliers: u32,
-    /// Facing points with the scene well in front of them (beyond the conflict distance).
-    pub occluded: u32,
-    /// Facing points with the scene well behind them (beyond the conflict distance).
-    pub see_through: u32,
-}
-
-impl Fit {
-    /// Points that should be seen: measured and not hidden behind something else.
-    pub fn visible(&self) -> u32 {
-        self.measured - self.occluded
-    }
-
-    /// The fraction of the visible points that the scene confirms (0 when none is visible).
-    pub fn support(&self) -> f32 {
-        match self.visible() {
-            0 => 0.0,
-            v => self.inliers as f32 / v as f32,
         }
     }
 }
@@ -276,7 +247,7 @@ pub fn rescore(
 pub struct Outline<'a> {
     pub mesh: &'a crate::geometry::mesh::Mesh,
     pub sphere: &'a (Point3<f32>, f32),
-    pub edges: &'a crate::detect::filters::EdgeMap,
+    pub edges: &'a crate::detect::silhouette::EdgeMap,
 }
 
 /// The whole re-scoring of `poses`: [`rescore`] with inlier tolerance `tolerance` (mm), then,
@@ -334,7 +305,7 @@ pub fn with_silhouettes(
         scored[measured..end].par_iter_mut().for_each_init(
             crate::geometry::render::Renderer::new,
             |renderer, s| {
-                let f = crate::detect::filters::outline_counts(
+                let f = crate::detect::silhouette::outline_counts(
                     renderer,
                     outline.mesh,
                     outline.sphere,
@@ -364,10 +335,12 @@ pub fn with_silhouettes(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::detect::filters::{simplified_mesh, EdgeMap, FilterParams};
+    use crate::detect::filters::FilterParams;
     use crate::detect::scene::{prepare, SceneParams};
+    use crate::detect::silhouette::EdgeMap;
     use crate::geometry::render::bounding_sphere;
     use crate::geometry::rng::Rng;
+    use crate::geometry::simplify::simplified_mesh;
     use crate::model::{ModelParams, ObjectModel};
     use crate::synthetic::parts::Part;
     use crate::synthetic::scene::SceneSpec;

@@ -416,7 +416,7 @@ impl ObjectModel {
         }
     }
 
-    /// The mesh with vertices merged on a grid of `cell_mm` ([`crate::detect::filters::simplified_mesh`])
+    /// The mesh with vertices merged on a grid of `cell_mm` ([`crate::geometry::simplify::simplified_mesh`])
     /// that silhouettes are rendered from; kept after the first call for the same cell.
     pub fn silhouette_mesh(&self, cell_mm: f32) -> Arc<Mesh> {
         let mut kept = self.silhouette.lock().unwrap_or_else(|p| p.into_inner());
@@ -425,7 +425,7 @@ impl ObjectModel {
                 return mesh.clone();
             }
         }
-        let mesh = Arc::new(crate::detect::filters::simplified_mesh(
+        let mesh = Arc::new(crate::geometry::simplify::simplified_mesh(
             &self.render_mesh(),
             cell_mm,
         ));
@@ -540,7 +540,7 @@ pub(crate) mod tests {
         )
         .unwrap();
         let first = model.silhouette_mesh(4.0);
-        let made = crate::detect::filters::simplified_mesh(&model.render_mesh(), 4.0);
+        let made = crate::geometry::simplify::simplified_mesh(&model.render_mesh(), 4.0);
         assert_eq!(first.positions, made.positions);
         assert_eq!(first.faces, made.faces);
         assert!(Arc::ptr_eq(&first, &model.silhouette_mesh(4.0)), "kept");
@@ -548,7 +548,7 @@ pub(crate) mod tests {
         assert!(!Arc::ptr_eq(&first, &finer), "another cell, another mesh");
         assert_eq!(
             finer.faces,
-            crate::detect::filters::simplified_mesh(&model.render_mesh(), 1.0).faces
+            crate::geometry::simplify::simplified_mesh(&model.render_mesh(), 1.0).faces
         );
     }
 

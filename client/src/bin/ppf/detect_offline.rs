@@ -294,13 +294,14 @@ fn ms(d: std::time::Duration) -> f64 {
 pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
     use ppfd_models::detect::clustering::cluster_poses;
     use ppfd_models::detect::detector::shared_clouds;
-    use ppfd_models::detect::filters::{simplified_mesh, EdgeMap};
     use ppfd_models::detect::icp::refine;
     use ppfd_models::detect::plane::SupportingPlane;
     use ppfd_models::detect::rescoring::{score_poses, Outline};
     use ppfd_models::detect::scene::{prepare, PreparedScene};
+    use ppfd_models::detect::silhouette::EdgeMap;
     use ppfd_models::detect::voting::{vote_from, Selection};
     use ppfd_models::geometry::render::bounding_sphere;
+    use ppfd_models::geometry::simplify::simplified_mesh;
     let dataset = BopDataset::open(&args.dataset)?;
     let gt = dataset.ground_truth(args.scene, args.image)?.to_vec();
     let ids = if args.objects.is_empty() {
