@@ -6,8 +6,8 @@
 //!
 //! - [`geometry`]: [`mesh::Mesh`] is an object's surface as read from a PLY file (or generated
 //!   by [`parts`]); [`camera::DepthFrame`] is a depth image with its intrinsics; [`render`]
-//!   draws meshes into depth images (silhouettes, generated scenes, the VSD metric), from
-//!   coarser copies of them ([`simplify`]) where a silhouette needs no more.
+//!   draws meshes into depth images (silhouettes, generated scenes), from coarser copies of them
+//!   ([`simplify`]) where a silhouette needs no more.
 //! - [`model`]: [`model::ObjectModel`] is built from a mesh once, offline: dense surface samples
 //!   ([`sampling`]) are subsampled with normal clustering ([`subsample`]) and every ordered pair
 //!   of the remaining oriented points is stored under its quantised point pair feature
@@ -22,8 +22,7 @@
 //! - [`synthetic`]: generated parts ([`parts`]) and table-top scenes with ground truth and sensor
 //!   noise ([`synthetic::scene`]), so that all of the above can be tested without data files.
 //!
-//! Around the pipeline: [`bop`] reads BOP datasets and [`eval`] scores poses as the BOP toolkit
-//! does.
+//! BOP datasets are read, and poses scored as the BOP toolkit does, by the `ppfd-bop` crate.
 //!
 //! [`mesh::Mesh`]: geometry::mesh::Mesh
 //! [`parts`]: synthetic::parts
@@ -66,10 +65,8 @@
 //! println!("pose {:?}, score {:.2}, {:?} in voting", best.pose, best.score, found.timings.voting);
 //! ```
 
-pub mod bop;
 pub mod detect;
 pub mod error;
-pub mod eval;
 pub mod geometry;
 pub mod model;
 pub mod synthetic;

@@ -7,7 +7,7 @@
 
 use std::path::PathBuf;
 
-use ppfd_models::bop::BopDataset;
+use ppfd_bop::dataset::BopDataset;
 use ppfd_models::detect::detector::{DetectOptions, DetectParams, Detections, Detector};
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::{ModelParams, ObjectModel};

@@ -13,7 +13,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use ppfd_models::bop::BopDataset;
+use ppfd_bop::dataset::BopDataset;
 use ppfd_models::synthetic::parts::Part;
 use ppfd_models::Pose;
 use ppfd_tests::{

@@ -80,7 +80,7 @@ fn main() {
             let image: u32 = arg(&args, "--image")
                 .and_then(|v| v.parse().ok())
                 .unwrap_or(0);
-            let dataset = ppfd_models::bop::BopDataset::open(&root).expect("BOP dataset");
+            let dataset = ppfd_bop::dataset::BopDataset::open(&root).expect("BOP dataset");
             dataset.depth_frame(scene, image).expect("depth frame")
         })
     });

@@ -9,11 +9,11 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use clap::Args;
+use ppfd_bop::dataset::BopDataset;
 use ppfd_client::{
     isometry, monotonic_now_ns, CameraPublisher, Client, ClientOptions, DetectOptions, Detections,
     Intrinsics,
 };
-use ppfd_models::bop::BopDataset;
 use ppfd_models::geometry::camera::OwnedDepthFrame;
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::store;

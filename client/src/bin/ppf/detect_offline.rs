@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use clap::Args;
-use ppfd_models::bop::BopDataset;
+use ppfd_bop::dataset::BopDataset;
 use ppfd_models::detect::detector::{DetectOptions, Detector};
 use rayon::prelude::*;
 

@@ -6,10 +6,10 @@ use std::time::Instant;
 
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use ppfd_models::bop::BopDataset;
+use ppfd_bop::dataset::BopDataset;
+use ppfd_bop::eval::csv::{write_results_file, EstimateRow};
+use ppfd_bop::eval::score::{score_results, ScoreOptions};
 use ppfd_models::detect::detector::{DetectOptions, Detector};
-use ppfd_models::eval::csv::{write_results_file, EstimateRow};
-use ppfd_models::eval::score::{score_results, ScoreOptions};
 
 use crate::common::scenes_there;
 use crate::offline::dataset_models;

@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use indicatif::{ProgressBar, ProgressStyle};
-use ppfd_models::bop::BopDataset;
+use ppfd_bop::dataset::BopDataset;
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::store;
 use ppfd_models::model::{ModelParams, ObjectModel};

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use clap::Args;
-use ppfd_models::bop::BopDataset;
+use ppfd_bop::dataset::BopDataset;
 use ppfd_models::detect::detector::{DetectOptions, DetectParams, Detector, StageTimings};
 
 use crate::offline::dataset_models;

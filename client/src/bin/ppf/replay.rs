@@ -4,8 +4,8 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use clap::Args;
+use ppfd_bop::dataset::BopDataset;
 use ppfd_client::{monotonic_now_ns, CameraPublisher, Intrinsics};
-use ppfd_models::bop::BopDataset;
 use ppfd_models::geometry::camera::OwnedDepthFrame;
 
 use crate::common::{scenes_there, Connect};

@@ -7,8 +7,8 @@ use std::io::Write as _;
 use std::path::PathBuf;
 
 use clap::Args;
-use ppfd_models::bop::{read_test_targets, BopDataset};
-use ppfd_models::eval::{
+use ppfd_bop::dataset::{read_test_targets, BopDataset};
+use ppfd_bop::eval::{
     read_results, score_results, targets_from_ground_truth, ObjectScore, ScoreOptions, ScoreReport,
 };
 

@@ -3,7 +3,7 @@
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 
-use crate::bop::ModelInfo;
+use crate::dataset::ModelInfo;
 
 /// BOP's `max_sym_disc_step`: a continuous symmetry is sampled so that the model point furthest
 /// from the axis moves by at most this fraction of the diameter between samples.
@@ -46,9 +46,9 @@ pub fn symmetry_transforms(info: &ModelInfo, max_sym_disc_step: f64) -> Vec<Isom
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bop::ContinuousSymmetry;
-    use crate::Pose;
+    use crate::dataset::ContinuousSymmetry;
     use nalgebra::{Point3, Unit, Vector3};
+    use ppfd_models::Pose;
 
     fn info(discrete: Vec<Pose>, continuous: Vec<ContinuousSymmetry>) -> ModelInfo {
         ModelInfo {

@@ -4,8 +4,8 @@
 
 use nalgebra::{Isometry3, Point3, Vector2};
 
-use crate::geometry::camera::Intrinsics;
-use crate::Pose;
+use ppfd_models::geometry::camera::Intrinsics;
+use ppfd_models::Pose;
 
 fn project(k: &[f64; 4], p: &Point3<f64>) -> Vector2<f64> {
     Vector2::new(k[0] * p.x / p.z + k[2], k[1] * p.y / p.z + k[3])

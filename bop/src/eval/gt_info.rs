@@ -18,13 +18,13 @@ use std::sync::{Arc, Mutex};
 
 use nalgebra::Point3;
 
-use crate::bop::{BopDataset, GtInfo, ModelInfo};
+use crate::dataset::{BopDataset, GtInfo, ModelInfo};
 use crate::eval::vsd::{depth_to_distance, visibility_mask, VisibilityMode};
-use crate::geometry::camera::Intrinsics;
-use crate::geometry::mesh::Mesh;
-use crate::geometry::render::{Renderer, Roi};
-use crate::model::sampling::diameter;
-use crate::{Pose, Result};
+use ppfd_models::geometry::camera::Intrinsics;
+use ppfd_models::geometry::mesh::Mesh;
+use ppfd_models::geometry::render::{Renderer, Roi};
+use ppfd_models::model::sampling::diameter;
+use ppfd_models::{Pose, Result};
 
 /// δ of BOP's `calc_gt_info`, mm.
 pub const VISIBILITY_TOLERANCE_MM: f32 = 15.0;
@@ -195,9 +195,9 @@ pub fn image_gt_info(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::render::render_depth;
-    use crate::synthetic::parts::box_mesh;
     use nalgebra::{Translation3, UnitQuaternion, Vector3};
+    use ppfd_models::geometry::render::render_depth;
+    use ppfd_models::synthetic::parts::box_mesh;
 
     const K: Intrinsics = Intrinsics {
         fx: 500.0,
@@ -292,7 +292,7 @@ mod tests {
     /// Against the BOP toolkit's own figures: the LM-O frame's `scene_gt_info.json`.
     #[test]
     fn visibility_agrees_with_the_lmo_frames_own_file() {
-        let Some(shared) = crate::geometry::mesh::shared_test_data() else {
+        let Some(shared) = crate::shared_test_data() else {
             return;
         };
         let data = BopDataset::open(shared.join("lmo")).unwrap();

@@ -4,7 +4,7 @@
 
 use nalgebra::{Isometry3, Point3};
 
-use crate::Pose;
+use ppfd_models::Pose;
 
 /// MSSD of `estimate` against `truth` over the model vertices `points`, with the symmetry
 /// transforms `symmetries` (from [`super::symmetry::symmetry_transforms`]; must hold at least the

@@ -6,8 +6,8 @@
 //!   rules), [`mssd`] (largest vertex distance, mm) and [`mspd`] (largest projected vertex
 //!   distance, pixels), the last two minimised over the object's [`symmetry`] transforms.
 //! - [`recall`] matches each target's estimates, best score first, to the ground truth greedily.
-//! - [`score_results`] puts it together for a [`BopDataset`](crate::bop::BopDataset): it renders
-//!   the `models_eval/` meshes with [`crate::geometry::render`], computes every error of every estimate
+//! - [`score_results`] puts it together for a [`BopDataset`](crate::dataset::BopDataset): it renders
+//!   the `models_eval/` meshes with [`ppfd_models::geometry::render`], computes every error of every estimate
 //!   against every instance of its object, and reports per object and overall
 //!   ([`ScoreReport`]):
 //!   - the BOP 2018 recall: VSD with δ 15 mm, τ 20 mm and the 2018 visibility rule, correct
@@ -20,8 +20,8 @@
 //!   `inst_count` best-scored estimates are scored.
 //!
 //! ```no_run
-//! use ppfd_models::bop::BopDataset;
-//! use ppfd_models::eval::{read_results, score_results, ScoreOptions};
+//! use ppfd_bop::dataset::BopDataset;
+//! use ppfd_bop::eval::{read_results, score_results, ScoreOptions};
 //! let dataset = BopDataset::open("../shared/data/lmo")?;
 //! let rows = read_results("results.csv")?;
 //! let report = score_results(&dataset, &rows, &ScoreOptions::default())?;

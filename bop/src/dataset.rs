@@ -31,8 +31,8 @@ use std::sync::OnceLock;
 use nalgebra::{Matrix3, Matrix4, Point3, Translation3, Unit, UnitQuaternion, Vector3};
 use serde_json::Value;
 
-use crate::geometry::camera::{Intrinsics, OwnedDepthFrame};
-use crate::{Error, Pose, Result};
+use ppfd_models::geometry::camera::{Intrinsics, OwnedDepthFrame};
+use ppfd_models::{Error, Pose, Result};
 
 /// Tolerance on `RᵀR = I` for rotations read from files: LM-O's annotated rotations deviate by
 /// up to 0.0094; they are replaced by the nearest rotation.
@@ -1008,7 +1008,7 @@ fn read_depth_png(path: &Path) -> Result<(u32, u32, Vec<u16>)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::mesh::Mesh;
+    use ppfd_models::geometry::mesh::Mesh;
     use std::sync::atomic::{AtomicUsize, Ordering};
 
     /// A folder under the system temp dir, removed when dropped.
@@ -1380,7 +1380,7 @@ mod tests {
 
     #[test]
     fn lmo_scene_2_image_3() {
-        let Some(shared) = crate::geometry::mesh::shared_test_data() else {
+        let Some(shared) = crate::shared_test_data() else {
             return;
         };
         let data = BopDataset::open(shared.join("lmo")).unwrap();
@@ -1480,7 +1480,7 @@ mod tests {
     /// reading would not.
     #[test]
     fn lmo_ground_truth_matches_the_depth_image() {
-        let Some(shared) = crate::geometry::mesh::shared_test_data() else {
+        let Some(shared) = crate::shared_test_data() else {
             return;
         };
         let data = BopDataset::open(shared.join("lmo")).unwrap();
@@ -1521,7 +1521,7 @@ mod tests {
 
     #[test]
     fn synthetic_set_opens() {
-        let Some(shared) = crate::geometry::mesh::shared_test_data() else {
+        let Some(shared) = crate::shared_test_data() else {
             return;
         };
         let data = BopDataset::open(shared.join("synth-lmo-dev")).unwrap();
@@ -1539,7 +1539,7 @@ mod tests {
 
     #[test]
     fn single_scene_folder_opens_as_scene_0() {
-        let Some(shared) = crate::geometry::mesh::shared_test_data() else {
+        let Some(shared) = crate::shared_test_data() else {
             return;
         };
         let data = BopDataset::open(shared.join("mpabst_bop_obj19")).unwrap();

@@ -14,10 +14,10 @@ use super::mssd::mssd;
 use super::recall::{bop19_fractions, bop19_mspd_thresholds_px, match_greedy, Tally};
 use super::symmetry::{symmetry_transforms, MAX_SYM_DISC_STEP};
 use super::vsd::{depth_to_distance, vsd_errors, CostType, VisibilityMode};
-use crate::bop::{BopDataset, GtPose, ModelInfo, TestTarget};
-use crate::geometry::camera::Intrinsics;
-use crate::geometry::mesh::Mesh;
-use crate::{Error, Pose, Result};
+use crate::dataset::{BopDataset, GtPose, ModelInfo, TestTarget};
+use ppfd_models::geometry::camera::Intrinsics;
+use ppfd_models::geometry::mesh::Mesh;
+use ppfd_models::{Error, Pose, Result};
 
 /// What to score and with which settings. [`ScoreOptions::default`] is the benchmark's.
 #[derive(Clone, Debug)]
@@ -218,20 +218,20 @@ pub struct ScoreReport {
 type ImageTargets = BTreeMap<(u32, u32), Vec<(u32, u32)>>;
 
 /// Scores `rows` against `dataset` (see the [module documentation](super)), rendering with
-/// [`crate::geometry::render::Renderer`].
+/// [`ppfd_models::geometry::render::Renderer`].
 pub fn score_results(
     dataset: &BopDataset,
     rows: &[EstimateRow],
     options: &ScoreOptions,
 ) -> Result<ScoreReport> {
     score_results_with(dataset, rows, options, || {
-        let mut renderer = crate::geometry::render::Renderer::new().cull_back_faces(false);
+        let mut renderer = ppfd_models::geometry::render::Renderer::new().cull_back_faces(false);
         move |mesh: &Mesh, pose: &Pose, intrinsics: &Intrinsics, width: u32, height: u32| {
             renderer.render_into(
                 mesh,
                 pose,
                 intrinsics,
-                crate::geometry::render::Roi::full(width, height),
+                ppfd_models::geometry::render::Roi::full(width, height),
             )?;
             Ok(renderer.depth_mm().to_vec())
         }
@@ -909,9 +909,9 @@ mod tests {
 #[cfg(test)]
 mod rendered_tests {
     use super::*;
-    use crate::geometry::render::{render_scene, Renderer, Roi};
-    use crate::synthetic::parts::Part;
     use nalgebra::{Translation3, UnitQuaternion, Vector3};
+    use ppfd_models::geometry::render::{render_scene, Renderer, Roi};
+    use ppfd_models::synthetic::parts::Part;
 
     const W: u32 = 640;
     const H: u32 = 480;
@@ -1094,7 +1094,7 @@ mod lmo_tests {
     use nalgebra::Translation3;
 
     fn lmo() -> Option<BopDataset> {
-        let shared = crate::geometry::mesh::shared_test_data()?;
+        let shared = crate::shared_test_data()?;
         Some(BopDataset::open(shared.join("lmo")).unwrap())
     }
 
@@ -1141,7 +1141,7 @@ mod lmo_tests {
     /// computed.
     #[test]
     fn a_dataset_without_visibility_or_model_info_is_scored_with_them_computed() {
-        let Some(shared) = crate::geometry::mesh::shared_test_data() else {
+        let Some(shared) = crate::shared_test_data() else {
             return;
         };
         let source = shared.join("lmo");

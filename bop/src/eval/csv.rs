@@ -10,7 +10,7 @@ use std::path::Path;
 
 use nalgebra::{Matrix3, Translation3};
 
-use crate::{Error, Pose, Result};
+use ppfd_models::{Error, Pose, Result};
 
 /// The header line of a BOP results file.
 pub const RESULTS_HEADER: &str = "scene_id,im_id,obj_id,score,R,t,time";
@@ -130,7 +130,7 @@ fn parse_line(line: &str) -> std::result::Result<EstimateRow, String> {
     let obj_id = id(2)?;
     let score = numbers(3, 1)?[0] as f32;
     let r = Matrix3::from_row_slice(&numbers(4, 9)?);
-    let rotation = crate::bop::rotation(r, "the matrix", ", field 'R': ")?;
+    let rotation = crate::dataset::rotation(r, "the matrix", ", field 'R': ")?;
     let t = numbers(5, 3)?;
     let time_s = numbers(6, 1)?[0] as f32;
     Ok(EstimateRow {

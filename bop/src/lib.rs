@@ -1,0 +1,45 @@
+//! Datasets in the BOP layout (<https://bop.felk.cvut.cz>), and judging pose estimates on them as
+//! the BOP benchmark does.
+//!
+//! - [`dataset::BopDataset`] reads a dataset's object models, camera parameters, test scenes
+//!   (depth images) and ground-truth poses ([`dataset::GtPose`]), and its test targets
+//!   ([`dataset::TestTarget`]).
+//! - [`eval`] reads and writes BOP results files, one [`eval::EstimateRow`] per pose estimate,
+//!   and scores them against a `BopDataset` ([`eval::score_results`] → [`eval::ScoreReport`]):
+//!   the VSD, MSSD and MSPD pose errors, the BOP 2018 recall and the BOP 2019 average recall.
+//!
+//! Meshes, depth frames, rendering and poses are those of `ppfd-models`, and so are the errors
+//! ([`ppfd_models::Error`]).
+//!
+//! ```no_run
+//! use ppfd_bop::dataset::BopDataset;
+//! use ppfd_bop::eval::{read_results, score_results, ScoreOptions};
+//! let dataset = BopDataset::open("../shared/data/lmo")?;
+//! let rows = read_results("results.csv")?;
+//! let report = score_results(&dataset, &rows, &ScoreOptions::default())?;
+//! println!("AR {:.3}", report.overall.ar);
+//! # Ok::<(), ppfd_models::Error>(())
+//! ```
+
+pub mod dataset;
+pub mod eval;
+
+/// The shared test data (`../shared/data` beside the workspace, or `$PPFD_SHARED_DATA`), or
+/// `None` with a printed reason when it is absent; absent data fails the test under `CI=true`.
+#[cfg(test)]
+pub(crate) fn shared_test_data() -> Option<std::path::PathBuf> {
+    let root = std::env::var_os("PPFD_SHARED_DATA")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data").into());
+    if root.is_dir() {
+        return Some(root);
+    }
+    let ci = std::env::var("CI").is_ok_and(|v| v == "true");
+    assert!(
+        !ci,
+        "CI=true but the shared test data is missing at {}",
+        root.display()
+    );
+    println!("skipped: no shared test data at {}", root.display());
+    None
+}
