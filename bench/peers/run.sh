@@ -28,7 +28,7 @@ if not hasattr(cv2, "ppf_match_3d"):
 print(f"OpenCV {cv2.__version__} with cv2.ppf_match_3d")
 PY
 
-cargo build --release -p ppfd-client --quiet
+cargo build --release -p ppfd-cli --quiet
 ppf="$repo/target/release/ppf"
 
 datasets=("$@")

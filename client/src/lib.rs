@@ -1,6 +1,6 @@
 //! What robot and camera processes link to talk to the `ppfd` daemon over iceoryx2 shared memory.
-//! Light: the protocol, iceoryx2 and a few small crates, no matching engine (depend on this crate with
-//! `default-features = false`; the default `cli` feature only builds the `ppf` command line).
+//! Light: the protocol, iceoryx2 and a few small crates, no matching engine (the `ppf` command
+//! line is the crate `ppfd-cli`).
 //!
 //! - [`Client`] opens the daemon's services; [`Client::detect`] asks for objects in the newest
 //!   frame of a camera and returns [`Detections`]: pose hypotheses and a [`Latency`] breakdown.

@@ -2,7 +2,6 @@
 //! file as it was when it fails before the first image (a run over a
 //! dataset takes minutes to hours). Reads `../shared/data/lmo`; runs whenever the data is there,
 //! and always under `CI=true`.
-#![cfg(feature = "cli")]
 
 mod common;
 

@@ -2,7 +2,6 @@
 //! many of its reference points propose a correct pose, consistent with each other and with the
 //! rank the object's right pose reaches. Reads `../shared/data/lmo`; runs whenever the data is
 //! there, and always under `CI=true`.
-#![cfg(feature = "cli")]
 
 mod common;
 

@@ -2,7 +2,6 @@
 //! behind when it fails: refusals name the file or the flags to give, exit codes are those of
 //! the tools they mirror, and scratch folders go on every way out. The demo and replay tests
 //! read `../shared/data`; they run whenever the data is there, and always under `CI=true`.
-#![cfg(feature = "cli")]
 
 mod common;
 

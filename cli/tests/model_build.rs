@@ -1,6 +1,5 @@
 //! `ppf model build` run as a script runs it (output not a terminal, so no progress bar): each
 //! mesh says what became of it, and a failure says why.
-#![cfg(feature = "cli")]
 
 mod common;
 

@@ -205,7 +205,7 @@ impl Drop for DemoRun {
 }
 
 /// The daemon command: the given `ppfd` executable, else this executable's `serve` (the same
-/// daemon code, so `cargo run -p ppfd-client --bin ppf -- demo` needs nothing else built).
+/// daemon code, so `cargo run -p ppfd-cli --bin ppf -- demo` needs nothing else built).
 fn daemon_command(given: &Option<PathBuf>) -> Result<(PathBuf, Vec<&'static str>), String> {
     match given {
         Some(p) => Ok((p.clone(), vec![])),
