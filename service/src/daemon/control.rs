@@ -1,0 +1,136 @@
+//! Control requests: the model listing, statistics, and model loads and drops, answered by the
+//! I/O thread (a load runs on a thread of its own).
+
+use ppfd_protocol::control::{ControlCommand, ControlResponseHeader, ModelInfo};
+use ppfd_protocol::detect::Status;
+use ppfd_protocol::services::limits;
+use ppfd_protocol::text;
+
+use crate::responder::ControlActive;
+
+use super::Daemon;
+
+impl Daemon {
+    pub(super) fn take_control_requests(&mut self) {
+        loop {
+            match self.control_server.receive() {
+                Ok(Some(active)) => self.control(active),
+                Ok(None) => break,
+                Err(e) => {
+                    tracing::warn!(error = ?e, "receiving control requests failed");
+                    break;
+                }
+            }
+        }
+    }
+
+    pub(super) fn control(&mut self, active: ControlActive) {
+        let request = *active.payload();
+        if let Err(e) = ppfd_protocol::check_version(request.protocol_version) {
+            return self.control_answer(active, Status::ProtocolVersion, &e.to_string(), &[]);
+        }
+        let Some(command) = ControlCommand::from_code(request.command) else {
+            let m = format!("unknown control command {}", request.command);
+            return self.control_answer(active, Status::InvalidRequest, &m, &[]);
+        };
+        // Reads (listing, statistics) are polled by monitors: only changes go into the log.
+        if matches!(
+            command,
+            ControlCommand::LoadModel | ControlCommand::DropModel
+        ) {
+            tracing::info!(?command, object_id = request.object_id, path = %request.path(), "control request");
+        } else {
+            tracing::debug!(?command, "control request");
+        }
+        if self.startup.is_some() && !matches!(command, ControlCommand::Statistics) {
+            // Listed, loaded or dropped once the models folder is: a load now could be undone
+            // by a file of the folder with the same id.
+            self.held_control.push(active);
+            return;
+        }
+        if self.shutting_down
+            && matches!(
+                command,
+                ControlCommand::LoadModel | ControlCommand::DropModel
+            )
+        {
+            let m = "the daemon is shutting down";
+            return self.control_answer(active, Status::ShuttingDown, m, &[]);
+        }
+        match command {
+            ControlCommand::ListModels => {
+                let infos = self.registry.infos();
+                let shown = &infos[..infos.len().min(limits::MAX_LISTED_MODELS)];
+                self.control_answer(active, Status::Ok, "", shown);
+            }
+            ControlCommand::Statistics => {
+                // The message field holds MESSAGE_BYTES - 1 bytes and a NUL.
+                let loading = self
+                    .startup
+                    .as_ref()
+                    .map(|s| format!("\n{}", s.progress()))
+                    .unwrap_or_default();
+                let mut m = self
+                    .config
+                    .detector_summary(ppfd_protocol::MESSAGE_BYTES - 1 - loading.len());
+                m.push_str(&loading);
+                self.control_answer(active, Status::Ok, &m, &[])
+            }
+            ControlCommand::DropModel => match self.registry.remove(request.object_id) {
+                Some(model) => {
+                    let m = format!(
+                        "dropped object {} ({})",
+                        request.object_id,
+                        model.info.name()
+                    );
+                    self.control_answer(active, Status::Ok, &m, &[model.info]);
+                }
+                None => {
+                    let m = format!("no model with object id {} is loaded", request.object_id);
+                    self.control_answer(active, Status::UnknownObject, &m, &[]);
+                }
+            },
+            ControlCommand::LoadModel => self.load_model(active, request),
+        }
+    }
+
+    pub(super) fn control_answer(
+        &mut self,
+        active: ControlActive,
+        status: Status,
+        message: &str,
+        models: &[ModelInfo],
+    ) {
+        if !self.responder.control_client_alive(&active) {
+            // As for detect requests: never touch a dead client's possibly reused channel.
+            self.responder.abandon_control(active);
+            return;
+        }
+        let mut stats = self.stats.snapshot();
+        stats.cameras = self.cameras.len() as u64;
+        stats.models_loaded = self.registry.len() as u64;
+        stats.model_bytes = self.registry.bytes();
+        stats.in_flight = self.in_flight.len() as u64;
+        stats.queued = self.queue.len() as u64;
+        let header = ControlResponseHeader {
+            status: status.code(),
+            request_id: active.payload().request_id,
+            stats,
+            message: text::encode_truncated(message),
+            ..Default::default()
+        };
+        let token = active.payload().reply_token;
+        match active.loan_slice_uninit(models.len()) {
+            Ok(loaned) => {
+                let mut response = loaned.write_from_slice(models);
+                *response.user_header_mut() = header;
+                if let Err(e) = response.send() {
+                    tracing::debug!(error = ?e, "control response not delivered");
+                    return;
+                }
+                self.responder.notify_reply(token);
+            }
+            Err(e) => tracing::warn!(error = ?e, "cannot loan a control response"),
+        }
+    }
+}

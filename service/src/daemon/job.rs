@@ -1,0 +1,245 @@
+//! A detection started: the request's frame resolved (the newest sample of its camera, or its
+//! own inline payload) and checked, and a job on the pool that reads the depth in place, runs
+//! the engine and answers the client itself.
+
+use std::rc::Rc;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+use iceoryx2::identifiers::UniqueClientId;
+use ppfd_protocol::clock::{instant_of, monotonic_now_ns};
+use ppfd_protocol::detect::{DetectRequestHeader, FrameSource, Status};
+use ppfd_protocol::frame::FrameHeader;
+
+use crate::engine::{DetectOptions, EngineError, FrameView};
+use crate::responder::{DetectActive, Outcome, Served};
+
+use super::queue::Queued;
+use super::{Daemon, FrameSample};
+
+/// Depth values in shared memory that a worker reads. Valid while the sample (held by the I/O
+/// thread) or the request (held by the job itself) they belong to lives (see the `daemon`
+/// module's documentation).
+struct SharedDepth {
+    ptr: *const u16,
+    len: usize,
+}
+
+// SAFETY: the memory is shared memory that nobody writes while the sample/request is held
+// (a published sample and a sent request are immutable), and the holder outlives the job.
+unsafe impl Send for SharedDepth {}
+
+impl SharedDepth {
+    /// # Safety
+    /// The sample or request the values belong to must be alive and unchanged.
+    unsafe fn values(&self) -> &[u16] {
+        // SAFETY: by the caller's promise the pointer and length describe live memory.
+        unsafe { std::slice::from_raw_parts(self.ptr, self.len) }
+    }
+}
+
+/// A request whose detection runs (its worker holds the request and answers it). The frame is
+/// released only with the record, after the job reported.
+pub(super) struct InFlight {
+    _frame: Option<Rc<FrameSample>>,
+    /// The client that sent the request, to tell whether it is still there.
+    pub(super) client: UniqueClientId,
+    /// Set to stop the detection early: its client is gone.
+    pub(super) cancel: Arc<AtomicBool>,
+}
+
+/// A job's report, sent after its worker answered the request.
+pub(super) struct Completion {
+    job: u64,
+    outcome: Outcome,
+}
+
+impl Daemon {
+    /// Resolves the frame and starts the job; gives the request back with the reason it could
+    /// not start.
+    #[allow(clippy::type_complexity)]
+    pub(super) fn start(
+        &mut self,
+        q: Queued,
+    ) -> Result<(), Box<(DetectActive, DetectRequestHeader, u64, EngineError)>> {
+        let now = monotonic_now_ns();
+        let max_age_ns = if q.header.max_frame_age_ns != 0 {
+            q.header.max_frame_age_ns
+        } else {
+            self.config.max_frame_age_ms.saturating_mul(1_000_000)
+        };
+        let (frame_header, depth, hold) = match &q.source {
+            FrameSource::Inline => {
+                if let Some(e) = stamped_ahead(&q.header.inline_frame, now, "the frame is") {
+                    return Err(Box::new((q.active, q.header, q.received_ns, e)));
+                }
+                let payload = q.active.payload();
+                (
+                    q.header.inline_frame,
+                    SharedDepth {
+                        ptr: payload.as_ptr(),
+                        len: payload.len(),
+                    },
+                    None,
+                )
+            }
+            FrameSource::Camera(name) => {
+                let camera = match self.open_camera(name) {
+                    Ok(c) => c,
+                    Err(e) => return Err(Box::new((q.active, q.header, q.received_ns, e))),
+                };
+                let arrived = camera.refresh(name);
+                let newest = camera.newest.clone();
+                self.stats.frames_received += arrived;
+                let Some(sample) = newest else {
+                    let e = EngineError::new(
+                        Status::NoFrame,
+                        format!("camera {name:?} has published no frame yet"),
+                    );
+                    return Err(Box::new((q.active, q.header, q.received_ns, e)));
+                };
+                let fh = *sample.user_header();
+                if let Err(e) = fh.validate(sample.payload().len()) {
+                    let e = EngineError::new(
+                        e.status(),
+                        format!("camera {name:?} published a bad frame: {e}"),
+                    );
+                    return Err(Box::new((q.active, q.header, q.received_ns, e)));
+                }
+                let whose = format!("camera {name:?} has its frames");
+                if let Some(e) = stamped_ahead(&fh, now, &whose) {
+                    return Err(Box::new((q.active, q.header, q.received_ns, e)));
+                }
+                let age = now.saturating_sub(fh.capture_time_ns);
+                if age > max_age_ns {
+                    let e = EngineError {
+                        status: Status::CameraStale,
+                        message: format!(
+                            "camera {name:?} is stale: its newest frame (sequence {}) is {:.1} ms old, the limit is {:.1} ms",
+                            fh.sequence,
+                            age as f64 / 1e6,
+                            max_age_ns as f64 / 1e6
+                        ),
+                        value: age,
+                    };
+                    return Err(Box::new((q.active, q.header, q.received_ns, e)));
+                }
+                let payload = sample.payload();
+                let depth = SharedDepth {
+                    ptr: payload.as_ptr(),
+                    len: payload.len(),
+                };
+                (fh, depth, Some(sample))
+            }
+        };
+        let frame_age_ns = if frame_header.capture_time_ns != 0 {
+            now.saturating_sub(frame_header.capture_time_ns)
+        } else {
+            0
+        };
+
+        let job = self.next_job;
+        self.next_job += 1;
+        let engine = self.engine.clone();
+        let models = q.models;
+        let cancel = Arc::new(AtomicBool::new(false));
+        let options = DetectOptions {
+            hypotheses_per_object: q.header.hypotheses_per_object as usize,
+            deadline: (q.header.deadline_ns != 0).then(|| instant_of(q.header.deadline_ns)),
+            cancel: cancel.clone(),
+        };
+        let done = self.done_tx.clone();
+        let signaller = self.signaller;
+        let responder = self.responder.clone();
+        let (active, header, received_ns) = (q.active, q.header, q.received_ns);
+        let client = active.origin();
+        let request_id = header.request_id;
+        self.pool.spawn(move || {
+            let started_ns = monotonic_now_ns();
+            let _span = tracing::debug_span!("detect", request = request_id).entered();
+            // SAFETY: see `SharedDepth`: a camera sample stays alive and unchanged on the I/O
+            // thread until it has received this job's completion; an inline frame lies in
+            // `active`, which this job drops only after the detection.
+            let depth = unsafe { depth.values() };
+            let frame = FrameView {
+                width: frame_header.width,
+                height: frame_header.height,
+                intrinsics: frame_header.intrinsics,
+                depth_scale_mm: frame_header.depth_scale_mm,
+                depth,
+            };
+            let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                engine.detect(&frame, &models, &options)
+            }))
+            .unwrap_or_else(|_| {
+                Err(EngineError::new(
+                    Status::Internal,
+                    "the detection failed unexpectedly (panic)",
+                ))
+            });
+            let served = Served {
+                header,
+                received_ns,
+                frame_sequence: frame_header.sequence,
+                frame_age_ns,
+                started_ns,
+                finished_ns: monotonic_now_ns(),
+            };
+            // Answered from here: the client does not wait for the I/O thread to wake up. The
+            // request (and an inline frame in it) is released only after the answer.
+            let outcome = responder.answer(active, &served, result);
+            // The receiver lives as long as the daemon, which waits for every job.
+            let _ = done.send(Completion { job, outcome });
+            signaller.signal();
+        });
+        self.in_flight.insert(
+            job,
+            InFlight {
+                _frame: hold,
+                client,
+                cancel,
+            },
+        );
+        Ok(())
+    }
+
+    /// Records what the worker did with its request and releases the frame it read.
+    pub(super) fn finish(&mut self, c: Completion) {
+        self.in_flight.remove(&c.job);
+        self.count(c.outcome);
+    }
+}
+
+/// A frame stamped further than this ahead of the daemon's clock was not stamped with it.
+/// Stamps taken by the driver just after the daemon read its clock are a few microseconds
+/// ahead; a driver stamping wall-clock time is decades ahead.
+const MAX_STAMP_AHEAD_NS: u64 = 1_000_000_000;
+
+/// The refusal of a frame stamped more than [`MAX_STAMP_AHEAD_NS`] ahead of `now`; `whose`
+/// begins the message ("the frame is", "camera \"x\" has its frames").
+fn stamped_ahead(frame: &FrameHeader, now: u64, whose: &str) -> Option<EngineError> {
+    let ahead = frame.capture_time_ns.saturating_sub(now);
+    (ahead > MAX_STAMP_AHEAD_NS).then(|| {
+        EngineError::new(
+            Status::InvalidFrame,
+            format!(
+                "{whose} stamped {} ahead of this machine's monotonic clock, so frame age \
+                 cannot be told: capture_time_ns must be CLOCK_MONOTONIC nanoseconds \
+                 (ppfd_protocol::clock::monotonic_now_ns), not wall-clock time, or 0 when unknown",
+                duration_text(ahead)
+            ),
+        )
+    })
+}
+
+/// `ns` for a message: in seconds up to two minutes, hours up to two days, else days.
+fn duration_text(ns: u64) -> String {
+    let s = ns as f64 / 1e9;
+    if s < 120.0 {
+        format!("{s:.1} s")
+    } else if s < 48.0 * 3600.0 {
+        format!("{:.1} h", s / 3600.0)
+    } else {
+        format!("{:.0} days", s / 86400.0)
+    }
+}

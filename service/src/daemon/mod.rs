@@ -1,0 +1,403 @@
+//! The I/O thread: owns the iceoryx2 ports, sleeps on a WaitSet, and hands detections to a
+//! rayon pool.
+//!
+//! Life of a detect request: a client sends it on `ppfd/detect` and notifies `ppfd/daemon`; the
+//! WaitSet wakes this thread, which takes the request off the port, checks it against the
+//! contract and the loaded models (refusing at once what cannot be served) and queues it. When a
+//! detection slot is free, the request's frame is resolved — the newest sample of its camera, or
+//! its own inline payload — and a job runs on the pool with the request, reading the depth
+//! values straight from shared memory. The worker writes the response into a loaned response
+//! slice, sends it and wakes the client's listener on `ppfd/responses` (see
+//! [`Responder`](crate::responder::Responder)); then it reports on a channel and signals an
+//! eventfd, and this thread counts the outcome and releases the frame.
+//!
+//! No depth value is copied on this path: the job gets a pointer into the sample (or request).
+//! The request travels with the job and is dropped only after its answer; an `Rc` of the sample
+//! sits in the job's `InFlight` record on this thread until the job's completion is received,
+//! and the daemon never drops a record before that (see the `Drop` of `Daemon`).
+//!
+//! The state is one `Daemon`, owned by the I/O thread; its parts by concern:
+//!
+//! - `queue`: detect requests taken off the port, checked against the contract and the loaded
+//!   models, queued, and dispatched in arrival order as detection slots free up;
+//! - `job`: a detection started: its frame resolved and checked, and a job on the pool that
+//!   reads it in place and answers;
+//! - `cameras`: subscriptions to the cameras the housekeeper finds, and forgetting those
+//!   without a driver;
+//! - `housekeeping`: the I/O thread's share of housekeeping (older frames, dead clients);
+//! - `startup`: the models folder, loaded at start on a thread of its own;
+//! - `control`: control requests (listing, statistics, loads and drops) and their answers;
+//! - `load`: a model loaded or built at run time (`LoadModel`), on a thread of its own;
+//! - `shutdown`: the clean stop, and waiting for the running detections.
+
+use std::collections::{HashMap, VecDeque};
+use std::sync::mpsc::{channel, Receiver, Sender};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use iceoryx2::node::Node;
+use iceoryx2::port::server::Server;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::sample::Sample;
+
+use ppfd_protocol::control::{ControlRequest, ControlResponseHeader, ModelInfo};
+use ppfd_protocol::detect::{DetectRequestHeader, DetectResponseHeader, PoseHypothesis};
+use ppfd_protocol::frame::FrameHeader;
+use ppfd_protocol::services::{self, limits, wake};
+
+use crate::config::DaemonConfig;
+use crate::engine::DetectionEngine;
+use crate::housekeeper::Housekeeper;
+use crate::registry::Registry;
+use crate::responder::{self, ControlActive, Ipc, Responder};
+use crate::stats::Stats;
+use crate::termination::{block_termination_signals, TerminationSignals};
+use crate::wakeup::{Signaller, Wakeup};
+
+mod cameras;
+mod control;
+mod housekeeping;
+mod job;
+mod load;
+mod queue;
+mod shutdown;
+mod startup;
+
+use cameras::Camera;
+use job::{Completion, InFlight};
+use load::ModelLoaded;
+use queue::Queued;
+use startup::StartupLoad;
+
+type DetectServer = Server<Ipc, [u16], DetectRequestHeader, [PoseHypothesis], DetectResponseHeader>;
+type ControlServer = Server<Ipc, ControlRequest, (), [ModelInfo], ControlResponseHeader>;
+type FrameSample = Sample<Ipc, [u16], FrameHeader>;
+type FrameSubscriber = Subscriber<Ipc, [u16], FrameHeader>;
+
+/// Why the daemon could not start or had to stop.
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct DaemonError(pub String);
+
+fn fail<E: std::fmt::Debug>(what: &str) -> impl FnOnce(E) -> DaemonError + '_ {
+    move |e| DaemonError(format!("{what}: {e:?}"))
+}
+
+/// The iceoryx2 configuration of a daemon (and of its clients): the default one, with the
+/// configured prefix.
+fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::Config, DaemonError> {
+    let mut config = iceoryx2::config::Config::default();
+    if let Some(prefix) = prefix {
+        config.global.prefix = FileName::new(prefix.as_bytes())
+            .map_err(|e| DaemonError(format!("iceoryx2 prefix {prefix:?}: {e:?}")))?;
+    }
+    Ok(config)
+}
+
+/// How many connections of dead clients the daemon's servers keep while the daemon still holds
+/// one of their requests (iceoryx2 panics beyond it). What the daemon holds of dead clients:
+/// queued requests (until the next housekeeping round drops them), running detections, and the
+/// abandoned requests the responder keeps back (see [`Responder::release_one_abandoned`]).
+fn expired_connection_buffer(config: &DaemonConfig) -> usize {
+    let held = config.queue_capacity
+        + config.parallel_detections
+        + responder::MAX_ABANDONED_HELD
+        + limits::MAX_CLIENTS;
+    held.max(128)
+}
+
+/// The daemon's state, owned by the I/O thread. Field order is drop order: what workers may
+/// still read goes first, the ports after, the node last.
+pub(crate) struct Daemon {
+    /// The models folder's loading at start, until it ends.
+    startup: Option<StartupLoad>,
+    /// Control requests other than statistics that came while the models loaded at start,
+    /// handled once they have.
+    held_control: Vec<ControlActive>,
+    /// Set once a stop is requested: new detect requests, and model loads and drops, are
+    /// refused "shutting down" while the running detections finish.
+    shutting_down: bool,
+    in_flight: HashMap<u64, InFlight>,
+    queue: VecDeque<Queued>,
+    control_pending: HashMap<u64, ControlActive>,
+    cameras: HashMap<String, Camera>,
+    detect_server: DetectServer,
+    control_server: ControlServer,
+    responder: Arc<Responder>,
+    _responses_service: services::EventService<Ipc>,
+    registry: Registry,
+    engine: Arc<dyn DetectionEngine>,
+    pool: rayon::ThreadPool,
+    done_tx: Sender<Completion>,
+    done_rx: Receiver<Completion>,
+    loaded_tx: Sender<ModelLoaded>,
+    loaded_rx: Receiver<ModelLoaded>,
+    signaller: Signaller,
+    next_job: u64,
+    stats: Stats,
+    config: DaemonConfig,
+    last_housekeeping: Instant,
+    housekeeper: Housekeeper,
+    node: Node<Ipc>,
+}
+
+/// Runs a daemon until SIGINT, SIGTERM or SIGHUP. `on_ready` is called once the models of the
+/// models folder are loaded and it serves detections; statistics are answered from the start.
+/// A stop requested while the models load ends it after the model being loaded, without
+/// serving.
+///
+/// Call it before the process starts other threads, or block the termination signals in them
+/// ([`crate::termination::block_termination_signals`]): the daemon reads them from a
+/// `signalfd`, which gets a signal only when every thread blocks it (otherwise the kernel
+/// hands it to a thread that does not).
+pub fn run(
+    config: DaemonConfig,
+    engine: Arc<dyn DetectionEngine>,
+    on_ready: impl FnOnce(&ReadyInfo),
+) -> Result<(), DaemonError> {
+    config.validate().map_err(DaemonError)?;
+    // Before any thread starts: every thread the daemon starts inherits the blocked signals.
+    let termination = TerminationSignals::new()
+        .map_err(fail("cannot open a signalfd for the termination signals"))?;
+    let mut iox = iceoryx_config(config.prefix.as_deref())?;
+    iox.defaults
+        .request_response
+        .server_expired_connection_buffer = expired_connection_buffer(&config);
+    let node = NodeBuilder::new()
+        .name(&NodeName::new(services::DAEMON_NODE).map_err(fail("node name"))?)
+        .config(&iox)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<Ipc>()
+        .map_err(fail("cannot create the iceoryx2 node"))?;
+    let sweep = crate::housekeeper::DeadNodes::default().sweep(node.config());
+    if sweep.cleaned + sweep.failed + sweep.leftovers > 0 {
+        tracing::info!(
+            removed = sweep.cleaned,
+            leftovers = sweep.leftovers,
+            failed = sweep.failed,
+            "removed resources of crashed processes"
+        );
+    }
+
+    let wake_service = services::daemon_wake_builder(&node)
+        .open_or_create()
+        .map_err(fail("cannot open the ppfd/daemon event service"))?;
+    let wake_listener = wake_service
+        .listener_builder()
+        .create()
+        .map_err(fail("cannot listen on ppfd/daemon"))?;
+    let wakeup = Wakeup::new().map_err(fail("cannot create an eventfd"))?;
+
+    let mut daemon = Daemon::new(config, engine, node, wakeup.signaller())?;
+    let waitset = WaitSetBuilder::new()
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<Ipc>()
+        .map_err(fail("cannot create the WaitSet"))?;
+    let _wake_guard = waitset
+        .attach_notification(&wake_listener)
+        .map_err(fail("WaitSet"))?;
+    let _done_guard = waitset
+        .attach_notification(&wakeup)
+        .map_err(fail("WaitSet"))?;
+    let _termination_guard = waitset
+        .attach_notification(&termination)
+        .map_err(fail("WaitSet"))?;
+    let _tick_guard = waitset
+        .attach_interval(Duration::from_millis(daemon.config.housekeeping_ms))
+        .map_err(fail("WaitSet"))?;
+
+    daemon.housekeeping();
+    if daemon.startup.is_some() {
+        tracing::info!("loading models; statistics are answered meanwhile");
+    }
+    let mut on_ready = Some(on_ready);
+    let mut ready_when_loaded = |daemon: &Daemon| {
+        if daemon.startup.is_none() {
+            if let Some(on_ready) = on_ready.take() {
+                on_ready(&ReadyInfo {
+                    models: daemon.registry.len(),
+                    pid: std::process::id(),
+                });
+                tracing::info!(
+                    models = daemon.registry.len(),
+                    engine = daemon.engine.name(),
+                    "serving"
+                );
+            }
+        }
+    };
+    daemon.poll_startup();
+    ready_when_loaded(&daemon);
+
+    loop {
+        let outcome = waitset.wait_and_process_once(|_| CallbackProgression::Continue);
+        if let Err(e) = outcome {
+            return Err(DaemonError(format!("WaitSet failed: {e:?}")));
+        }
+        // Whatever woke the wait (another signal only interrupts it), the termination signals wait
+        // in the signalfd until read here.
+        if termination.requested() {
+            break;
+        }
+        let mut events = Vec::new();
+        if let Err(e) = wake_listener.try_wait(|a| events.push(a.id)) {
+            tracing::warn!(error = ?e, "reading ppfd/daemon events failed");
+        }
+        wakeup.drain();
+        daemon.step(&events);
+        ready_when_loaded(&daemon);
+    }
+    if daemon.startup.is_some() {
+        tracing::info!("stopped while loading models, before serving");
+    } else {
+        tracing::info!("shutting down");
+    }
+    daemon.shutdown();
+    Ok(())
+}
+
+/// What a daemon reports when it starts serving.
+#[derive(Debug, Clone)]
+pub struct ReadyInfo {
+    /// Models loaded.
+    pub models: usize,
+    /// Process id.
+    pub pid: u32,
+}
+
+impl Daemon {
+    fn new(
+        config: DaemonConfig,
+        engine: Arc<dyn DetectionEngine>,
+        node: Node<Ipc>,
+        signaller: Signaller,
+    ) -> Result<Daemon, DaemonError> {
+        let detect_service = services::detect_builder(&node)
+            .open_or_create()
+            .map_err(fail("cannot open the ppfd/detect service"))?;
+        let detect_server = detect_service
+            .server_builder()
+            .initial_max_slice_len(limits::MAX_RESPONSE_HYPOTHESES)
+            .max_loaned_responses_per_request(1)
+            .backpressure_strategy(BackpressureStrategy::DiscardData)
+            .create()
+            .map_err(fail("cannot serve ppfd/detect"))?;
+        let servers = detect_service.dynamic_config().number_of_servers();
+        if servers > 1 {
+            return Err(DaemonError(format!(
+                "another ppfd already serves with this prefix ({servers} servers on {}); stop it first",
+                services::DETECT
+            )));
+        }
+        let control_service = services::control_builder(&node)
+            .open_or_create()
+            .map_err(fail("cannot open the ppfd/control service"))?;
+        let control_server = control_service
+            .server_builder()
+            .initial_max_slice_len(limits::MAX_LISTED_MODELS)
+            .max_loaned_responses_per_request(1)
+            .backpressure_strategy(BackpressureStrategy::DiscardData)
+            .create()
+            .map_err(fail("cannot serve ppfd/control"))?;
+        let responses_service = services::responses_builder(&node)
+            .open_or_create()
+            .map_err(fail("cannot open the ppfd/responses event service"))?;
+        let responses = responses_service
+            .notifier_builder()
+            .create()
+            .map_err(fail("cannot notify on ppfd/responses"))?;
+
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(config.worker_threads())
+            .thread_name(|i| format!("ppfd-worker-{i}"))
+            .start_handler(|_| block_termination_signals())
+            .build()
+            .map_err(fail("cannot start the worker pool"))?;
+        let housekeeper = Housekeeper::start(
+            node.config(),
+            Duration::from_millis(config.housekeeping_ms),
+            signaller,
+            block_termination_signals,
+        )?;
+
+        // The models folder loads on a thread of its own: statistics are answered meanwhile,
+        // and a stop requested then ends the daemon after the model being loaded.
+        let startup = match &config.models {
+            Some(dir) => {
+                let files = Registry::model_files(engine.as_ref(), dir).map_err(DaemonError)?;
+                Some(StartupLoad::start(
+                    engine.clone(),
+                    dir.clone(),
+                    files,
+                    config.model_cache_dir(),
+                    signaller,
+                )?)
+            }
+            None => None,
+        };
+
+        let (done_tx, done_rx) = channel();
+        let (loaded_tx, loaded_rx) = channel();
+        if config.parallel_detections > config.worker_threads() {
+            tracing::warn!(
+                parallel_detections = config.parallel_detections,
+                workers = config.worker_threads(),
+                "more detections at once than workers: the ones beyond take turns on the workers, each running slower"
+            );
+        }
+        Ok(Daemon {
+            startup,
+            held_control: Vec::new(),
+            shutting_down: false,
+            in_flight: HashMap::new(),
+            queue: VecDeque::new(),
+            control_pending: HashMap::new(),
+            cameras: HashMap::new(),
+            detect_server,
+            control_server,
+            responder: Arc::new(Responder::new(detect_service, control_service, responses)),
+            _responses_service: responses_service,
+            registry: Registry::default(),
+            engine,
+            pool,
+            done_tx,
+            done_rx,
+            loaded_tx,
+            loaded_rx,
+            signaller,
+            next_job: 1,
+            stats: Stats::default(),
+            config,
+            last_housekeeping: Instant::now(),
+            housekeeper,
+            node,
+        })
+    }
+
+    /// One turn of the loop: everything that can be done now.
+    fn step(&mut self, events: &[EventId]) {
+        self.poll_startup();
+        if events.contains(&wake::CAMERA_APPEARED) {
+            self.housekeeper.scan_now();
+        }
+        self.open_found_cameras();
+        while let Ok(c) = self.done_rx.try_recv() {
+            self.finish(c);
+        }
+        while let Ok(m) = self.loaded_rx.try_recv() {
+            self.finish_load(m);
+        }
+        self.take_control_requests();
+        self.take_detect_requests();
+        if self.last_housekeeping.elapsed() >= Duration::from_millis(self.config.housekeeping_ms) {
+            // Before dispatching: it drops dead clients' queued requests and may take new ones.
+            self.housekeeping();
+        }
+        self.dispatch();
+        if self.responder.abandoned_held() > responder::MAX_ABANDONED_HELD {
+            // Clients died faster than housekeeping comes round.
+            self.release_abandoned();
+        }
+    }
+}
