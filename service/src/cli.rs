@@ -8,6 +8,7 @@ use clap::Parser;
 
 use crate::config::DaemonConfig;
 use crate::engine::DetectionEngine;
+use crate::error::{Error, Result};
 
 /// The ppfd daemon: holds PPF object models in memory and answers detect requests over
 /// iceoryx2 shared memory. Stops cleanly on SIGINT, SIGTERM or SIGHUP. Logs go to stderr (`RUST_LOG`).
@@ -57,12 +58,12 @@ pub struct Args {
 
 impl Args {
     /// The configuration: defaults, then the file, then `PPFD_PREFIX`, then the flags.
-    pub fn config(&self) -> Result<DaemonConfig, String> {
+    pub fn config(&self) -> Result<DaemonConfig> {
         self.config_with(ppfd_protocol::services::prefix_from_env())
     }
 
     /// [`Args::config`] with `env_prefix` as `PPFD_PREFIX`'s value.
-    fn config_with(&self, env_prefix: Option<String>) -> Result<DaemonConfig, String> {
+    fn config_with(&self, env_prefix: Option<String>) -> Result<DaemonConfig> {
         let mut c = match &self.config {
             Some(path) => DaemonConfig::from_toml_file(path)?,
             None => DaemonConfig::default(),
@@ -76,7 +77,7 @@ impl Args {
         // The clients' variable too: `PPFD_PREFIX=cell2 ppfd` and `PPFD_PREFIX=cell2 ppf detect`
         // meet. The flag wins over the variable, the variable over the file.
         if let (None, Some(p)) = (&self.prefix, &env_prefix) {
-            ppfd_protocol::services::check_prefix(p).map_err(|e| format!("PPFD_PREFIX: {e}"))?;
+            ppfd_protocol::services::check_prefix(p).map_err(Error::PrefixVariable)?;
         }
         if let Some(prefix) = self.prefix.clone().or(env_prefix) {
             c.prefix = Some(prefix);
@@ -92,7 +93,7 @@ impl Args {
         for assignment in &self.set {
             let (key, value) = assignment
                 .split_once('=')
-                .ok_or_else(|| format!("--set takes stage.field=value, got {assignment:?}"))?;
+                .ok_or_else(|| Error::SetSyntax(assignment.clone()))?;
             c.detector.push((key.trim().to_string(), value.to_string()));
         }
         c.validate()?;
@@ -140,7 +141,7 @@ pub fn init_tracing() {
 }
 
 /// How the daemon gets its engine, from its configuration (the detector's parameters among it).
-pub type EngineFactory = dyn FnOnce(&DaemonConfig) -> Result<Arc<dyn DetectionEngine>, String>;
+pub type EngineFactory = dyn FnOnce(&DaemonConfig) -> Result<Arc<dyn DetectionEngine>>;
 
 /// Parses the command line and runs the daemon with the engine `make_engine` builds from the
 /// configuration. Prints one line, `ppfd ready pid=<pid> models=<n>`, on stdout once it
@@ -284,7 +285,7 @@ mod tests {
             Some("from_flag")
         );
         let bad = Args::parse_from(["ppfd"]).config_with(Some("a/b".into()));
-        let e = bad.unwrap_err();
+        let e = bad.unwrap_err().to_string();
         assert!(
             e.starts_with("PPFD_PREFIX: ") && e.contains("\"a/b\""),
             "{e}"
@@ -324,7 +325,11 @@ mod tests {
         assert_eq!(p.voting.reference_step, 5);
         assert_eq!(p.voting.peaks_per_reference, 1);
         let args = Args::parse_from(["ppfd", "--set", "voting.reference_step"]);
-        assert!(args.config().unwrap_err().contains("stage.field=value"));
+        assert!(args
+            .config()
+            .unwrap_err()
+            .to_string()
+            .contains("stage.field=value"));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

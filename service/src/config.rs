@@ -24,6 +24,8 @@ use std::path::{Path, PathBuf};
 
 use serde::Deserialize;
 
+use crate::error::{Error, Result};
+
 /// The most worker threads, and detections at once, a configuration may ask for; far more than
 /// cores any one machine has.
 pub const MAX_THREADS: usize = 256;
@@ -81,11 +83,11 @@ fn detector_table<'de, D>(deserializer: D) -> Result<Vec<(String, String)>, D::E
 where
     D: serde::Deserializer<'de>,
 {
-    fn flatten(
+    fn flatten<E: serde::de::Error>(
         prefix: &str,
         table: &toml::Table,
         out: &mut Vec<(String, String)>,
-    ) -> Result<(), String> {
+    ) -> Result<(), E> {
         for (name, value) in table {
             let key = if prefix.is_empty() {
                 name.clone()
@@ -102,9 +104,9 @@ where
                 toml::Value::Float(f) => f.to_string(),
                 toml::Value::Boolean(b) => b.to_string(),
                 other => {
-                    return Err(format!(
+                    return Err(E::custom(format!(
                         "detector.{key}: a number, true/false or a name, got {other}"
-                    ))
+                    )))
                 }
             };
             out.push((key, text));
@@ -113,7 +115,7 @@ where
     }
     let table = toml::Table::deserialize(deserializer)?;
     let mut out = Vec::new();
-    flatten("", &table, &mut out).map_err(serde::de::Error::custom)?;
+    flatten("", &table, &mut out)?;
     Ok(out)
 }
 
@@ -147,9 +149,16 @@ impl DaemonConfig {
     /// Relative `models` and `model_cache` paths are taken relative to the file's folder, not to
     /// wherever the daemon happens to be started from: the file and the folders it names move
     /// together.
-    pub fn from_toml_file(path: &Path) -> Result<DaemonConfig, String> {
-        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        let mut c = Self::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+    pub fn from_toml_file(path: &Path) -> Result<DaemonConfig> {
+        let text = std::fs::read_to_string(path).map_err(|source| Error::ConfigRead {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let mut c =
+            toml::from_str::<DaemonConfig>(&text).map_err(|source| Error::ConfigSyntax {
+                path: path.to_path_buf(),
+                source,
+            })?;
         let folder = path.parent().unwrap_or(Path::new(""));
         for dir in [&mut c.models, &mut c.model_cache].into_iter().flatten() {
             if dir.is_relative() {
@@ -160,51 +169,44 @@ impl DaemonConfig {
     }
 
     /// Parses TOML text.
-    pub fn from_toml(text: &str) -> Result<DaemonConfig, String> {
-        toml::from_str(text).map_err(|e| e.to_string())
+    pub fn from_toml(text: &str) -> Result<DaemonConfig> {
+        Ok(toml::from_str(text)?)
     }
 
     /// The detector's parameters: the defaults with [`DaemonConfig::detector`] applied in
     /// order.
-    pub fn detect_params(&self) -> Result<ppfd_models::detect::detector::DetectParams, String> {
+    pub fn detect_params(&self) -> Result<ppfd_models::detect::detector::DetectParams> {
         let mut p = ppfd_models::detect::detector::DetectParams::new();
         for (key, value) in &self.detector {
-            p.set(key, value)?;
+            p.set(key, value).map_err(Error::DetectorParameter)?;
         }
-        p.check()?;
+        p.check().map_err(Error::DetectorParameter)?;
         Ok(p)
     }
 
     /// Refuses settings that cannot work.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<()> {
         self.detect_params()?;
         if self.parallel_detections == 0 {
-            return Err("parallel_detections must be at least 1".into());
+            return Err(Error::NoParallelDetections);
         }
         if self.workers > MAX_THREADS || self.parallel_detections > MAX_THREADS {
-            return Err(format!(
-                "workers ({}) and parallel_detections ({}) may be at most {MAX_THREADS}: each is a thread or a detection's scratch memory",
-                self.workers, self.parallel_detections
-            ));
+            return Err(Error::TooManyThreads {
+                workers: self.workers,
+                parallel_detections: self.parallel_detections,
+            });
         }
         if self.queue_capacity == 0 || self.queue_capacity > MAX_QUEUE_CAPACITY {
-            return Err(format!(
-                "queue_capacity must be 1 to {MAX_QUEUE_CAPACITY} (was {})",
-                self.queue_capacity
-            ));
+            return Err(Error::QueueCapacity(self.queue_capacity));
         }
         if self.housekeeping_ms == 0 {
-            return Err("housekeeping_ms must be at least 1".into());
+            return Err(Error::NoHousekeepingPeriod);
         }
         if self.max_frame_age_ms == 0 {
-            return Err(
-                "max_frame_age_ms must be at least 1: every camera frame is older than 0 ms by \
-                 the time a detection starts"
-                    .into(),
-            );
+            return Err(Error::NoFrameAge);
         }
         if let Some(p) = &self.prefix {
-            ppfd_protocol::services::check_prefix(p)?;
+            ppfd_protocol::services::check_prefix(p).map_err(Error::Prefix)?;
         }
         Ok(())
     }
@@ -262,7 +264,9 @@ mod tests {
         assert_eq!(c.models.as_deref(), Some(Path::new("/m")));
         assert_eq!(c.parallel_detections, 2);
         assert_eq!(c.queue_capacity, DaemonConfig::default().queue_capacity);
-        let e = DaemonConfig::from_toml("modles = \"/m\"").unwrap_err();
+        let e = DaemonConfig::from_toml("modles = \"/m\"")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("modles"), "{e}");
     }
 
@@ -329,7 +333,8 @@ mod tests {
         ] {
             let e = DaemonConfig::from_toml(text)
                 .and_then(|c| c.validate())
-                .unwrap_err();
+                .unwrap_err()
+                .to_string();
             assert!(e.contains(said), "{text}: {e}");
         }
     }
@@ -382,13 +387,21 @@ mod tests {
                 parallel_detections,
                 ..Default::default()
             };
-            assert!(c.validate().unwrap_err().contains("at most 256"));
+            assert!(c
+                .validate()
+                .unwrap_err()
+                .to_string()
+                .contains("at most 256"));
         }
         let c = DaemonConfig {
             max_frame_age_ms: 0,
             ..Default::default()
         };
-        assert!(c.validate().unwrap_err().contains("max_frame_age_ms"));
+        assert!(c
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("max_frame_age_ms"));
         for queue_capacity in [0, MAX_QUEUE_CAPACITY + 1] {
             let c = DaemonConfig {
                 queue_capacity,
@@ -397,13 +410,18 @@ mod tests {
             assert!(c
                 .validate()
                 .unwrap_err()
+                .to_string()
                 .contains("queue_capacity must be 1 to 4096"));
         }
         let c = DaemonConfig {
             detector: vec![("scene.min_depth_mm".into(), "6000".into())],
             ..Default::default()
         };
-        assert!(c.validate().unwrap_err().contains("scene.max_depth_mm"));
+        assert!(c
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("scene.max_depth_mm"));
         assert!(DaemonConfig::default().validate().is_ok());
     }
 }

@@ -18,7 +18,7 @@ use iceoryx2::service::static_config::messaging_pattern::MessagingPattern;
 
 use ppfd_protocol::services;
 
-use crate::daemon::DaemonError;
+use crate::error::{resource, Error, Result};
 use crate::wakeup::Signaller;
 
 type Ipc = ipc::Service;
@@ -215,7 +215,7 @@ impl Housekeeper {
         period: Duration,
         wake: Signaller,
         thread_setup: fn(),
-    ) -> Result<Housekeeper, DaemonError> {
+    ) -> Result<Housekeeper> {
         let (ask_tx, ask_rx) = channel();
         let (found_tx, found_rx) = channel();
         let (ready_tx, ready_rx) = sync_channel(1);
@@ -225,13 +225,13 @@ impl Housekeeper {
             .spawn(move || {
                 thread_setup();
                 let node = NodeName::new("ppfd-housekeeper")
-                    .map_err(|e| format!("node name: {e:?}"))
+                    .map_err(resource("node name"))
                     .and_then(|name| {
                         NodeBuilder::new()
                             .name(&name)
                             .config(&config)
                             .create::<Ipc>()
-                            .map_err(|e| format!("cannot create the housekeeping node: {e:?}"))
+                            .map_err(resource("cannot create the housekeeping node"))
                     });
                 let node = match node {
                     Ok(node) => {
@@ -245,7 +245,7 @@ impl Housekeeper {
                 };
                 serve(&node, period, &ask_rx, &found_tx, wake);
             })
-            .map_err(|e| DaemonError(format!("cannot start the housekeeping thread: {e}")))?;
+            .map_err(Error::HousekeeperThread)?;
         // A first camera scan at once: cameras that were publishing before the daemon started.
         let _ = ask_tx.send(Ask::Scan);
         match ready_rx.recv() {
@@ -256,11 +256,11 @@ impl Housekeeper {
             }),
             Ok(Err(e)) => {
                 let _ = thread.join();
-                Err(DaemonError(e))
+                Err(e)
             }
             Err(_) => {
                 let _ = thread.join();
-                Err(DaemonError("the housekeeping thread died at start".into()))
+                Err(Error::HousekeeperDied)
             }
         }
     }

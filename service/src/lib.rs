@@ -10,6 +10,7 @@
 //!   `ppfd_models`; the daemon itself knows nothing of the method.
 //! - [`registry::Registry`] holds the loaded models; [`config::DaemonConfig`] the settings (TOML
 //!   file and flags); [`stats::Stats`] the counters and latency histograms.
+//! - [`Error`] says why the daemon refused its configuration, or could not start or serve.
 //!
 //! The wire contract is `ppfd_protocol`; clients use `ppfd_client`.
 
@@ -17,6 +18,7 @@ pub mod cli;
 pub mod config;
 pub mod daemon;
 pub mod engine;
+pub mod error;
 pub mod housekeeper;
 pub mod ppf_engine;
 pub mod registry;
@@ -26,5 +28,6 @@ pub mod termination;
 pub mod wakeup;
 
 pub use config::DaemonConfig;
-pub use daemon::{run, DaemonError};
+pub use daemon::run;
 pub use engine::DetectionEngine;
+pub use error::{Error, Result};

@@ -43,7 +43,7 @@ impl PpfEngine {
 
     /// An engine with the configuration's detector parameters and the default model
     /// parameters.
-    pub fn from_config(config: &crate::config::DaemonConfig) -> Result<Self, String> {
+    pub fn from_config(config: &crate::config::DaemonConfig) -> crate::Result<Self> {
         Ok(Self::new(
             Detector::new(config.detect_params()?),
             ModelParams::default(),

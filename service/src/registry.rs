@@ -29,9 +29,11 @@ pub struct Registry {
 
 impl Registry {
     /// The files of `dir` that the engine takes, in the order they load.
-    pub fn model_files(engine: &dyn DetectionEngine, dir: &Path) -> Result<Vec<PathBuf>, String> {
-        let entries = std::fs::read_dir(dir)
-            .map_err(|e| format!("model directory {}: {e}", dir.display()))?;
+    pub fn model_files(engine: &dyn DetectionEngine, dir: &Path) -> crate::Result<Vec<PathBuf>> {
+        let entries = std::fs::read_dir(dir).map_err(|source| crate::Error::ModelDirectory {
+            path: dir.to_path_buf(),
+            source,
+        })?;
         let mut files: Vec<PathBuf> = entries
             .filter_map(|e| e.ok().map(|e| e.path()))
             .filter(|p| p.is_file())

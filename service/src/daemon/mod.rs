@@ -48,6 +48,7 @@ use ppfd_protocol::services::{self, limits, wake};
 
 use crate::config::DaemonConfig;
 use crate::engine::DetectionEngine;
+use crate::error::{resource, Error, Result};
 use crate::housekeeper::Housekeeper;
 use crate::registry::Registry;
 use crate::responder::{self, ControlActive, Ipc, Responder};
@@ -75,22 +76,13 @@ type ControlServer = Server<Ipc, ControlRequest, (), [ModelInfo], ControlRespons
 type FrameSample = Sample<Ipc, [u16], FrameHeader>;
 type FrameSubscriber = Subscriber<Ipc, [u16], FrameHeader>;
 
-/// Why the daemon could not start or had to stop.
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct DaemonError(pub String);
-
-fn fail<E: std::fmt::Debug>(what: &str) -> impl FnOnce(E) -> DaemonError + '_ {
-    move |e| DaemonError(format!("{what}: {e:?}"))
-}
-
 /// The iceoryx2 configuration of a daemon (and of its clients): the default one, with the
 /// configured prefix.
-fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::Config, DaemonError> {
+fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::Config> {
     let mut config = iceoryx2::config::Config::default();
     if let Some(prefix) = prefix {
         config.global.prefix = FileName::new(prefix.as_bytes())
-            .map_err(|e| DaemonError(format!("iceoryx2 prefix {prefix:?}: {e:?}")))?;
+            .map_err(resource(&format!("iceoryx2 prefix {prefix:?}")))?;
     }
     Ok(config)
 }
@@ -155,21 +147,22 @@ pub fn run(
     config: DaemonConfig,
     engine: Arc<dyn DetectionEngine>,
     on_ready: impl FnOnce(&ReadyInfo),
-) -> Result<(), DaemonError> {
-    config.validate().map_err(DaemonError)?;
+) -> Result<()> {
+    config.validate()?;
     // Before any thread starts: every thread the daemon starts inherits the blocked signals.
-    let termination = TerminationSignals::new()
-        .map_err(fail("cannot open a signalfd for the termination signals"))?;
+    let termination = TerminationSignals::new().map_err(resource(
+        "cannot open a signalfd for the termination signals",
+    ))?;
     let mut iox = iceoryx_config(config.prefix.as_deref())?;
     iox.defaults
         .request_response
         .server_expired_connection_buffer = expired_connection_buffer(&config);
     let node = NodeBuilder::new()
-        .name(&NodeName::new(services::DAEMON_NODE).map_err(fail("node name"))?)
+        .name(&NodeName::new(services::DAEMON_NODE).map_err(resource("node name"))?)
         .config(&iox)
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Ipc>()
-        .map_err(fail("cannot create the iceoryx2 node"))?;
+        .map_err(resource("cannot create the iceoryx2 node"))?;
     let sweep = crate::housekeeper::DeadNodes::default().sweep(node.config());
     if sweep.cleaned + sweep.failed + sweep.leftovers > 0 {
         tracing::info!(
@@ -182,30 +175,30 @@ pub fn run(
 
     let wake_service = services::daemon_wake_builder(&node)
         .open_or_create()
-        .map_err(fail("cannot open the ppfd/daemon event service"))?;
+        .map_err(resource("cannot open the ppfd/daemon event service"))?;
     let wake_listener = wake_service
         .listener_builder()
         .create()
-        .map_err(fail("cannot listen on ppfd/daemon"))?;
-    let wakeup = Wakeup::new().map_err(fail("cannot create an eventfd"))?;
+        .map_err(resource("cannot listen on ppfd/daemon"))?;
+    let wakeup = Wakeup::new().map_err(resource("cannot create an eventfd"))?;
 
     let mut daemon = Daemon::new(config, engine, node, wakeup.signaller())?;
     let waitset = WaitSetBuilder::new()
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Ipc>()
-        .map_err(fail("cannot create the WaitSet"))?;
+        .map_err(resource("cannot create the WaitSet"))?;
     let _wake_guard = waitset
         .attach_notification(&wake_listener)
-        .map_err(fail("WaitSet"))?;
+        .map_err(resource("WaitSet"))?;
     let _done_guard = waitset
         .attach_notification(&wakeup)
-        .map_err(fail("WaitSet"))?;
+        .map_err(resource("WaitSet"))?;
     let _termination_guard = waitset
         .attach_notification(&termination)
-        .map_err(fail("WaitSet"))?;
+        .map_err(resource("WaitSet"))?;
     let _tick_guard = waitset
         .attach_interval(Duration::from_millis(daemon.config.housekeeping_ms))
-        .map_err(fail("WaitSet"))?;
+        .map_err(resource("WaitSet"))?;
 
     daemon.housekeeping();
     if daemon.startup.is_some() {
@@ -233,7 +226,7 @@ pub fn run(
     loop {
         let outcome = waitset.wait_and_process_once(|_| CallbackProgression::Continue);
         if let Err(e) = outcome {
-            return Err(DaemonError(format!("WaitSet failed: {e:?}")));
+            return Err(resource("WaitSet failed")(e));
         }
         // Whatever woke the wait (another signal only interrupts it), the termination signals wait
         // in the signalfd until read here.
@@ -272,48 +265,48 @@ impl Daemon {
         engine: Arc<dyn DetectionEngine>,
         node: Node<Ipc>,
         signaller: Signaller,
-    ) -> Result<Daemon, DaemonError> {
+    ) -> Result<Daemon> {
         let detect_service = services::detect_builder(&node)
             .open_or_create()
-            .map_err(fail("cannot open the ppfd/detect service"))?;
+            .map_err(resource("cannot open the ppfd/detect service"))?;
         let detect_server = detect_service
             .server_builder()
             .initial_max_slice_len(limits::MAX_RESPONSE_HYPOTHESES)
             .max_loaned_responses_per_request(1)
             .backpressure_strategy(BackpressureStrategy::DiscardData)
             .create()
-            .map_err(fail("cannot serve ppfd/detect"))?;
+            .map_err(resource("cannot serve ppfd/detect"))?;
         let servers = detect_service.dynamic_config().number_of_servers();
         if servers > 1 {
-            return Err(DaemonError(format!(
-                "another ppfd already serves with this prefix ({servers} servers on {}); stop it first",
-                services::DETECT
-            )));
+            return Err(Error::AlreadyServing {
+                servers,
+                service: services::DETECT,
+            });
         }
         let control_service = services::control_builder(&node)
             .open_or_create()
-            .map_err(fail("cannot open the ppfd/control service"))?;
+            .map_err(resource("cannot open the ppfd/control service"))?;
         let control_server = control_service
             .server_builder()
             .initial_max_slice_len(limits::MAX_LISTED_MODELS)
             .max_loaned_responses_per_request(1)
             .backpressure_strategy(BackpressureStrategy::DiscardData)
             .create()
-            .map_err(fail("cannot serve ppfd/control"))?;
+            .map_err(resource("cannot serve ppfd/control"))?;
         let responses_service = services::responses_builder(&node)
             .open_or_create()
-            .map_err(fail("cannot open the ppfd/responses event service"))?;
+            .map_err(resource("cannot open the ppfd/responses event service"))?;
         let responses = responses_service
             .notifier_builder()
             .create()
-            .map_err(fail("cannot notify on ppfd/responses"))?;
+            .map_err(resource("cannot notify on ppfd/responses"))?;
 
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(config.worker_threads())
             .thread_name(|i| format!("ppfd-worker-{i}"))
             .start_handler(|_| block_termination_signals())
             .build()
-            .map_err(fail("cannot start the worker pool"))?;
+            .map_err(resource("cannot start the worker pool"))?;
         let housekeeper = Housekeeper::start(
             node.config(),
             Duration::from_millis(config.housekeeping_ms),
@@ -325,7 +318,7 @@ impl Daemon {
         // and a stop requested then ends the daemon after the model being loaded.
         let startup = match &config.models {
             Some(dir) => {
-                let files = Registry::model_files(engine.as_ref(), dir).map_err(DaemonError)?;
+                let files = Registry::model_files(engine.as_ref(), dir)?;
                 Some(StartupLoad::start(
                     engine.clone(),
                     dir.clone(),

@@ -13,7 +13,9 @@ use crate::registry::Registry;
 use crate::termination::block_termination_signals;
 use crate::wakeup::Signaller;
 
-use super::{fail, Daemon, DaemonError};
+use crate::error::{resource, Result};
+
+use super::Daemon;
 
 /// The models folder loading at start on a thread of its own, one model after the other; the
 /// I/O thread takes each as it comes.
@@ -44,7 +46,7 @@ impl StartupLoad {
         files: Vec<PathBuf>,
         cache_dir: PathBuf,
         signaller: Signaller,
-    ) -> Result<StartupLoad, DaemonError> {
+    ) -> Result<StartupLoad> {
         let stop = Arc::new(AtomicBool::new(false));
         let (tx, events) = channel();
         let file_count = files.len();
@@ -68,7 +70,7 @@ impl StartupLoad {
                     );
                     send(StartupEvent::Finished);
                 })
-                .map_err(fail("cannot start the model loading thread"))?
+                .map_err(resource("cannot start the model loading thread"))?
         };
         Ok(StartupLoad {
             dir,

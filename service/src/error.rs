@@ -1,0 +1,161 @@
+//! The daemon's one error type: a configuration it refuses before it serves, or a resource it
+//! needs failing while it starts or serves.
+
+use std::path::PathBuf;
+
+use crate::config::{MAX_QUEUE_CAPACITY, MAX_THREADS};
+
+/// Why the daemon cannot start or had to stop. The configuration's variants come before it
+/// serves (the command line exits with code 2); the others while it starts or serves (code 1).
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    /// The configuration file cannot be read.
+    #[error("{}: {source}", path.display())]
+    ConfigRead {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The configuration file is not TOML, or not the settings' (an unknown key, a value of the
+    /// wrong kind).
+    #[error("{}: {source}", path.display())]
+    ConfigSyntax {
+        path: PathBuf,
+        #[source]
+        source: toml::de::Error,
+    },
+    /// Configuration text that is not TOML, or not the settings'.
+    #[error(transparent)]
+    Toml(#[from] toml::de::Error),
+    /// A detector parameter refused, with `ppfd_models`' message: its name, the value and what
+    /// was expected.
+    #[error("{0}")]
+    DetectorParameter(String),
+    /// A `--set` flag that is not `stage.field=value`.
+    #[error("--set takes stage.field=value, got {0:?}")]
+    SetSyntax(String),
+    /// `parallel_detections` is 0.
+    #[error("parallel_detections must be at least 1")]
+    NoParallelDetections,
+    /// `workers` or `parallel_detections` above [`MAX_THREADS`].
+    #[error(
+        "workers ({workers}) and parallel_detections ({parallel_detections}) may be at most \
+         {max}: each is a thread or a detection's scratch memory",
+        max = MAX_THREADS
+    )]
+    TooManyThreads {
+        workers: usize,
+        parallel_detections: usize,
+    },
+    /// `queue_capacity` out of 1 to [`MAX_QUEUE_CAPACITY`].
+    #[error("queue_capacity must be 1 to {max} (was {0})", max = MAX_QUEUE_CAPACITY)]
+    QueueCapacity(usize),
+    /// `housekeeping_ms` is 0.
+    #[error("housekeeping_ms must be at least 1")]
+    NoHousekeepingPeriod,
+    /// `max_frame_age_ms` is 0.
+    #[error(
+        "max_frame_age_ms must be at least 1: every camera frame is older than 0 ms by the time \
+         a detection starts"
+    )]
+    NoFrameAge,
+    /// A prefix iceoryx2 cannot take, with `ppfd_protocol::services::check_prefix`'s message.
+    #[error("{0}")]
+    Prefix(String),
+    /// `PPFD_PREFIX` holds a prefix iceoryx2 cannot take.
+    #[error("PPFD_PREFIX: {0}")]
+    PrefixVariable(String),
+    /// The models folder cannot be listed.
+    #[error("model directory {}: {source}", path.display())]
+    ModelDirectory {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// Another daemon serves under the prefix.
+    #[error(
+        "another ppfd already serves with this prefix ({servers} servers on {service}); stop it \
+         first"
+    )]
+    AlreadyServing {
+        servers: usize,
+        service: &'static str,
+    },
+    /// An iceoryx2 or operating-system resource the daemon needs failed (a node, a port, a
+    /// thread, the signalfd, the WaitSet): `what` it was, and the cause as it was reported.
+    #[error("{what}: {detail}")]
+    Resource { what: String, detail: String },
+    /// The housekeeping thread could not be started.
+    #[error("cannot start the housekeeping thread: {0}")]
+    HousekeeperThread(#[source] std::io::Error),
+    /// The housekeeping thread ended before it was ready.
+    #[error("the housekeeping thread died at start")]
+    HousekeeperDied,
+}
+
+/// A result with the daemon's [`Error`].
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// The [`Error::Resource`] of `what` failing with the error it gave (written as its `Debug`,
+/// which for iceoryx2's errors names the case).
+pub(crate) fn resource<E: std::fmt::Debug>(what: &str) -> impl FnOnce(E) -> Error + '_ {
+    move |e| Error::Resource {
+        what: what.to_owned(),
+        detail: format!("{e:?}"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Scripts and operators match on these lines: each says what was wrong and what is taken.
+    #[test]
+    fn messages_name_the_setting_and_what_it_takes() {
+        let cases = [
+            (
+                Error::TooManyThreads {
+                    workers: 300,
+                    parallel_detections: 1,
+                },
+                "workers (300) and parallel_detections (1) may be at most 256: each is a thread \
+                 or a detection's scratch memory",
+            ),
+            (
+                Error::QueueCapacity(0),
+                "queue_capacity must be 1 to 4096 (was 0)",
+            ),
+            (
+                Error::NoFrameAge,
+                "max_frame_age_ms must be at least 1: every camera frame is older than 0 ms by \
+                 the time a detection starts",
+            ),
+            (
+                Error::SetSyntax("voting.reference_step".into()),
+                "--set takes stage.field=value, got \"voting.reference_step\"",
+            ),
+            (
+                Error::AlreadyServing {
+                    servers: 2,
+                    service: "ppfd/detect",
+                },
+                "another ppfd already serves with this prefix (2 servers on ppfd/detect); stop \
+                 it first",
+            ),
+            (
+                resource("cannot create the WaitSet")("Failure"),
+                "cannot create the WaitSet: \"Failure\"",
+            ),
+            (
+                Error::ModelDirectory {
+                    path: "/m".into(),
+                    source: std::io::Error::from(std::io::ErrorKind::NotFound),
+                },
+                "model directory /m: entity not found",
+            ),
+        ];
+        for (error, message) in cases {
+            assert_eq!(error.to_string(), message);
+        }
+    }
+}
