@@ -9,6 +9,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use clap::Args;
+use ppfd::model_cache::{load_or_build, MeshSource, ModelFiles, Origin};
 use ppfd_bop::dataset::BopDataset;
 use ppfd_client::{
     isometry, monotonic_now_ns, CameraPublisher, Client, ClientOptions, DetectOptions, Detections,
@@ -17,7 +18,7 @@ use ppfd_client::{
 use ppfd_models::geometry::camera::OwnedDepthFrame;
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::store;
-use ppfd_models::model::{ModelParams, ObjectModel};
+use ppfd_models::model::ModelParams;
 use ppfd_models::synthetic::parts::Part;
 use ppfd_models::synthetic::scene::{NoiseModel, SceneSpec};
 use ppfd_models::Pose;
@@ -84,7 +85,19 @@ fn generated_scene(args: &DemoArgs, cache: &Path) -> Result<DemoScene, String> {
     for (part, mesh) in &meshes {
         let path = cache.join(format!("{}_{:06}.ppfm", part.name(), part.object_id()));
         let started = Instant::now();
-        if ensure_model_file(&path, mesh, part.object_id(), part.name(), &params)? {
+        let source = MeshSource::Mesh {
+            mesh,
+            name: part.name(),
+        };
+        let cached = load_or_build(source, part.object_id(), &params, &ModelFiles::at(&path))
+            .map_err(|e| e.to_string())?;
+        for why in &cached.rejected {
+            println!("{why}");
+        }
+        if let Some(e) = cached.not_saved {
+            return Err(e.to_string());
+        }
+        if cached.origin == Origin::Built {
             println!(
                 "built the model of {} in {:.1} s",
                 part.name(),
@@ -104,32 +117,6 @@ fn generated_scene(args: &DemoArgs, cache: &Path) -> Result<DemoScene, String> {
         model_files,
         label: format!("generated parts on a table, seed {seed}{noise}"),
     })
-}
-
-/// Makes `path` hold the model of `mesh`: keeps the file if it was built from this mesh (its
-/// fingerprint) with `params` and `object_id`, else builds the model and saves it there (saying
-/// why the file was not kept). Returns whether it built.
-fn ensure_model_file(
-    path: &Path,
-    mesh: &Mesh,
-    object_id: u32,
-    name: &str,
-    params: &ModelParams,
-) -> Result<bool, String> {
-    if path.is_file() {
-        match store::load_expecting(path, params, mesh.fingerprint()) {
-            Ok(model) if model.object_id() == object_id => return Ok(false),
-            Ok(model) => println!(
-                "{}: object {}, not {object_id}: rebuilding",
-                path.display(),
-                model.object_id()
-            ),
-            Err(e) => println!("{e}"),
-        }
-    }
-    let model = ObjectModel::build(mesh, object_id, name, params).map_err(|e| e.to_string())?;
-    store::save(&model, path).map_err(|e| e.to_string())?;
-    Ok(true)
 }
 
 fn bop_scene(args: &DemoArgs, root: &Path) -> Result<DemoScene, String> {
@@ -490,11 +477,6 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
 mod tests {
     use super::*;
 
-    /// A closed box of `size` mm.
-    fn box_mesh([sx, sy, sz]: [f32; 3]) -> Mesh {
-        ppfd_models::synthetic::parts::box_mesh(nalgebra::Vector3::new(sx, sy, sz))
-    }
-
     /// The daemon takes a mesh's object id from the digits ending its name: a dataset's mesh
     /// is linked under the name that gives its id, whatever the dataset calls it.
     #[test]
@@ -558,32 +540,5 @@ mod tests {
             correct, 1,
             "the best pose of object 5 is at its first instance"
         );
-    }
-
-    #[test]
-    fn a_model_file_of_an_older_part_mesh_is_rebuilt() {
-        let dir = std::env::temp_dir().join(format!("ppf-demo-cache-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("part_000002.ppfm");
-        let params = ModelParams::default();
-        let (older, newer) = (box_mesh([40.0, 40.0, 10.0]), box_mesh([40.0, 30.0, 10.0]));
-        assert!(ensure_model_file(&path, &older, 2, "part", &params).unwrap());
-        assert!(
-            !ensure_model_file(&path, &older, 2, "part", &params).unwrap(),
-            "the same mesh keeps its model"
-        );
-        assert!(
-            ensure_model_file(&path, &newer, 2, "part", &params).unwrap(),
-            "another mesh gets a new model"
-        );
-        let model = store::load(&path).unwrap();
-        assert_eq!(model.mesh_fingerprint(), newer.fingerprint());
-        assert!((model.diameter_mm() - (40f32 * 40.0 + 30.0 * 30.0 + 100.0).sqrt()).abs() < 0.01);
-        assert!(
-            ensure_model_file(&path, &newer, 5, "part", &params).unwrap(),
-            "another object id gets a new model"
-        );
-        assert_eq!(store::load(&path).unwrap().object_id(), 5);
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

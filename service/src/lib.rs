@@ -8,6 +8,8 @@
 //!   thread of its own.
 //! - A [`engine::DetectionEngine`] does the matching: [`ppf_engine::PpfEngine`] wraps
 //!   `ppfd_models`; the daemon itself knows nothing of the method.
+//! - [`model_cache::load_or_build`] gives the model of a mesh, built once and reused while the
+//!   mesh is unchanged: for the daemon, and for `ppf`'s offline commands and demo.
 //! - [`registry::Registry`] holds the loaded models; [`config::DaemonConfig`] the settings (TOML
 //!   file and flags); [`stats::Stats`] the counters and latency histograms.
 //! - [`Error`] says why the daemon refused its configuration, or could not start or serve.
@@ -20,6 +22,7 @@ pub mod daemon;
 pub mod engine;
 pub mod error;
 pub mod housekeeper;
+pub mod model_cache;
 pub mod ppf_engine;
 pub mod registry;
 pub mod responder;

@@ -5,7 +5,6 @@ use std::sync::Arc;
 
 use ppfd_models::detect::detector::{DetectOptions as ModelOptions, Detector};
 use ppfd_models::geometry::camera::{DepthFrame, Intrinsics};
-use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::store;
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_protocol::control::ModelInfo;
@@ -15,6 +14,7 @@ use ppfd_protocol::text;
 use crate::engine::{
     DetectOptions, DetectionEngine, EngineError, EngineOutput, FrameView, LoadedModel,
 };
+use crate::model_cache::{self, MeshSource, ModelFiles};
 
 /// Extension of model files.
 pub const MODEL_EXTENSION: &str = "ppfm";
@@ -23,9 +23,9 @@ pub const MODEL_EXTENSION: &str = "ppfm";
 /// decoding) or PLY meshes, built once and saved as `.ppfm` for the next start.
 ///
 /// A model file beside a PLY mesh of the same name, or in the model cache, is that mesh's
-/// cache: it is used only while it was built from the same mesh (the fingerprint of the mesh as
-/// read, so an ASCII file re-saved as binary keeps its model) with the same parameters and
-/// object id; otherwise the model is rebuilt. Hence every PLY mesh is read at each load.
+/// cache ([`crate::model_cache`]): it is used only while it was built from the same mesh file
+/// (its bytes, or failing that the mesh as read, so an ASCII file re-saved as binary keeps its
+/// model) with the same parameters and object id; otherwise the model is rebuilt.
 #[derive(Debug, Default)]
 pub struct PpfEngine {
     detector: Detector,
@@ -115,15 +115,8 @@ fn loaded(model: ObjectModel, source: &Path) -> LoadedModel {
 }
 
 impl PpfEngine {
-    /// Where the model built from `ply` is saved: in `cache_dir` ([`store::cache_file`]), or
-    /// beside the mesh without one (the daemon always gives one).
-    fn cache_path(ply: &Path, cache_dir: Option<&Path>) -> PathBuf {
-        match cache_dir {
-            Some(dir) => store::cache_file(dir, ply),
-            None => ply.with_extension(MODEL_EXTENSION),
-        }
-    }
-
+    /// The model of the mesh file `path`, from the model cache ([`crate::model_cache`]) or built
+    /// and saved there (beside the mesh without a cache; the daemon always gives one).
     fn load_ply(
         &self,
         path: &Path,
@@ -145,118 +138,13 @@ impl PpfEngine {
             // Refused before the model is built (the registry refuses it anyway).
             return Err(crate::registry::object_id_zero(path));
         }
-        let began = std::time::Instant::now();
-        let bytes = std::fs::read(path).map_err(|source| {
-            model_error(ppfd_models::Error::Io {
-                path: path.to_path_buf(),
-                source,
-            })
-        })?;
-        let source_crc = store::source_crc(&bytes);
-        let cache = Self::cache_path(path, cache_dir);
-        let beside = path.with_extension(MODEL_EXTENSION);
-        let mut candidates = vec![beside];
-        if cache != candidates[0] {
-            candidates.push(cache.clone());
-        }
-        // A model cache written before its files were named after their mesh's path held
-        // `<stem>.ppfm`: still good if built from this mesh.
-        if let (Some(dir), Some(file)) = (cache_dir, candidates[0].file_name()) {
-            candidates.push(dir.join(file));
-        }
-        // First without parsing the mesh: a model built from these very bytes.
-        for candidate in candidates.iter().filter(|p| p.is_file()) {
-            match store::load_built_from_file(candidate, &self.model_params, source_crc) {
-                Ok(model) if model.object_id() == id => {
-                    tracing::info!(path = %candidate.display(), "using the model built earlier from this file");
-                    return Ok(loaded(model, candidate));
-                }
-                Ok(_) => {}
-                Err(e) => {
-                    tracing::debug!(path = %candidate.display(), reason = %e, "not built from this file")
-                }
-            }
-        }
-        let mesh = Mesh::from_ply_reader(&bytes[..], path).map_err(model_error)?;
-        let read_ms = began.elapsed().as_millis() as u64;
-        let fingerprint = mesh.fingerprint();
-        for candidate in candidates.iter().filter(|p| p.is_file()) {
-            match store::load_expecting(candidate, &self.model_params, fingerprint) {
-                Ok(model) if model.object_id() == id => {
-                    tracing::info!(path = %candidate.display(), "using the model built earlier");
-                    // The same mesh in a rewritten file: record the file's new CRC, so that the
-                    // next start need not parse the mesh again.
-                    let model = match with_file_crc(model, candidate, source_crc) {
-                        Ok(updated) => updated,
-                        Err((model, e)) => {
-                            tracing::debug!(path = %candidate.display(), error = %e, "CRC not recorded");
-                            model
-                        }
-                    };
-                    return Ok(loaded(model, candidate));
-                }
-                Ok(model) => tracing::info!(
-                    path = %candidate.display(),
-                    cached = model.object_id(),
-                    wanted = id,
-                    "model built earlier has another object id; not used"
-                ),
-                Err(e) => {
-                    tracing::info!(path = %candidate.display(), reason = %e, "model built earlier refused")
-                }
-            }
-        }
-        let started = std::time::Instant::now();
-        let name = path
-            .file_stem()
-            .and_then(|s| s.to_str())
-            .unwrap_or("object");
-        let model = ObjectModel::build(&mesh, id, name, &self.model_params)
-            .and_then(|m| m.with_source_crc(source_crc))
-            .map_err(model_error)?;
-        tracing::info!(
-            path = %path.display(),
-            object_id = id,
-            points = model.point_count(),
-            read_ms,
-            build_ms = started.elapsed().as_millis() as u64,
-            "model built from mesh"
-        );
-        if let Some(dir) = cache.parent() {
-            let _ = std::fs::create_dir_all(dir);
-        }
-        match store::save(&model, &cache) {
-            // Read the saved file back: what the next start will use is checked now.
-            Ok(()) => match store::load(&cache) {
-                Ok(read_back) => Ok(loaded(read_back, &cache)),
-                Err(_) => Ok(loaded(model, path)),
-            },
-            Err(e) => {
-                tracing::warn!(path = %cache.display(), error = %e, "built model not cached");
-                Ok(loaded(model, path))
-            }
-        }
+        let files = ModelFiles::of_mesh(path, cache_dir);
+        let cached =
+            model_cache::load_or_build(MeshSource::File(path), id, &self.model_params, &files)
+                .map_err(model_error)?;
+        let source = cached.file.unwrap_or_else(|| path.to_path_buf());
+        Ok(loaded(cached.model, &source))
     }
-}
-
-/// `model`, saved at `path` again with `crc` as its mesh file's CRC (nothing to do when it has
-/// it already), and read back; on failure the model as it was, with the reason.
-fn with_file_crc(
-    model: ObjectModel,
-    path: &Path,
-    crc: u32,
-) -> Result<ObjectModel, (ObjectModel, ppfd_models::Error)> {
-    if model.source_crc() == crc {
-        return Ok(model);
-    }
-    let updated = match ObjectModel::clone_with_source_crc(&model, crc) {
-        Ok(updated) => updated,
-        Err(e) => return Err((model, e)),
-    };
-    if let Err(e) = store::save(&updated, path) {
-        return Err((model, e));
-    }
-    store::load(path).map_err(|e| (model, e))
 }
 
 impl DetectionEngine for PpfEngine {
@@ -463,126 +351,40 @@ mod tests {
         (x * x + y * y + z * z).sqrt()
     }
 
-    /// Loads the directory as the daemon does at start: the selected files, by object id.
-    fn load_dir(e: &PpfEngine, dir: &Path, cache: Option<&Path>) -> Vec<LoadedModel> {
-        let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-            .unwrap()
-            .map(|f| f.unwrap().path())
-            .collect();
-        files.sort();
-        e.select(files)
-            .iter()
-            .map(|p| e.load(p, None, cache).unwrap_or_else(|err| panic!("{err}")))
-            .collect()
-    }
-
-    /// A model cache written when its files were named `<stem>.ppfm` is still used.
+    /// A mesh's model goes through the model cache and names the file it was read from; a
+    /// model file beside a mesh, asked for by name, goes through the mesh, so a picking cell
+    /// whose mesh was replaced gets a model of the new mesh.
     #[test]
-    fn a_model_cached_under_the_earlier_file_name_is_used() {
-        let root = scratch("earlier-name");
+    fn a_meshs_model_comes_through_the_cache_and_its_file_through_the_mesh() {
+        let (a, b) = ([60.0, 40.0, 20.0], [90.0, 40.0, 20.0]);
+        let root = scratch("through-mesh");
         let (models, cache) = (root.join("models"), root.join("cache"));
         std::fs::create_dir_all(&models).unwrap();
-        std::fs::create_dir_all(&cache).unwrap();
         let ply = models.join("obj_000001.ply");
-        write_box_ply(&ply, [60.0, 40.0, 20.0]);
-        let mesh = Mesh::from_ply_file(&ply).unwrap();
-        let earlier = ObjectModel::build(&mesh, 1, "earlier", &ModelParams::default()).unwrap();
-        store::save(&earlier, &cache.join("obj_000001.ppfm")).unwrap();
-        let loaded = load_dir(&PpfEngine::default(), &models, Some(&cache));
-        assert_eq!(loaded[0].info.name(), "earlier");
-        drop(loaded);
+        let e = PpfEngine::default();
+
+        write_box_ply(&ply, a);
+        let cached = e.load(&ply, None, Some(&cache)).unwrap();
+        assert_eq!(cached.source, store::cache_file(&cache, &ply));
+        assert_eq!(cached.info.object_id, 1);
+        assert!((cached.info.diameter_mm - diagonal(a)).abs() < 0.01);
+        drop(cached);
+
+        let beside = ply.with_extension(MODEL_EXTENSION);
+        let built = e.load(&ply, None, None).unwrap();
+        assert_eq!(
+            built.source, beside,
+            "without a cache, saved beside the mesh"
+        );
+        drop(built);
+        write_box_ply(&ply, b);
+        let by_name = e.load(&beside, None, None).unwrap();
+        assert!(
+            (by_name.info.diameter_mm - diagonal(b)).abs() < 0.01,
+            "diameter {} mm is the old mesh's",
+            by_name.info.diameter_mm
+        );
+        drop(by_name);
         std::fs::remove_dir_all(&root).unwrap();
-    }
-
-    /// A picking cell whose mesh is replaced gets a model of the new mesh, whether the model
-    /// of the old one lies beside the mesh or in the model cache.
-    #[test]
-    fn a_replaced_mesh_is_rebuilt_not_matched_with_its_old_model() {
-        let (a, b) = ([60.0, 40.0, 20.0], [90.0, 40.0, 20.0]);
-        for with_cache in [false, true] {
-            let root = scratch(if with_cache { "cache" } else { "beside" });
-            let (models, cache) = (root.join("models"), root.join("cache"));
-            std::fs::create_dir_all(&models).unwrap();
-            let cache = with_cache.then_some(cache.as_path());
-            let ply = models.join("obj_000001.ply");
-            let e = PpfEngine::default();
-
-            write_box_ply(&ply, a);
-            let first = load_dir(&e, &models, cache);
-            assert_eq!(first.len(), 1);
-            assert!((first[0].info.diameter_mm - diagonal(a)).abs() < 0.01);
-            let saved = PpfEngine::cache_path(&ply, cache);
-            assert_eq!(
-                first[0].source, saved,
-                "the built model is saved and read back"
-            );
-            drop(first);
-
-            // Unchanged mesh: the model built earlier is used, not rebuilt. A copy renamed
-            // "earlier" tells the two apart.
-            let mesh = Mesh::from_ply_file(&ply).unwrap();
-            let earlier = ObjectModel::build(&mesh, 1, "earlier", &ModelParams::default()).unwrap();
-            store::save(&earlier, &saved).unwrap();
-            let again = load_dir(&e, &models, cache);
-            assert_eq!(again[0].info.name(), "earlier");
-            drop(again);
-            // Accepted by its mesh, it now also records the file's CRC (it had none), so the
-            // next start takes it without parsing the mesh.
-            let file_crc = store::source_crc(&std::fs::read(&ply).unwrap());
-            let recorded = store::load(&saved).unwrap();
-            assert_eq!(recorded.name(), "earlier");
-            assert_eq!(recorded.source_crc(), file_crc);
-            drop(recorded);
-
-            // Another mesh under the same name: rebuilt, and the saved model replaced.
-            write_box_ply(&ply, b);
-            let replaced = load_dir(&e, &models, cache);
-            assert_eq!(replaced.len(), 1, "one model for one mesh");
-            assert!(
-                (replaced[0].info.diameter_mm - diagonal(b)).abs() < 0.01,
-                "diameter {} mm is the old mesh's",
-                replaced[0].info.diameter_mm
-            );
-            assert_eq!(replaced[0].info.name(), "obj_000001");
-            let fingerprint = Mesh::from_ply_file(&ply).unwrap().fingerprint();
-            let on_disk = store::load(&saved).unwrap();
-            assert_eq!(on_disk.mesh_fingerprint(), fingerprint);
-            drop((replaced, on_disk));
-
-            // The rebuilt model records the bytes of its file, so the next start need not
-            // parse the mesh: a model saved under those bytes' CRC is taken as it is. (Shown
-            // with a model of a cube of another name, which only this check can accept: its
-            // mesh fingerprint is not the file's.)
-            let crc = store::source_crc(&std::fs::read(&ply).unwrap());
-            assert_eq!(store::load(&saved).unwrap().source_crc(), crc);
-            let cube =
-                ppfd_models::synthetic::parts::box_mesh(nalgebra::Vector3::new(30.0, 30.0, 30.0));
-            let stand_in = ObjectModel::build(&cube, 1, "by-file", &ModelParams::default())
-                .unwrap()
-                .with_source_crc(crc)
-                .unwrap();
-            store::save(&stand_in, &saved).unwrap();
-            let by_file = load_dir(&e, &models, cache);
-            assert_eq!(by_file[0].info.name(), "by-file");
-            drop(by_file);
-            // Another CRC (the file changed since): the mesh decides, and rebuilds.
-            let stale = ObjectModel::build(&cube, 1, "stale", &ModelParams::default())
-                .unwrap()
-                .with_source_crc(crc ^ 1)
-                .unwrap();
-            store::save(&stale, &saved).unwrap();
-            let rebuilt = load_dir(&e, &models, cache);
-            assert_eq!(rebuilt[0].info.name(), "obj_000001");
-            assert!((rebuilt[0].info.diameter_mm - diagonal(b)).abs() < 0.01);
-            drop(rebuilt);
-
-            // Asking for the model file beside the mesh by name goes through the mesh too.
-            if !with_cache {
-                write_box_ply(&ply, a);
-                let by_name = e.load(&saved, None, None).unwrap();
-                assert!((by_name.info.diameter_mm - diagonal(a)).abs() < 0.01);
-            }
-            std::fs::remove_dir_all(&root).unwrap();
-        }
     }
 }
