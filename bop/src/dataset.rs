@@ -1380,10 +1380,10 @@ mod tests {
 
     #[test]
     fn lmo_scene_2_image_3() {
-        let Some(shared) = crate::shared_test_data() else {
+        let Some(dir) = crate::shared_test_data("lmo") else {
             return;
         };
-        let data = BopDataset::open(shared.join("lmo")).unwrap();
+        let data = BopDataset::open(dir).unwrap();
         assert_eq!(data.scene_ids(), vec![2]);
         assert_eq!(data.object_ids(), &[1, 5, 6, 8, 9, 10, 11, 12]);
         assert!(data.image_ids(2).unwrap().contains(&3));
@@ -1480,10 +1480,10 @@ mod tests {
     /// reading would not.
     #[test]
     fn lmo_ground_truth_matches_the_depth_image() {
-        let Some(shared) = crate::shared_test_data() else {
+        let Some(dir) = crate::shared_test_data("lmo") else {
             return;
         };
-        let data = BopDataset::open(shared.join("lmo")).unwrap();
+        let data = BopDataset::open(dir).unwrap();
         let gt = data.ground_truth(2, 3).unwrap();
         let info = data.ground_truth_info(2, 3).unwrap();
         let (mut checked, mut seen_through, mut seen_through_wrong) = (0, 0.0, 0.0);
@@ -1521,10 +1521,10 @@ mod tests {
 
     #[test]
     fn synthetic_set_opens() {
-        let Some(shared) = crate::shared_test_data() else {
+        let Some(dir) = crate::shared_test_data("synth-lmo-dev") else {
             return;
         };
-        let data = BopDataset::open(shared.join("synth-lmo-dev")).unwrap();
+        let data = BopDataset::open(dir).unwrap();
         assert_eq!(data.scene_ids(), vec![1]);
         let images = data.image_ids(1).unwrap();
         assert_eq!(images, (0..40).collect::<Vec<_>>());
@@ -1539,10 +1539,10 @@ mod tests {
 
     #[test]
     fn single_scene_folder_opens_as_scene_0() {
-        let Some(shared) = crate::shared_test_data() else {
+        let Some(dir) = crate::shared_test_data("mpabst_bop_obj19") else {
             return;
         };
-        let data = BopDataset::open(shared.join("mpabst_bop_obj19")).unwrap();
+        let data = BopDataset::open(dir).unwrap();
         assert_eq!(data.split(), Some("data"));
         assert_eq!(data.scene_ids(), vec![0]);
         assert_eq!(data.object_ids(), &[19]);

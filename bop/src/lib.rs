@@ -24,22 +24,31 @@
 pub mod dataset;
 pub mod eval;
 
-/// The shared test data (`../shared/data` beside the workspace, or `$PPFD_SHARED_DATA`), or
-/// `None` with a printed reason when it is absent; absent data fails the test under `CI=true`.
-#[cfg(test)]
-pub(crate) fn shared_test_data() -> Option<std::path::PathBuf> {
+/// For tests: the dataset `name` of the shared test data (`../shared/data/<name>` beside the
+/// workspace, or `$PPFD_SHARED_DATA/<name>`; `""` for the folder itself), or `None` when it is
+/// absent, after printing that the test is skipped. Under `CI=true` absent data fails the test
+/// instead: the tests that read real data must run in CI.
+pub fn shared_test_data(name: &str) -> Option<std::path::PathBuf> {
     let root = std::env::var_os("PPFD_SHARED_DATA")
         .map(std::path::PathBuf::from)
         .unwrap_or_else(|| concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data").into());
-    if root.is_dir() {
-        return Some(root);
+    let dir = if name.is_empty() {
+        root
+    } else {
+        root.join(name)
+    };
+    if dir.is_dir() {
+        return Some(dir);
     }
     let ci = std::env::var("CI").is_ok_and(|v| v == "true");
     assert!(
         !ci,
         "CI=true but the shared test data is missing at {}",
-        root.display()
+        dir.display()
     );
-    println!("skipped: no shared test data at {}", root.display());
+    println!(
+        "skipped: no shared test data at {} (the test runs when it is there)",
+        dir.display()
+    );
     None
 }

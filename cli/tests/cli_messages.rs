@@ -5,11 +5,11 @@
 
 mod common;
 
-use common::{shared_data, Scratch};
-
 use std::path::Path;
 use std::process::{Command, Output};
 
+use common::Scratch;
+use ppfd_bop::shared_test_data;
 use ppfd_models::synthetic::parts::Part;
 
 fn ppf(args: &[&str]) -> Command {
@@ -204,7 +204,7 @@ fn a_failed_model_bench_leaves_no_scratch_folder() {
 /// it is ready and serves nothing (so the demo fails to connect).
 #[test]
 fn the_demo_names_meshes_by_object_id_and_cleans_up_when_it_fails() {
-    let Some(dataset) = shared_data("mpabst_bop_obj19/data") else {
+    let Some(dataset) = shared_test_data("mpabst_bop_obj19/data") else {
         return;
     };
     assert!(dataset.join("obj.ply").is_file(), "the mesh is obj.ply");
@@ -265,7 +265,9 @@ exec sleep 120
 
 #[test]
 fn replaying_a_scene_that_is_not_there_lists_the_scenes() {
-    let Some(dataset) = common::lmo() else { return };
+    let Some(dataset) = shared_test_data("lmo") else {
+        return;
+    };
     let prefix = format!("cf_replay_{}_", std::process::id());
     let out = run(ppf(&["replay"]).arg(&dataset).args([
         "--camera",
@@ -320,7 +322,9 @@ fn model_build_into_a_file_says_out_takes_a_folder() {
 /// read "no image with depth to evaluate").
 #[test]
 fn evaluating_a_scene_that_is_not_there_lists_the_scenes() {
-    let Some(dataset) = common::lmo() else { return };
+    let Some(dataset) = shared_test_data("lmo") else {
+        return;
+    };
     let scratch = Scratch::new("eval-scene");
     let out = run(ppf(&["eval"])
         .arg(&dataset)
@@ -517,7 +521,9 @@ fn a_demo_stopped_by_sigterm_leaves_nothing_behind() {
 #[test]
 fn a_replay_stopped_by_sigterm_leaves_no_shared_memory_behind() {
     use std::io::BufRead;
-    let Some(dataset) = common::lmo() else { return };
+    let Some(dataset) = shared_test_data("lmo") else {
+        return;
+    };
     let prefix = format!("cf_replay_stop_{}_", std::process::id());
     let leftovers = || -> Vec<String> {
         ["/dev/shm", "/tmp/iceoryx2/nodes", "/tmp/iceoryx2/services"]

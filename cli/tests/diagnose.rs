@@ -3,11 +3,10 @@
 //! rank the object's right pose reaches. Reads `../shared/data/lmo`; runs whenever the data is
 //! there, and always under `CI=true`.
 
-mod common;
-
-use common::lmo;
 use std::path::Path;
 use std::process::{Command, Output};
+
+use ppfd_bop::shared_test_data;
 
 /// `ppf detect --dataset <dataset> --scene 2 --image 3 --diagnose --objects <objects>`, building
 /// models into `cache`.
@@ -24,7 +23,9 @@ fn diagnose(dataset: &Path, objects: &str, cache: &Path) -> Output {
 
 #[test]
 fn diagnose_counts_the_reference_points_that_propose_the_right_pose() {
-    let Some(dataset) = lmo() else { return };
+    let Some(dataset) = shared_test_data("lmo") else {
+        return;
+    };
     let cache = std::env::temp_dir().join(format!("ppf-diagnose-cache-{}", std::process::id()));
     let run = diagnose(&dataset, "8,11", &cache);
     let _ = std::fs::remove_dir_all(&cache);
@@ -83,7 +84,9 @@ fn diagnose_counts_the_reference_points_that_propose_the_right_pose() {
 /// built (the diagnosis judges every stage against the truth).
 #[test]
 fn diagnose_refuses_an_object_without_ground_truth_before_building_models() {
-    let Some(dataset) = lmo() else { return };
+    let Some(dataset) = shared_test_data("lmo") else {
+        return;
+    };
     let cache = std::env::temp_dir().join(format!("ppf-diagnose-none-{}", std::process::id()));
     // Object 2 has no model file in LM-O either: without the check, the run fails on that
     // instead, after building the driller's model.

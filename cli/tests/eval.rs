@@ -3,15 +3,16 @@
 //! dataset takes minutes to hours). Reads `../shared/data/lmo`; runs whenever the data is there,
 //! and always under `CI=true`.
 
-mod common;
-
-use common::lmo;
 use std::path::PathBuf;
 use std::process::Command;
 
+use ppfd_bop::shared_test_data;
+
 #[test]
 fn an_unwritable_results_file_is_refused_before_any_detection() {
-    let Some(dataset) = lmo() else { return };
+    let Some(dataset) = shared_test_data("lmo") else {
+        return;
+    };
     let out = std::env::temp_dir()
         .join(format!("ppf-eval-missing-{}", std::process::id()))
         .join("results.csv");
@@ -46,7 +47,9 @@ fn an_unwritable_results_file_is_refused_before_any_detection() {
 /// no results file behind, and an existing one as it was.
 #[test]
 fn a_run_that_fails_before_any_image_leaves_the_results_file_as_it_was() {
-    let Some(dataset) = lmo() else { return };
+    let Some(dataset) = shared_test_data("lmo") else {
+        return;
+    };
     let dir = std::env::temp_dir().join(format!("ppf-eval-early-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let eval = |out: &PathBuf, extra: &[&str]| {

@@ -8,6 +8,7 @@
 use std::path::PathBuf;
 
 use ppfd_bop::dataset::BopDataset;
+use ppfd_bop::shared_test_data;
 use ppfd_models::detect::detector::{DetectOptions, DetectParams, Detections, Detector};
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::{ModelParams, ObjectModel};
@@ -15,22 +16,6 @@ use ppfd_models::Pose;
 
 const SCENE: u32 = 2;
 const IMAGE: u32 = 3;
-
-/// The dataset folder, `None` (after saying why) when it is absent outside CI.
-fn dataset_dir() -> Option<PathBuf> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/lmo");
-    if dir.join("test").is_dir() {
-        return Some(dir);
-    }
-    if std::env::var("CI").is_ok_and(|v| v == "true") {
-        panic!("CI=true but the LM-O data is missing at {}", dir.display());
-    }
-    eprintln!(
-        "skipped: no LM-O data at {} (the test runs when it is there)",
-        dir.display()
-    );
-    None
-}
 
 /// Translation (mm) and rotation (degrees) errors of `est`, the smallest over `symmetries`
 /// (identity included).
@@ -163,7 +148,9 @@ fn detect_frame(dir: &PathBuf) -> Outcome {
 /// with the egg box's leaf for its cloud (shared when diameters within 10 % shared a cloud).
 #[test]
 fn lmo_frame_objects_are_found() {
-    let Some(dir) = dataset_dir() else { return };
+    let Some(dir) = shared_test_data("lmo") else {
+        return;
+    };
     let o = detect_frame(&dir);
     assert_eq!(o.objects, 8);
     assert!(
@@ -180,7 +167,9 @@ fn lmo_frame_objects_are_found() {
 #[test]
 #[ignore = "targets not reached: 5 of 8 among the 10 best clusters (the glue and the eggbox rank far below the 10th by votes), 6 of 8 best poses"]
 fn lmo_frame_reaches_the_issue_targets() {
-    let Some(dir) = dataset_dir() else { return };
+    let Some(dir) = shared_test_data("lmo") else {
+        return;
+    };
     let o = detect_frame(&dir);
     assert!(
         o.clusters_ok >= 6,

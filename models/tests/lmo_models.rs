@@ -1,36 +1,17 @@
 //! Model building on the real LM-O models (`../shared/data/lmo`): every model builds, its
 //! diameter agrees with BOP's `models_info.json`, and it survives the store.
 
-use std::path::PathBuf;
-
 use ppfd_bop::dataset::BopDataset;
+use ppfd_bop::shared_test_data;
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::store;
 use ppfd_models::model::{ModelParams, ObjectModel};
 
-fn lmo() -> Option<PathBuf> {
-    let root = std::env::var_os("PPFD_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data"))
-        });
-    let dir = root.join("lmo");
-    if dir.is_dir() {
-        return Some(dir);
-    }
-    if std::env::var("CI").as_deref() == Ok("true") {
-        panic!("CI=true but {} is missing", dir.display());
-    }
-    eprintln!(
-        "skipped: {} not found (the LM-O data lives beside the repository)",
-        dir.display()
-    );
-    None
-}
-
 #[test]
 fn lmo_models_build_with_bop_diameters_and_round_trip() {
-    let Some(dir) = lmo() else { return };
+    let Some(dir) = shared_test_data("lmo") else {
+        return;
+    };
     let dataset = BopDataset::open(&dir).unwrap();
     let out = std::env::temp_dir().join(format!("ppfd-lmo-models-{}", std::process::id()));
     std::fs::create_dir_all(&out).unwrap();

@@ -257,24 +257,11 @@ fn generated_scene_poses_through_the_whole_path_match_the_ground_truth() {
     generated_scene_through_the_whole_path("gen_poses", SEED, true);
 }
 
-fn dataset_root() -> Option<PathBuf> {
-    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/synth-lmo-dev");
-    if root.is_dir() {
-        return Some(root);
-    }
-    if std::env::var("CI").as_deref() == Ok("true") {
-        panic!(
-            "{} is missing and CI=true: the test data must be there",
-            root.display()
-        );
-    }
-    eprintln!("skipping: {} not found", root.display());
-    None
-}
-
 #[test]
 fn lmo_object_built_from_its_mesh_by_the_daemon_is_found_through_the_whole_path() {
-    let Some(root) = dataset_root() else { return };
+    let Some(root) = ppfd_bop::shared_test_data("synth-lmo-dev") else {
+        return;
+    };
     let dataset = BopDataset::open(&root).unwrap();
     let (scene, image) = (dataset.scene_ids()[0], 0);
     let image = dataset

@@ -292,10 +292,10 @@ mod tests {
     /// Against the BOP toolkit's own figures: the LM-O frame's `scene_gt_info.json`.
     #[test]
     fn visibility_agrees_with_the_lmo_frames_own_file() {
-        let Some(shared) = crate::shared_test_data() else {
+        let Some(dir) = crate::shared_test_data("lmo") else {
             return;
         };
-        let data = BopDataset::open(shared.join("lmo")).unwrap();
+        let data = BopDataset::open(dir).unwrap();
         let meshes = MeshCache::default();
         let gt = data.ground_truth(2, 3).unwrap();
         let frame = data.depth_frame(2, 3).unwrap();

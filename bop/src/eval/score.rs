@@ -1094,8 +1094,8 @@ mod lmo_tests {
     use nalgebra::Translation3;
 
     fn lmo() -> Option<BopDataset> {
-        let shared = crate::shared_test_data()?;
-        Some(BopDataset::open(shared.join("lmo")).unwrap())
+        let dir = crate::shared_test_data("lmo")?;
+        Some(BopDataset::open(dir).unwrap())
     }
 
     fn rows_from(gt: &[GtPose], change: impl Fn(&GtPose) -> Pose) -> Vec<EstimateRow> {
@@ -1141,10 +1141,9 @@ mod lmo_tests {
     /// computed.
     #[test]
     fn a_dataset_without_visibility_or_model_info_is_scored_with_them_computed() {
-        let Some(shared) = crate::shared_test_data() else {
+        let Some(source) = crate::shared_test_data("lmo") else {
             return;
         };
-        let source = shared.join("lmo");
         let root = std::env::temp_dir().join(format!("ppfd-score-bare-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&root);
         let scene = root.join("test/000002");

@@ -1,31 +1,7 @@
-//! What the command-line tests share: where the real data is, and scratch folders.
+//! What the command-line tests share: scratch folders. The real data is found with
+//! `ppfd_bop::shared_test_data`.
 
 use std::path::PathBuf;
-
-/// `../shared/data/<name>` beside the project, when it is there; `None` (the caller skips,
-/// saying why) when it is not, except under `CI=true`, where the data must be there.
-pub fn shared_data(name: &str) -> Option<PathBuf> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
-        .join(name);
-    if dir.is_dir() {
-        return Some(dir);
-    }
-    if std::env::var("CI").as_deref() == Ok("true") {
-        panic!("CI=true but the data is missing at {}", dir.display());
-    }
-    eprintln!(
-        "skipped: no data at {} (the test runs when it is there)",
-        dir.display()
-    );
-    None
-}
-
-/// The real LM-O frame's dataset ([`shared_data`]).
-#[allow(dead_code)] // not every test file reads it
-pub fn lmo() -> Option<PathBuf> {
-    shared_data("lmo")
-}
 
 /// A fresh scratch directory, `<temp>/ppf-<name>-<pid>`, removed when dropped.
 #[allow(dead_code)] // not every test file writes files
