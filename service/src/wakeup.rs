@@ -5,7 +5,7 @@ use std::os::fd::RawFd;
 
 use iceoryx2::prelude::{FileDescriptor, FileDescriptorBased, SynchronousMultiplexing};
 
-/// An `eventfd`: [`Wakeup::signal`] from any thread, [`Wakeup::drain`] on the I/O thread.
+/// An `eventfd`: [`Signaller::signal`] from any thread, [`Wakeup::drain`] on the I/O thread.
 #[derive(Debug)]
 pub struct Wakeup {
     fd: FileDescriptor,

@@ -7,9 +7,9 @@
 //! detection slot is free, the request's frame is resolved — the newest sample of its camera, or
 //! its own inline payload — and a job runs on the pool with the request, reading the depth
 //! values straight from shared memory. The worker writes the response into a loaned response
-//! slice, sends it and wakes the client's listener on `ppfd/responses` (see
-//! [`Responder`](crate::responder::Responder)); then it reports on a channel and signals an
-//! eventfd, and this thread counts the outcome and releases the frame.
+//! slice, sends it and wakes the client's listener on `ppfd/responses` (see [`Responder`]); then
+//! it reports on a channel and signals an eventfd, and this thread counts the outcome and
+//! releases the frame.
 //!
 //! No depth value is copied on this path: the job gets a pointer into the sample (or request).
 //! The request travels with the job and is dropped only after its answer; an `Rc` of the sample
