@@ -8,9 +8,6 @@ use crate::detect::voting::Hypothesis;
 use crate::geometry::grid::CellMap;
 use crate::Pose;
 
-/// Members of one cluster tried as the start of its refined average, at most.
-const MAX_DENSITY_CANDIDATES: usize = 256;
-
 /// Parameters of pose clustering.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ClusteringParams {
@@ -33,9 +30,6 @@ pub struct ClusteringParams {
     pub refine_rotation_shrink: f32,
     pub refine_translation_fraction: f32,
     pub refine_iterations: usize,
-    /// Start the refinement from the member with the most votes around it rather than from
-    /// the plain average.
-    pub refine_from_densest: bool,
 }
 
 impl Default for ClusteringParams {
@@ -47,7 +41,6 @@ impl Default for ClusteringParams {
             refine_rotation_shrink: 1.0,
             refine_translation_fraction: 0.05,
             refine_iterations: 5,
-            refine_from_densest: false,
         }
     }
 }
@@ -176,7 +169,6 @@ pub fn cluster_poses(
         }
     }
     let refine_t = params.refine_translation_fraction * diameter_mm;
-    let refine_dot = (params.refine_rotation_deg.to_radians() / 2.0).cos();
     let mut out: Vec<PoseCluster> = clusters
         .into_iter()
         .map(|c| {
@@ -187,33 +179,6 @@ pub fn cluster_poses(
                 c.seed.rotation
             };
             let mut pose = Pose::from_parts(Translation3::from(c.translation_sum / w), rotation);
-            let close = |a: &Pose, b: &Pose| {
-                (a.translation.vector - b.translation.vector).norm() < refine_t
-                    && a.rotation.coords.dot(&b.rotation.coords).abs() >= refine_dot
-            };
-            if params.refine_from_densest && params.refine_iterations > 0 && c.members.len() > 2 {
-                // Start from the densest member: the one whose neighbourhood holds the most
-                // votes (members beyond a few hundred are sampled as candidates).
-                let step = (c.members.len() / MAX_DENSITY_CANDIDATES).max(1);
-                let density = |j: u32| -> u32 {
-                    let pj = &hypotheses[j as usize].pose;
-                    c.members
-                        .iter()
-                        .map(|&i| &hypotheses[i as usize])
-                        .filter(|h| close(&h.pose, pj))
-                        .map(|h| h.votes)
-                        .sum()
-                };
-                if let Some(best) = c
-                    .members
-                    .iter()
-                    .step_by(step)
-                    .copied()
-                    .max_by_key(|&j| density(j))
-                {
-                    pose = hypotheses[best as usize].pose;
-                }
-            }
             for it in 0..params.refine_iterations {
                 let angle =
                     params.refine_rotation_deg * params.refine_rotation_shrink.powi(it as i32);

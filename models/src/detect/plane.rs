@@ -10,17 +10,14 @@
 //! normal) are not taken as reference points, nor as their partners: they cannot be model
 //! points, so their pairs with a point on an object only add votes for wrong poses. On the LM-O
 //! frame dropping them as partners cut voting by about a tenth and left every result as it was;
-//! on synth-lmo-dev recall went from 0.926 to 0.931 ([`crate::detect::voting::VotingParams::plane_partners`]
-//! keeps them).
+//! on synth-lmo-dev recall went from 0.926 to 0.931.
 //!
 //! An object resting on the supporting plane lies on the camera's side of it. Points behind it
 //! (the floor beyond the table's edge, shelves and clutter below it) are taken neither as
 //! reference points nor as partners ([`PlaneParams::exclude_behind`]). On the LM-O frame half of
-//! the duck's reference points lay there: the eight objects took 6.4–6.5 s instead of 11.2 s
-//! (`ppf profile`, both in one run; the slower one also shared clouds between diameters 10 %
-//! apart, as the detector did until this change, see
-//! [`crate::detect::detector::DetectParams::shared_cloud_diameter_ratio`]), the same six of eight best
-//! poses correct; synth-lmo-dev's recall stayed 0.935 in 0.85 of the time.
+//! the duck's reference points lay there: excluding them took the eight objects to about 0.58 of
+//! the time with the same six of eight best poses correct, and synth-lmo-dev kept its recall
+//! (0.935) in 0.85 of the time (docs/METHOD.md §2.3).
 //!
 //! This takes the dominant plane for the support. Where it need not be, a cell turns the
 //! exclusion off (`plane.exclude_behind=false`): objects on a lower shelf beyond a large table,

@@ -167,16 +167,13 @@ settings! {
     "voting.vote_once" => voting.vote_once;
     "voting.peaks_per_reference" => voting.peaks_per_reference in 1..=32;
     "voting.peak_ratio" => voting.peak_ratio in 0.0..=1.0;
-    "voting.min_distance_fraction" => voting.min_distance_fraction in 0.0..=1.0;
     "voting.interpolate_alpha" => voting.interpolate_alpha;
-    "voting.plane_partners" => voting.plane_partners;
     "clustering.translation_fraction" => clustering.translation_fraction in 0.001..=10.0;
     "clustering.rotation_deg" => clustering.rotation_deg in 0.0..=180.0;
     "clustering.refine_rotation_deg" => clustering.refine_rotation_deg in 0.0..=180.0;
     "clustering.refine_rotation_shrink" => clustering.refine_rotation_shrink in 0.0..=1.0;
     "clustering.refine_translation_fraction" => clustering.refine_translation_fraction in 0.0..=10.0;
     "clustering.refine_iterations" => clustering.refine_iterations in 0..=100;
-    "clustering.refine_from_densest" => clustering.refine_from_densest;
     "rescoring.top_clusters" => rescoring.top_clusters in 1..=100000;
     "rescoring.tolerance_fraction" => rescoring.tolerance_fraction in 0.0..=1.0;
     "rescoring.refined_tolerance_fraction" => rescoring.refined_tolerance_fraction in 0.0..=1.0;
@@ -188,6 +185,9 @@ settings! {
     "rescoring.silhouette_weight" => rescoring.silhouette_weight in 0.0..=100.0;
     "rescoring.min_visible_outline" => rescoring.min_visible_outline in 0.0..=1.0;
     "rescoring.silhouette_mesh_cell_fraction" => rescoring.silhouette_mesh_cell_fraction in 0.0..=1.0;
+    "rescoring.prescore_stride" => rescoring.prescore_stride in 1..=64;
+    "rescoring.prescore_keep" => rescoring.prescore_keep in 0..=100000;
+    "rescoring.coarse_outline_px" => rescoring.coarse_outline_px in 0..=100000;
     "icp.top_poses" => icp.top_poses in 0..=100000;
     "icp.iterations" => icp.iterations in 0..=1000;
     "icp.initial_distance_fraction" => icp.initial_distance_fraction in 0.0..=1.0;
@@ -206,6 +206,7 @@ settings! {
     "filters.max_candidates" => filters.max_candidates in 1..=100000;
     "nms_distance_fraction" => nms_distance_fraction in 0.0..=10.0;
     "shared_cloud_diameter_ratio" => shared_cloud_diameter_ratio in 1.0..=100.0;
+    "scene_leaf_ratio" => scene_leaf_ratio in 0.5..=4.0;
 }
 
 /// The error for an unknown name: it lists the names of the same stage, or the stages.

@@ -62,17 +62,9 @@ pub struct VotingParams {
     pub peaks_per_reference: usize,
     /// A secondary peak must have at least this fraction of the highest peak's votes.
     pub peak_ratio: f32,
-    /// Pairs closer than this fraction of the diameter vote nothing: their features are
-    /// dominated by noise (and the model's own pairs start at about one leaf).
-    pub min_distance_fraction: f32,
     /// Refine a peak's α inside its bin by a parabola through the votes of the bin and its two
     /// neighbours: a 12° bin alone leaves up to 6° of rotation error in every hypothesis.
     pub interpolate_alpha: bool,
-    /// Points on the large planes (and behind the supporting one) that hold no reference points
-    /// (see [`Selection`]) still pair with reference points. Off by default: they cannot be model points, so their pairs only
-    /// add votes for wrong poses (measured: LM-O frame unchanged at VSD recall 0.750 in 0.93 of
-    /// the time, synth-lmo-dev 0.926 → 0.931).
-    pub plane_partners: bool,
 }
 
 impl Default for VotingParams {
@@ -84,9 +76,7 @@ impl Default for VotingParams {
             vote_once: true,
             peaks_per_reference: 2,
             peak_ratio: 0.8,
-            min_distance_fraction: 0.0,
             interpolate_alpha: true,
-            plane_partners: false,
         }
     }
 }
@@ -375,7 +365,7 @@ impl Selection {
 }
 
 /// Votes with the selected reference points only; what [`vote`] does with every
-/// `reference_step`-th point. Unless `params.plane_partners`, points on the selection's large
+/// `reference_step`-th point. Points on the selection's large
 /// planes are no one's partners either.
 pub fn vote_from(
     model: &ObjectModel,
@@ -384,15 +374,13 @@ pub fn vote_from(
     params: &VotingParams,
 ) -> (Vec<Hypothesis>, VotingCounts) {
     let references = &selection.references[..];
-    let skip_partner =
-        |i: usize| !params.plane_partners && selection.excluded.get(i).copied().unwrap_or(false);
+    let skip_partner = |i: usize| selection.excluded.get(i).copied().unwrap_or(false);
     let data = model.data();
     let n_model = model.point_count();
     let alpha_bins = data.params.alpha_bins.to_native();
     let quantizer = model.quantizer();
     let key_count = quantizer.key_count();
     let diameter = model.diameter_mm();
-    let min_distance = params.min_distance_fraction * diameter;
     let model_frames: Vec<LocalFrame> = (0..n_model)
         .map(|i| LocalFrame::new(&model.point(i), &model.normal(i)))
         .collect();
@@ -445,9 +433,6 @@ pub fn vote_from(
                     let Some(f) = PointPairFeature::compute(&sr, &nr, &si, &ni) else {
                         continue;
                     };
-                    if f.distance_mm < min_distance {
-                        continue;
-                    }
                     pairs += 1;
                     let n_keys = if params.neighbour_keys {
                         quantizer.keys_with_neighbours(&f, &mut keys)
@@ -557,8 +542,11 @@ pub fn sub_bin_offset(below: u32, centre: u32, above: u32) -> f32 {
 }
 
 /// Calls `emit(cell, votes)` for up to `peaks_per_reference` highest cells with at least
-/// `peak_ratio` of the maximum (and at least one vote), highest first.
-fn peaks(acc: &[u16], _nb: usize, params: &VotingParams, mut emit: impl FnMut(usize, u32)) {
+/// `peak_ratio` of the maximum (and at least one vote), highest first. A cell next to a better
+/// peak's cell in the same model point's row (±1 α bin, circularly over `nb` bins) is the same
+/// peak's flank, not a second pose: it is skipped, so one reference point does not vote twice
+/// for one pose cluster.
+fn peaks(acc: &[u16], nb: usize, params: &VotingParams, mut emit: impl FnMut(usize, u32)) {
     let k = params.peaks_per_reference.max(1);
     // Two passes that vectorise: the maximum, then the few cells near it.
     let max = acc.iter().copied().max().unwrap_or(0) as u32;
@@ -566,8 +554,12 @@ fn peaks(acc: &[u16], _nb: usize, params: &VotingParams, mut emit: impl FnMut(us
         return;
     }
     let threshold = ((params.peak_ratio * max as f32).ceil() as u32).clamp(1, max) as u16;
-    let mut best: Vec<(u32, usize)> = Vec::with_capacity(k + 1);
-    // Most rows hold no cell near the maximum: a row's maximum (vectorised) skips them whole.
+    // The best `3 k` cells at or above the threshold, highest first (equal counts in scan
+    // order): each of the `k` peaks taken can hide at most two flank cells, so the `k` peaks
+    // are among them. Most rows hold no cell near the maximum: a row's maximum (vectorised)
+    // skips them whole.
+    let keep = 3 * k;
+    let mut candidates: Vec<(u32, usize)> = Vec::with_capacity(keep + 1);
     for (row, cells) in acc.chunks(ROW).enumerate() {
         if cells.iter().copied().max().unwrap_or(0) < threshold {
             continue;
@@ -577,15 +569,31 @@ fn peaks(acc: &[u16], _nb: usize, params: &VotingParams, mut emit: impl FnMut(us
                 continue;
             }
             let v = v as u32;
-            if best.len() == k && v <= best[k - 1].0 {
+            if candidates.len() == keep && v <= candidates[keep - 1].0 {
                 continue;
             }
-            let pos = best.partition_point(|&(bv, _)| bv >= v);
-            best.insert(pos, (v, row * ROW + i));
-            best.truncate(k);
+            let pos = candidates.partition_point(|&(bv, _)| bv >= v);
+            candidates.insert(pos, (v, row * ROW + i));
+            candidates.truncate(keep);
         }
     }
-    for (v, cell) in best {
+    let mut taken: Vec<usize> = Vec::with_capacity(k);
+    for (v, cell) in candidates {
+        if taken.len() == k {
+            break;
+        }
+        let flank = taken.iter().any(|&t| {
+            if t >> ROW_SHIFT != cell >> ROW_SHIFT {
+                return false;
+            }
+            let (a, b) = (t & (ROW - 1), cell & (ROW - 1));
+            let d = a.abs_diff(b);
+            d <= 1 || d + 1 == nb
+        });
+        if flank {
+            continue;
+        }
+        taken.push(cell);
         emit(cell, v);
     }
 }
@@ -824,22 +832,23 @@ mod tests {
 
     #[test]
     fn peaks_are_highest_first_and_above_ratio() {
-        let acc: Vec<u16> = vec![0, 5, 9, 1, 10, 8, 0, 7];
+        // One model point's row of 12 α bins.
+        let acc: Vec<u16> = vec![0, 5, 9, 1, 10, 0, 0, 8, 0, 0, 0, 0];
         let params = VotingParams {
             peaks_per_reference: 3,
             peak_ratio: 0.8,
             ..Default::default()
         };
         let mut got = Vec::new();
-        peaks(&acc, 4, &params, |c, v| got.push((c, v)));
-        assert_eq!(got, vec![(4, 10), (2, 9), (5, 8)]);
+        peaks(&acc, 12, &params, |c, v| got.push((c, v)));
+        assert_eq!(got, vec![(4, 10), (2, 9), (7, 8)]);
         let params = VotingParams {
             peaks_per_reference: 3,
             peak_ratio: 0.95,
             ..Default::default()
         };
         got.clear();
-        peaks(&acc, 4, &params, |c, v| got.push((c, v)));
+        peaks(&acc, 12, &params, |c, v| got.push((c, v)));
         assert_eq!(got, vec![(4, 10)]);
         got.clear();
         peaks(&[0, 0, 0], 3, &params, |c, v| got.push((c, v)));
@@ -858,5 +867,35 @@ mod tests {
         got.clear();
         peaks(&acc, 30, &params, |c, v| got.push((c, v)));
         assert_eq!(got, vec![(2 * ROW + 7, 50), (3 * ROW + 31, 45)]);
+    }
+
+    /// The cells beside a peak in its own row (±1 α bin, also across the wrap from the last bin
+    /// to the first) are its flanks, not second peaks; the same bins of another model point's
+    /// row are peaks of their own.
+    #[test]
+    fn a_peaks_flanks_are_not_second_peaks() {
+        let nb = 30;
+        let params = VotingParams {
+            peaks_per_reference: 2,
+            peak_ratio: 0.5,
+            ..Default::default()
+        };
+        let mut acc = vec![0u16; 3 * ROW];
+        acc[ROW + 10] = 50;
+        acc[ROW + 11] = 49; // flank of the peak
+        acc[ROW + 9] = 48; // flank of the peak
+        acc[ROW + 20] = 30; // a second peak of the same model point
+        let mut got = Vec::new();
+        peaks(&acc, nb, &params, |c, v| got.push((c, v)));
+        assert_eq!(got, vec![(ROW + 10, 50), (ROW + 20, 30)]);
+
+        // Across the wrap: bin 0 and bin 29 are neighbours.
+        let mut acc = vec![0u16; 3 * ROW];
+        acc[2 * ROW] = 40;
+        acc[2 * ROW + nb - 1] = 39;
+        acc[ROW + nb - 1] = 35; // the same bin in another model point's row
+        got.clear();
+        peaks(&acc, nb, &params, |c, v| got.push((c, v)));
+        assert_eq!(got, vec![(2 * ROW, 40), (ROW + nb - 1, 35)]);
     }
 }
