@@ -293,7 +293,6 @@ fn ms(d: std::time::Duration) -> f64 {
 /// 0.1 D and 15° of the ground truth) ranks after each.
 pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
     use ppfd_models::detect::clustering::cluster_poses;
-    use ppfd_models::detect::detector::shared_clouds;
     use ppfd_models::detect::icp::refine;
     use ppfd_models::detect::plane::SupportingPlane;
     use ppfd_models::detect::rescoring::{score_poses, Outline};
@@ -341,11 +340,8 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
     let edges = EdgeMap::new(&scene, &p.filters);
     // The clouds the detector would build for these objects together.
     let model_refs: Vec<&ppfd_models::model::ObjectModel> = models.iter().collect();
-    let (groups, cloud_of) = shared_clouds(&model_refs, p.shared_cloud_diameter_ratio);
-    let clouds: Vec<PreparedScene> = groups
-        .iter()
-        .map(|sub| PreparedScene::new(&points, sub))
-        .collect::<Result<_, _>>()?;
+    let (groups, cloud_of) = p.scene_clouds(&model_refs);
+    let clouds: Vec<PreparedScene> = p.prepare_clouds(&points, &groups)?;
     println!("| object | cloud points | on object | normal error (median °) | reference points on object | proposing a correct pose | clusters | rank by votes | after re-scoring | after ICP + re-scoring | best cluster t err (mm) | R err (°) | voting + clustering (ms) |");
     println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     let (mut in_top10, mut first_after_icp) = (0, 0);

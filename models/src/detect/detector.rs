@@ -16,17 +16,18 @@ use crate::detect::clustering::{cluster_poses, ClusteringParams};
 use crate::detect::filters::{is_consistent, FilterParams};
 use crate::detect::icp::{refine, IcpParams};
 use crate::detect::plane::{PlaneParams, SupportingPlane};
-use crate::detect::rescoring::{score_poses, Outline, RescoringParams};
+use crate::detect::rescoring::{prescreen, score_poses, Outline, RescoringParams};
 use crate::detect::scene::{prepare, PreparedScene, SceneImage, SceneParams};
 use crate::detect::silhouette::{silhouette_fraction, EdgeMap};
 use crate::detect::voting::{vote_from, Selection, VotingParams};
 use crate::geometry::render::{bounding_sphere, Renderer};
-use crate::model::subsample::SubsampleParams;
+use crate::model::subsample::{OrientedPoints, SubsampleParams};
 use crate::model::ObjectModel;
 use crate::{Error, Pose, Result};
 
-/// Parameters of the whole detection pipeline, one struct per stage.
-#[derive(Clone, Debug, Default)]
+/// Parameters of the whole detection pipeline, one struct per stage; [`DetectParams::new`] (and
+/// `default()`) gives the paper's settings with this project's measured departures.
+#[derive(Clone, Debug)]
 pub struct DetectParams {
     pub scene: SceneParams,
     /// The supporting plane and other large planes, on which no reference points are taken.
@@ -51,19 +52,61 @@ pub struct DetectParams {
     /// a wrong one on the egg box (re-scored 0.134 against the true pose's 0.131); the
     /// three closest pairs of its diameters differ by 6.3 to 6.8 %, so 1.05 shares nothing there.
     pub shared_cloud_diameter_ratio: f32,
+    /// The scene cloud's voxel leaf as a multiple of the model's (0.05 D). Pairs and votes
+    /// fall with its square while the model's table keeps its finer points: at 2 (a leaf of
+    /// 0.1 D, one scene point per reference cube) the LM-O frame forms 2.89 M pairs and casts
+    /// 249 M votes instead of 15.0 M and 1 308 M, with the same 6 of 8 objects found; 1.4 loses
+    /// the glue (docs/METHOD.md §2.2).
+    pub scene_leaf_ratio: f32,
     /// How many of the best pose clusters (before re-scoring) each object's result keeps in
     /// [`ObjectDetections::clusters`], for diagnostics and the voting stage's own measure.
     pub clusters_kept: usize,
 }
 
+impl Default for DetectParams {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 impl DetectParams {
+    /// The scene clouds a detection of `models` subsamples and which one each model votes on:
+    /// [`shared_clouds`] with the leaf scaled by [`DetectParams::scene_leaf_ratio`].
+    pub fn scene_clouds(&self, models: &[&ObjectModel]) -> (Vec<SubsampleParams>, Vec<usize>) {
+        let (mut groups, cloud_of) = shared_clouds(models, self.shared_cloud_diameter_ratio);
+        for g in &mut groups {
+            g.leaf_mm *= self.scene_leaf_ratio;
+        }
+        (groups, cloud_of)
+    }
+
+    /// The subsampled clouds with their kd-trees, one per group of
+    /// [`DetectParams::scene_clouds`], built side by side.
+    pub fn prepare_clouds(
+        &self,
+        points: &OrientedPoints,
+        groups: &[SubsampleParams],
+    ) -> Result<Vec<PreparedScene>> {
+        groups
+            .par_iter()
+            .map(|sub| PreparedScene::new(points, sub))
+            .collect()
+    }
+
     /// The paper's settings and this project's measured defaults.
     pub fn new() -> Self {
         Self {
             nms_distance_fraction: 0.25,
             shared_cloud_diameter_ratio: 1.05,
             clusters_kept: 10,
-            ..Default::default()
+            scene_leaf_ratio: 2.0,
+            scene: SceneParams::default(),
+            plane: PlaneParams::default(),
+            voting: VotingParams::default(),
+            clustering: ClusteringParams::default(),
+            rescoring: RescoringParams::default(),
+            icp: IcpParams::default(),
+            filters: FilterParams::default(),
         }
     }
 }
@@ -286,14 +329,11 @@ impl Detector {
         out.timings.scene_preparation = t.elapsed();
         out.counts.scene_points = points.len() as u32;
 
-        let (groups, cloud_of) = shared_clouds(models, self.params.shared_cloud_diameter_ratio);
+        let (groups, cloud_of) = self.params.scene_clouds(models);
         // The groups' clouds are independent: build them side by side.
         check_stop(start)?;
         let t = Instant::now();
-        let clouds: Vec<PreparedScene> = groups
-            .par_iter()
-            .map(|sub| PreparedScene::new(&points, sub))
-            .collect::<Result<_>>()?;
+        let clouds = self.params.prepare_clouds(&points, &groups)?;
         out.timings.kd_tree += t.elapsed();
 
         let edges = OnceLock::new();
@@ -366,17 +406,32 @@ impl Detector {
             sphere: &sphere,
             edges,
         };
+        let coarse_edges = (p.rescoring.coarse_outline_px > 0)
+            .then(|| edges.with_max_outline_px(p.rescoring.coarse_outline_px));
+        let coarse_outline = Outline {
+            mesh: mesh.as_ref(),
+            sphere: &sphere,
+            edges: coarse_edges.as_ref().unwrap_or(edges),
+        };
         let t = Instant::now();
         let top = &clusters[..clusters.len().min(p.rescoring.top_clusters)];
-        // Only the best `top_poses` go on to ICP.
-        let scored = score_poses(
+        let top = prescreen(
             top,
             &surface,
             scene,
             p.rescoring.tolerance_mm(d),
             conflict,
             &p.rescoring,
-            &outline,
+        );
+        // Only the best `top_poses` go on to ICP.
+        let scored = score_poses(
+            &top,
+            &surface,
+            scene,
+            p.rescoring.tolerance_mm(d),
+            conflict,
+            &p.rescoring,
+            &coarse_outline,
             p.icp.top_poses,
         );
         timings.rescoring += t.elapsed();

@@ -53,6 +53,22 @@ pub struct EdgeMap {
     pub(super) max_outline_px: u32,
 }
 
+impl EdgeMap {
+    /// The same map, with outlines wider than `max_outline_px` drawn at a coarser scale (0:
+    /// never).
+    pub fn with_max_outline_px(&self, max_outline_px: u32) -> EdgeMap {
+        EdgeMap {
+            width: self.width,
+            height: self.height,
+            near_edge: self.near_edge.clone(),
+            jump_mm: self.jump_mm,
+            jump_fraction: self.jump_fraction,
+            probe_px: self.probe_px,
+            max_outline_px,
+        }
+    }
+}
+
 /// How the rendered outline of a pose meets the scene's depth edges.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct OutlineCounts {
