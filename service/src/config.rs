@@ -105,7 +105,7 @@ where
                 toml::Value::Boolean(b) => b.to_string(),
                 other => {
                     return Err(E::custom(format!(
-                        "detector.{key}: a number, true/false or a name, got {other}"
+                        "detector.{key}: a number or true/false, got {other}"
                     )))
                 }
             };
@@ -291,22 +291,19 @@ mod tests {
     #[test]
     fn detector_table_gives_named_parameters() {
         let c = DaemonConfig::from_toml(
-            "[detector]\nvoting.reference_step = 4\nscene.normal_estimation = \"differences\"\n\
+            "[detector]\nvoting.reference_step = 4\nplane.exclude_behind = false\n\
              [detector.filters]\nmin_silhouette_fraction = 0.5\n",
         )
         .unwrap();
         let p = c.detect_params().unwrap();
         assert_eq!(p.voting.reference_step, 4);
-        assert_eq!(
-            p.scene.normal_estimation,
-            ppfd_models::detect::scene::NormalEstimation::CentralDifferences
-        );
+        assert!(!p.plane.exclude_behind);
         assert_eq!(p.filters.min_silhouette_fraction, 0.5);
         assert!(c.validate().is_ok());
         // Everything else keeps its default.
         let mut expected = ppfd_models::detect::detector::DetectParams::new();
         expected.voting.reference_step = 4;
-        expected.scene.normal_estimation = p.scene.normal_estimation;
+        expected.plane.exclude_behind = false;
         expected.filters.min_silhouette_fraction = 0.5;
         assert_eq!(format!("{p:?}"), format!("{expected:?}"));
     }

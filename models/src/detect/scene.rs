@@ -28,15 +28,9 @@ pub struct SceneParams {
     /// normal with a 6 mm threshold).
     pub max_slope_deg: f32,
     pub min_depth_jump_mm: f32,
-    /// Before normals are estimated, depth is averaged over a square of this radius (pixels),
-    /// using only neighbours on the same surface (see `max_slope_deg`): structured-light
-    /// depth is quantised in steps of 2–3 mm at 1 m, too coarse for normals from differences.
-    pub smoothing_radius_px: u32,
     /// Depths outside this range are ignored, mm.
     pub min_depth_mm: f32,
     pub max_depth_mm: f32,
-    /// How normals (and the smoothed depth) are estimated.
-    pub normal_estimation: NormalEstimation,
     /// Plane fit: after a first fit, window pixels within this distance of the plane (mm, or
     /// `plane_residual_fraction` of the depth, whichever is larger) make the second fit: it
     /// takes in a slope that the depth-jump rule cut off and drops other surfaces.
@@ -45,34 +39,6 @@ pub struct SceneParams {
     /// Plane fit: at most this many samples per window row and column (the window is strided
     /// beyond it), which bounds the cost of wide windows.
     pub plane_samples_per_axis: u32,
-    /// Best-window plane fit: a window beside the pixel replaces the centred one when its
-    /// residual is below this fraction of the centred window's (see
-    /// [`NormalEstimation::BestWindowPlaneFit`]).
-    pub side_window_ratio: f32,
-    /// Best-window plane fit: a window counts when at least this fraction of its pixels have
-    /// depth.
-    pub min_window_fill: f32,
-}
-
-/// How scene normals are estimated from the depth image.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum NormalEstimation {
-    /// Edge-aware box smoothing of depth, then the cross product of central differences.
-    CentralDifferences,
-    /// A least-squares plane `z = a·du + b·dv + c` over the window around each pixel (pixels of
-    /// other surfaces left out), twice: its gradient gives the normal, `c` the smoothed depth.
-    /// Structured-light depth comes in steps of 3–4 mm at 1 m; a fit over the whole window
-    /// sees through the staircase better than differences of two smoothed values.
-    PlaneFit,
-    /// Least-squares planes over the centred window and over eight windows beside the pixel
-    /// (four sides, four corners); the one with the smallest residual wins, the centred one
-    /// unless another is clearly better. Next to a crease or a depth edge one of the side
-    /// windows lies on the pixel's own surface alone, so normals stay sharp up to the edge
-    /// instead of blending both sides. Sums come from integral images: every window costs the
-    /// same. Where no window fits well (thin structures), the two-pass [`PlaneFit`] is used.
-    ///
-    /// [`PlaneFit`]: NormalEstimation::PlaneFit
-    BestWindowPlaneFit,
 }
 
 impl Default for SceneParams {
@@ -82,15 +48,11 @@ impl Default for SceneParams {
             normal_radius_px: 3,
             max_slope_deg: 75.0,
             min_depth_jump_mm: 3.0,
-            smoothing_radius_px: 2,
             min_depth_mm: 100.0,
             max_depth_mm: 5000.0,
-            normal_estimation: NormalEstimation::PlaneFit,
             plane_residual_mm: 4.0,
             plane_residual_fraction: 0.004,
             plane_samples_per_axis: 9,
-            side_window_ratio: 0.7,
-            min_window_fill: 0.5,
         }
     }
 }
@@ -98,7 +60,7 @@ impl Default for SceneParams {
 impl SceneParams {
     /// Half-size in pixels of the normal window at depth `z_mm` for focal length `fx`.
     #[inline]
-    pub fn normal_window_px(&self, fx: f32, z_mm: f32) -> i64 {
+    fn normal_window_px(&self, fx: f32, z_mm: f32) -> i64 {
         if self.normal_radius_px > 0 {
             return self.normal_radius_px as i64;
         }
@@ -106,74 +68,10 @@ impl SceneParams {
     }
 
     /// The largest depth difference between neighbours `pixels` apart on one surface at depth
-    /// `z_mm`, for focal length `fx`.
-    #[inline]
-    pub fn jump_mm(&self, z_mm: f32, pixels: f32, fx: f32) -> f32 {
-        self.jump_with_slope_mm(z_mm, pixels, fx, self.max_slope_deg.to_radians().tan())
-    }
-
-    /// [`SceneParams::jump_mm`] with `tan(max_slope_deg)` given, for loops over every pixel.
+    /// `z_mm`, for focal length `fx`; `tan(max_slope_deg)` is given, computed once per frame.
     #[inline]
     fn jump_with_slope_mm(&self, z_mm: f32, pixels: f32, fx: f32, tan_slope: f32) -> f32 {
         (pixels * z_mm / fx * tan_slope).max(self.min_depth_jump_mm)
-    }
-}
-
-/// The camera-space point of every pixel (NaN where there is no depth), row-major.
-pub struct PointImage {
-    pub width: u32,
-    pub height: u32,
-    pub points: Vec<Point3<f32>>,
-}
-
-impl PointImage {
-    /// Back-projects `frame` (which must be valid), after edge-aware smoothing of its depth.
-    pub fn from_frame(frame: &DepthFrame, params: &SceneParams) -> Self {
-        let (w, h) = (frame.width as i64, frame.height as i64);
-        let k = frame.intrinsics;
-        let z_of = |u: i64, v: i64| -> Option<f32> {
-            let raw = frame.depth[(v * w + u) as usize];
-            let z = raw as f32 * frame.depth_scale_mm;
-            (raw != 0 && z >= params.min_depth_mm && z <= params.max_depth_mm).then_some(z)
-        };
-        let r = params.smoothing_radius_px as i64;
-        let nan = Point3::new(f32::NAN, f32::NAN, f32::NAN);
-        let points = (0..h)
-            .into_par_iter()
-            .flat_map_iter(|v| {
-                (0..w).map(move |u| {
-                    let Some(z) = z_of(u, v) else { return nan };
-                    let per_pixel = params.jump_mm(z, 1.0, k.fx);
-                    let (mut sum, mut n) = (0.0f32, 0u32);
-                    for y in (v - r).max(0)..=(v + r).min(h - 1) {
-                        for x in (u - r).max(0)..=(u + r).min(w - 1) {
-                            if let Some(zn) = z_of(x, y) {
-                                let d = (x - u).abs().max((y - v).abs()) as f32;
-                                if (zn - z).abs() <= (per_pixel * d).max(params.min_depth_jump_mm) {
-                                    sum += zn;
-                                    n += 1;
-                                }
-                            }
-                        }
-                    }
-                    k.backproject(u as f32, v as f32, sum / n as f32)
-                })
-            })
-            .collect();
-        Self {
-            width: frame.width,
-            height: frame.height,
-            points,
-        }
-    }
-
-    #[inline]
-    pub fn at(&self, u: i64, v: i64) -> Option<Point3<f32>> {
-        if u < 0 || v < 0 || u >= self.width as i64 || v >= self.height as i64 {
-            return None;
-        }
-        let p = self.points[(v as u32 * self.width + u as u32) as usize];
-        p.z.is_finite().then_some(p)
     }
 }
 
@@ -221,52 +119,6 @@ impl SceneImage {
     }
 }
 
-/// Normals from central differences over a window of about `normal_radius_mm`, facing the
-/// camera; one-sided next to holes and depth edges.
-pub fn estimate_normals(
-    image: &PointImage,
-    intrinsics: &Intrinsics,
-    params: &SceneParams,
-) -> Vec<Vector3<f32>> {
-    let (w, h) = (image.width as i64, image.height as i64);
-    let none = Vector3::new(f32::NAN, f32::NAN, f32::NAN);
-    (0..h)
-        .into_par_iter()
-        .flat_map_iter(|v| {
-            (0..w).map(move |u| {
-                let Some(p) = image.at(u, v) else { return none };
-                let k = params.normal_window_px(intrinsics.fx, p.z);
-                let jump = params.jump_mm(p.z, k as f32, intrinsics.fx);
-                let near = |q: Option<Point3<f32>>| q.filter(|q| (q.z - p.z).abs() <= jump);
-                let diff = |a: Option<Point3<f32>>, b: Option<Point3<f32>>| match (near(a), near(b))
-                {
-                    (Some(a), Some(b)) => Some(a - b),
-                    (Some(a), None) => Some(a - p),
-                    (None, Some(b)) => Some(p - b),
-                    (None, None) => None,
-                };
-                let (Some(dx), Some(dy)) = (
-                    diff(image.at(u + k, v), image.at(u - k, v)),
-                    diff(image.at(u, v + k), image.at(u, v - k)),
-                ) else {
-                    return none;
-                };
-                let n = dx.cross(&dy);
-                let len = n.norm();
-                if len <= 1e-9 {
-                    return none;
-                }
-                let n: Vector3<f32> = n / len;
-                if n.dot(&p.coords) > 0.0 {
-                    -n
-                } else {
-                    n
-                }
-            })
-        })
-        .collect()
-}
-
 /// The scene prepared for one leaf size: subsampled oriented points and their kd-tree.
 pub struct PreparedScene {
     /// The voxel leaf used, mm.
@@ -302,204 +154,6 @@ impl PreparedScene {
     }
 }
 
-/// Summed-area tables of the moments a least-squares plane `z(u, v)` needs, over the pixels
-/// with depth: `(width + 1) × (height + 1)` entries each, row-major.
-struct PlaneMoments {
-    stride: usize,
-    /// 1, u, v, u², uv, v², z, uz, vz, z² per pixel, summed over `[0, u) × [0, v)`.
-    sums: Vec<[f64; 10]>,
-}
-
-/// A plane `z = a (u − uc) + b (v − vc) + c` fitted over a window, with its residual.
-#[derive(Clone, Copy, Debug)]
-struct WindowPlane {
-    a: f64,
-    b: f64,
-    c: f64,
-    /// Root mean square residual, mm.
-    rms: f64,
-}
-
-impl PlaneMoments {
-    fn new(frame: &DepthFrame, params: &SceneParams) -> Self {
-        let (w, h) = (frame.width as usize, frame.height as usize);
-        let stride = w + 1;
-        let mut sums = vec![[0f64; 10]; stride * (h + 1)];
-        for v in 0..h {
-            let mut row = [0f64; 10];
-            for u in 0..w {
-                let raw = frame.depth[v * w + u];
-                let z = raw as f32 * frame.depth_scale_mm;
-                if raw != 0 && z >= params.min_depth_mm && z <= params.max_depth_mm {
-                    let (x, y, z) = (u as f64, v as f64, z as f64);
-                    let m = [1.0, x, y, x * x, x * y, y * y, z, x * z, y * z, z * z];
-                    for k in 0..10 {
-                        row[k] += m[k];
-                    }
-                }
-                let above = sums[v * stride + u + 1];
-                let cell = &mut sums[(v + 1) * stride + u + 1];
-                for k in 0..10 {
-                    cell[k] = above[k] + row[k];
-                }
-            }
-        }
-        Self { stride, sums }
-    }
-
-    /// The plane over pixels `[u0, u1] × [v0, v1]` (inclusive, inside the image) expressed
-    /// about `(uc, vc)`; `None` with fewer than `min_count` pixels or a degenerate layout.
-    #[allow(clippy::too_many_arguments)]
-    fn fit(
-        &self,
-        u0: usize,
-        v0: usize,
-        u1: usize,
-        v1: usize,
-        uc: f64,
-        vc: f64,
-        min_count: f64,
-    ) -> Option<WindowPlane> {
-        let at = |u: usize, v: usize| &self.sums[v * self.stride + u];
-        let (a, b, c, d) = (
-            at(u1 + 1, v1 + 1),
-            at(u0, v1 + 1),
-            at(u1 + 1, v0),
-            at(u0, v0),
-        );
-        let mut s = [0f64; 10];
-        for k in 0..10 {
-            s[k] = a[k] - b[k] - c[k] + d[k];
-        }
-        let n = s[0];
-        if n < min_count.max(6.0) {
-            return None;
-        }
-        // Moments about (uc, vc).
-        let sx = s[1] - uc * n;
-        let sy = s[2] - vc * n;
-        let sxx = s[3] - 2.0 * uc * s[1] + uc * uc * n;
-        let sxy = s[4] - uc * s[2] - vc * s[1] + uc * vc * n;
-        let syy = s[5] - 2.0 * vc * s[2] + vc * vc * n;
-        let sz = s[6];
-        let sxz = s[7] - uc * sz;
-        let syz = s[8] - vc * sz;
-        let x = solve_symmetric_3x3([sxx, sxy, sx, syy, sy, n], [sxz, syz, sz])?;
-        // Residual about the mean depth keeps the subtraction well conditioned.
-        let mean = sz / n;
-        let szz_centred = s[9] - sz * mean;
-        let explained = x[0] * sxz + x[1] * syz + x[2] * sz - sz * mean;
-        let rss = (szz_centred - explained).max(0.0);
-        Some(WindowPlane {
-            a: x[0],
-            b: x[1],
-            c: x[2],
-            rms: (rss / (n - 3.0)).sqrt(),
-        })
-    }
-}
-
-/// Per pixel, the best of nine window planes (see [`NormalEstimation::BestWindowPlaneFit`]):
-/// the camera-space point on it and its normal facing the camera. Where no window fits within
-/// the depth-jump tolerance, the two-pass fit of [`plane_fit`] decides.
-pub fn best_window_plane_fit(
-    frame: &DepthFrame,
-    params: &SceneParams,
-) -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
-    let (w, h) = (frame.width as i64, frame.height as i64);
-    let k = frame.intrinsics;
-    let moments = PlaneMoments::new(frame, params);
-    let z_of = |u: i64, v: i64| -> Option<f32> {
-        let raw = frame.depth[(v * w + u) as usize];
-        let z = raw as f32 * frame.depth_scale_mm;
-        (raw != 0 && z >= params.min_depth_mm && z <= params.max_depth_mm).then_some(z)
-    };
-    let nan_p = Point3::new(f32::NAN, f32::NAN, f32::NAN);
-    let nan_n = Vector3::new(f32::NAN, f32::NAN, f32::NAN);
-    let mut fallback = Vec::new();
-    let mut out: Vec<(Point3<f32>, Vector3<f32>)> = (0..h)
-        .into_par_iter()
-        .flat_map_iter(|v| {
-            let moments = &moments;
-            (0..w).map(move |u| {
-                let Some(z) = z_of(u, v) else {
-                    return (nan_p, nan_n);
-                };
-                let r = params.normal_window_px(k.fx, z);
-                let (uc, vc) = (u as f64, v as f64);
-                let fill = params.min_window_fill as f64;
-                let window = |du: i64, dv: i64| {
-                    // The window of radius r centred at (u + du·r, v + dv·r), clipped to the image.
-                    let (cu, cv) = (u + du * r, v + dv * r);
-                    let (u0, u1) = ((cu - r).max(0), (cu + r).min(w - 1));
-                    let (v0, v1) = ((cv - r).max(0), (cv + r).min(h - 1));
-                    if u0 > u1 || v0 > v1 {
-                        return None;
-                    }
-                    let area = ((u1 - u0 + 1) * (v1 - v0 + 1)) as f64;
-                    moments.fit(
-                        u0 as usize,
-                        v0 as usize,
-                        u1 as usize,
-                        v1 as usize,
-                        uc,
-                        vc,
-                        fill * area,
-                    )
-                };
-                let mut best = window(0, 0);
-                let mut best_rms = best.map_or(f64::INFINITY, |p| p.rms);
-                let side_limit = best_rms * params.side_window_ratio as f64;
-                for (du, dv) in [
-                    (-1, 0),
-                    (1, 0),
-                    (0, -1),
-                    (0, 1),
-                    (-1, -1),
-                    (1, -1),
-                    (-1, 1),
-                    (1, 1),
-                ] {
-                    if let Some(p) = window(du, dv) {
-                        if p.rms < side_limit.min(best_rms) || (best.is_none() && p.rms < best_rms)
-                        {
-                            best = Some(p);
-                            best_rms = p.rms;
-                        }
-                    }
-                }
-                // A window mixing two surfaces fits badly; leave such pixels to the fit that
-                // drops pixels across depth jumps.
-                let limit = params
-                    .plane_residual_mm
-                    .max(params.plane_residual_fraction * z) as f64;
-                let Some(plane) = best.filter(|p| p.rms <= limit) else {
-                    return (
-                        k.backproject(u as f32, v as f32, z),
-                        Vector3::new(f32::INFINITY, 0.0, 0.0),
-                    );
-                };
-                let (zu, zv, zc) = (plane.a as f32, plane.b as f32, plane.c as f32);
-                normal_of_plane(&k, u as f32, v as f32, zu, zv, zc)
-                    .unwrap_or((k.backproject(u as f32, v as f32, z), nan_n))
-            })
-        })
-        .collect();
-    // Pixels marked for the fallback (normal x = +inf).
-    for (i, (_, n)) in out.iter().enumerate() {
-        if n.x == f32::INFINITY {
-            fallback.push(i);
-        }
-    }
-    if !fallback.is_empty() {
-        let (points, normals) = plane_fit(frame, params);
-        for i in fallback {
-            out[i] = (points[i], normals[i]);
-        }
-    }
-    out.into_iter().unzip()
-}
-
 /// The camera-space point at pixel `(u, v)` of the depth surface `z` with pixel gradient
 /// `(zu, zv)` and its unit normal facing the camera.
 #[inline]
@@ -527,11 +181,13 @@ fn normal_of_plane(
     Some((p, if n.dot(&p.coords) > 0.0 { -n } else { n }))
 }
 
-/// Per pixel, a plane fitted to the depth around it (see [`NormalEstimation::PlaneFit`]): the
-/// camera-space point on the plane and the plane's normal facing the camera. Without depth both
-/// are NaN; with too few neighbours on the same surface the point is the measured one and the
-/// normal NaN.
-pub fn plane_fit(
+/// Per pixel, a least-squares plane `z = a·du + b·dv + c` over the window around it (pixels of
+/// other surfaces left out), fitted twice: the camera-space point on the plane (`c` is the
+/// smoothed depth) and the plane's normal facing the camera. Structured-light depth comes in
+/// steps of 3–4 mm at 1 m; a fit over the whole window sees through the staircase better than
+/// differences of two smoothed values. Without depth both are NaN; with too few neighbours on
+/// the same surface the point is the measured one and the normal NaN.
+fn plane_fit(
     frame: &DepthFrame,
     params: &SceneParams,
 ) -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
@@ -689,30 +345,9 @@ fn solve_symmetric_3x3(a: [f64; 6], b: [f64; 3]) -> Option<[f64; 3]> {
 /// usable point.
 pub fn prepare(frame: &DepthFrame, params: &SceneParams) -> Result<SceneImage> {
     frame.validate()?;
-    let (image, normals) = match params.normal_estimation {
-        NormalEstimation::CentralDifferences => {
-            let image = PointImage::from_frame(frame, params);
-            let normals = estimate_normals(&image, &frame.intrinsics, params);
-            (image, normals)
-        }
-        NormalEstimation::PlaneFit | NormalEstimation::BestWindowPlaneFit => {
-            let (points, normals) = if params.normal_estimation == NormalEstimation::PlaneFit {
-                plane_fit(frame, params)
-            } else {
-                best_window_plane_fit(frame, params)
-            };
-            (
-                PointImage {
-                    width: frame.width,
-                    height: frame.height,
-                    points,
-                },
-                normals,
-            )
-        }
-    };
+    let (points, normals) = plane_fit(frame, params);
     if !normals.iter().any(|n| n.x.is_finite()) {
-        let valid = image.points.iter().filter(|p| p.z.is_finite()).count();
+        let valid = points.iter().filter(|p| p.z.is_finite()).count();
         return Err(Error::InvalidFrame(if valid == 0 {
             format!(
                 "no valid depth in the {}x{} frame (all values zero or out of {}..{} mm)",
@@ -731,19 +366,19 @@ pub fn prepare(frame: &DepthFrame, params: &SceneParams) -> Result<SceneImage> {
         width: frame.width,
         height: frame.height,
         intrinsics: frame.intrinsics,
-        points: image.points,
+        points,
         normals,
     })
-}
-
-/// [`prepare`], then the oriented points of every pixel that has both.
-pub fn prepare_points(frame: &DepthFrame, params: &SceneParams) -> Result<OrientedPoints> {
-    Ok(prepare(frame, params)?.oriented_points())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// [`prepare`], then the oriented points of every pixel that has both.
+    fn prepare_points(frame: &DepthFrame, params: &SceneParams) -> Result<OrientedPoints> {
+        Ok(prepare(frame, params)?.oriented_points())
+    }
 
     fn plane_frame(z_of: impl Fn(f32, f32) -> f32) -> (Vec<u16>, Intrinsics) {
         let k = Intrinsics::LMO;

@@ -13,7 +13,6 @@
 //! ```
 
 use crate::detect::detector::DetectParams;
-use crate::detect::scene::NormalEstimation;
 
 /// A parameter's value as text, both ways.
 trait Value: Sized {
@@ -58,26 +57,6 @@ impl Value for bool {
     }
     fn show(&self) -> String {
         self.to_string()
-    }
-}
-
-impl Value for NormalEstimation {
-    const EXPECTED: &'static str = "plane, differences or best-window";
-    fn parse(text: &str) -> Option<NormalEstimation> {
-        match text.trim() {
-            "plane" => Some(NormalEstimation::PlaneFit),
-            "differences" => Some(NormalEstimation::CentralDifferences),
-            "best-window" => Some(NormalEstimation::BestWindowPlaneFit),
-            _ => None,
-        }
-    }
-    fn show(&self) -> String {
-        match self {
-            NormalEstimation::PlaneFit => "plane",
-            NormalEstimation::CentralDifferences => "differences",
-            NormalEstimation::BestWindowPlaneFit => "best-window",
-        }
-        .into()
     }
 }
 
@@ -144,15 +123,11 @@ settings! {
     "scene.normal_radius_px" => scene.normal_radius_px in 0..=16;
     "scene.max_slope_deg" => scene.max_slope_deg in 0.0..=89.9;
     "scene.min_depth_jump_mm" => scene.min_depth_jump_mm in 0.0..=1000.0;
-    "scene.smoothing_radius_px" => scene.smoothing_radius_px in 0..=16;
     "scene.min_depth_mm" => scene.min_depth_mm in 0.0..=100000.0;
     "scene.max_depth_mm" => scene.max_depth_mm in 0.0..=100000.0;
-    "scene.normal_estimation" => scene.normal_estimation;
     "scene.plane_residual_mm" => scene.plane_residual_mm in 0.0..=1000.0;
     "scene.plane_residual_fraction" => scene.plane_residual_fraction in 0.0..=1.0;
     "scene.plane_samples_per_axis" => scene.plane_samples_per_axis in 3..=33;
-    "scene.side_window_ratio" => scene.side_window_ratio in 0.0..=1.0;
-    "scene.min_window_fill" => scene.min_window_fill in 0.0..=1.0;
     "plane.enabled" => plane.enabled;
     "plane.tolerance_mm" => plane.tolerance_mm in 0.0..=1000.0;
     "plane.tolerance_fraction" => plane.tolerance_fraction in 0.0..=1.0;
@@ -309,8 +284,6 @@ mod tests {
         match shown {
             "true" => return "false".into(),
             "false" => return "true".into(),
-            "plane" => return "differences".into(),
-            "differences" | "best-window" => return "plane".into(),
             _ => {}
         }
         let d: f64 = shown.parse().unwrap();
@@ -377,7 +350,6 @@ mod tests {
             ("filters.min_silhouette_fraction", "NaN", "finite"),
             ("filters.min_silhouette_fraction", "inf", "finite"),
             ("voting.vote_once", "yes", "true or false"),
-            ("scene.normal_estimation", "pca", "plane, differences"),
             ("scene.normal_radius_px", "1000000", "outside 0..=16"),
             ("voting.reference_step", "0", "outside 1..=1000"),
             ("filters.min_silhouette_fraction", "1.5", "outside 0..=1"),
