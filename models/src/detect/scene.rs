@@ -187,10 +187,7 @@ fn normal_of_plane(
 /// steps of 3–4 mm at 1 m; a fit over the whole window sees through the staircase better than
 /// differences of two smoothed values. Without depth both are NaN; with too few neighbours on
 /// the same surface the point is the measured one and the normal NaN.
-fn plane_fit(
-    frame: &DepthFrame,
-    params: &SceneParams,
-) -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
+fn plane_fit(frame: &DepthFrame, params: &SceneParams) -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
     let (w, h) = (frame.width as i64, frame.height as i64);
     let k = frame.intrinsics;
     // Depth in mm, NaN where there is none or it is out of range: one load per window sample.
