@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 use ppfd_bop::dataset::BopDataset;
-use ppfd_models::detect::detector::{DetectOptions, Detector};
+use ppfd_models::detect::detector::{Detector, RunOptions};
 use rayon::prelude::*;
 
 use crate::offline::{dataset_models, symmetric_pose_errors};
@@ -216,7 +216,7 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
     let models = dataset_models(&dataset, &ids)?;
     let frame = dataset.depth_frame(args.scene, args.image)?;
     let refs: Vec<_> = models.iter().collect();
-    let opts = DetectOptions {
+    let opts = RunOptions {
         hypotheses_per_object: args.top.max(10),
         ..Default::default()
     };

@@ -9,7 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use ppfd_bop::dataset::BopDataset;
 use ppfd_bop::eval::csv::{write_results_file, EstimateRow};
 use ppfd_bop::eval::score::{score_results, ScoreOptions};
-use ppfd_models::detect::detector::{DetectOptions, Detector};
+use ppfd_models::detect::detector::{Detector, RunOptions};
 
 use crate::common::scenes_there;
 use crate::offline::dataset_models;
@@ -104,7 +104,7 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
         }
     })?;
     let detector = Detector::new(params);
-    let opts = DetectOptions {
+    let opts = RunOptions {
         hypotheses_per_object: args.hypotheses as usize,
         ..Default::default()
     };

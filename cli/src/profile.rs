@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use clap::Args;
 use ppfd_bop::dataset::BopDataset;
-use ppfd_models::detect::detector::{DetectOptions, DetectParams, Detector, StageTimings};
+use ppfd_models::detect::detector::{DetectParams, Detector, RunOptions, StageTimings};
 
 use crate::offline::dataset_models;
 
@@ -64,7 +64,7 @@ pub fn run(args: ProfileArgs) -> Result<(), Box<dyn std::error::Error>> {
     let refs: Vec<_> = models.iter().collect();
     let frame = dataset.depth_frame(args.scene, args.image)?;
     let detector = Detector::new(params);
-    let opts = DetectOptions {
+    let opts = RunOptions {
         hypotheses_per_object: 1,
         ..Default::default()
     };

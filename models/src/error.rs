@@ -34,7 +34,7 @@ pub enum Error {
     /// The caller's deadline passed before the detection finished.
     #[error("deadline exceeded after {elapsed:?}")]
     DeadlineExceeded { elapsed: std::time::Duration },
-    /// The caller cancelled the detection ([`crate::detect::detector::DetectOptions::cancel`]).
+    /// The caller cancelled the detection ([`crate::detect::detector::RunOptions::cancel`]).
     #[error("cancelled after {elapsed:?}")]
     Cancelled { elapsed: std::time::Duration },
     /// A dataset file (BOP layout) is missing or malformed; `field` names what was wrong.

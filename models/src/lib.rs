@@ -50,7 +50,7 @@
 //! coordinates, `p_cam = R p_model + t`, OpenCV camera convention.
 //!
 //! ```
-//! use ppfd_models::detect::detector::{DetectOptions, Detector};
+//! use ppfd_models::detect::detector::{RunOptions, Detector};
 //! use ppfd_models::model::{ModelParams, ObjectModel};
 //! use ppfd_models::synthetic::parts::Part;
 //! use ppfd_models::synthetic::scene::SceneSpec;
@@ -59,7 +59,7 @@
 //! let model = ObjectModel::build(&mesh, 4, "t_pipe", &ModelParams::default()).unwrap();
 //! let scene = SceneSpec::new(1).object(4, &mesh).build().unwrap();
 //! let found = Detector::default()
-//!     .detect(&scene.frame.view(), &[&model], &DetectOptions::default())
+//!     .detect(&scene.frame.view(), &[&model], &RunOptions::default())
 //!     .unwrap();
 //! let best = &found.objects[0].hypotheses[0];
 //! println!("pose {:?}, score {:.2}, {:?} in voting", best.pose, best.score, found.timings.voting);

@@ -426,9 +426,9 @@ fn points_behind_the_table_are_neither_references_nor_partners() {
 /// `DetectParams::nms_distance_fraction`).
 #[test]
 fn instances_of_a_part_are_told_apart_and_duplicates_suppressed() {
-    use ppfd_models::detect::detector::{DetectOptions, Detector};
+    use ppfd_models::detect::detector::{Detector, RunOptions};
     let detector = Detector::new(DetectParams::new());
-    let options = |n| DetectOptions {
+    let options = |n| RunOptions {
         hypotheses_per_object: n,
         ..Default::default()
     };

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use ppfd_bop::dataset::BopDataset;
 use ppfd_bop::shared_test_data;
-use ppfd_models::detect::detector::{DetectOptions, DetectParams, Detections, Detector};
+use ppfd_models::detect::detector::{DetectParams, Detections, Detector, RunOptions};
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_models::Pose;
@@ -63,7 +63,7 @@ fn detect_frame(dir: &PathBuf) -> Outcome {
         .detect(
             &frame.view(),
             &refs,
-            &DetectOptions {
+            &RunOptions {
                 hypotheses_per_object: 1,
                 ..Default::default()
             },

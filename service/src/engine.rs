@@ -49,7 +49,7 @@ impl std::fmt::Debug for LoadedModel {
 
 /// What one detection asks for besides the frame and the models.
 #[derive(Debug, Clone)]
-pub struct DetectOptions {
+pub struct EngineOptions {
     /// Best hypotheses wanted per object.
     pub hypotheses_per_object: usize,
     /// Stop early, with [`Status::DeadlineExceeded`], when this passes.
@@ -120,6 +120,6 @@ pub trait DetectionEngine: Send + Sync + 'static {
         &self,
         frame: &FrameView<'_>,
         models: &[Arc<LoadedModel>],
-        options: &DetectOptions,
+        options: &EngineOptions,
     ) -> Result<EngineOutput, EngineError>;
 }

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use ppfd_models::detect::detector::{DetectOptions as ModelOptions, Detector};
+use ppfd_models::detect::detector::{Detector, RunOptions};
 use ppfd_models::geometry::camera::{DepthFrame, Intrinsics};
 use ppfd_models::model::store;
 use ppfd_models::model::{ModelParams, ObjectModel};
@@ -12,7 +12,7 @@ use ppfd_protocol::detect::{DetectCounts, LatencyBreakdown, PoseHypothesis, Stat
 use ppfd_protocol::text;
 
 use crate::engine::{
-    DetectOptions, DetectionEngine, EngineError, EngineOutput, FrameView, LoadedModel,
+    DetectionEngine, EngineError, EngineOptions, EngineOutput, FrameView, LoadedModel,
 };
 use crate::model_cache::{self, MeshSource, ModelFiles};
 
@@ -209,7 +209,7 @@ impl DetectionEngine for PpfEngine {
         &self,
         frame: &FrameView<'_>,
         models: &[Arc<LoadedModel>],
-        options: &DetectOptions,
+        options: &EngineOptions,
     ) -> Result<EngineOutput, EngineError> {
         let k = frame.intrinsics;
         let depth_frame = DepthFrame {
@@ -235,7 +235,7 @@ impl DetectionEngine for PpfEngine {
                 })
             })
             .collect::<Result<_, _>>()?;
-        let opts = ModelOptions {
+        let opts = RunOptions {
             hypotheses_per_object: options.hypotheses_per_object,
             deadline: options.deadline,
             cancel: Some(options.cancel.clone()),

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use ppfd::engine::{
-    DetectOptions, DetectionEngine, EngineError, EngineOutput, FrameView, LoadedModel,
+    DetectionEngine, EngineError, EngineOptions, EngineOutput, FrameView, LoadedModel,
 };
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_models::synthetic::parts::Part;
@@ -115,7 +115,7 @@ impl DetectionEngine for FakeEngine {
         &self,
         frame: &FrameView<'_>,
         models: &[Arc<LoadedModel>],
-        options: &DetectOptions,
+        options: &EngineOptions,
     ) -> Result<EngineOutput, EngineError> {
         let started = Instant::now();
         if self.require_shared_memory {

@@ -367,7 +367,7 @@ fn lmo_object_built_from_its_mesh_by_the_daemon_is_found_through_the_whole_path(
 /// setting, and fewer than with every second.
 #[test]
 fn detector_parameters_given_to_the_daemon_are_the_ones_it_detects_with() {
-    use ppfd_models::detect::detector::{DetectOptions, DetectParams, Detector};
+    use ppfd_models::detect::detector::{DetectParams, Detector, RunOptions};
     let test = "daemon_params";
     let scene = parts_scene(SEED, true);
     let part = Part::ALL[0];
@@ -376,7 +376,7 @@ fn detector_parameters_given_to_the_daemon_are_the_ones_it_detects_with() {
         let mut params = DetectParams::new();
         params.set("voting.reference_step", step).unwrap();
         let found = Detector::new(params)
-            .detect(&scene.frame.view(), &[&model], &DetectOptions::default())
+            .detect(&scene.frame.view(), &[&model], &RunOptions::default())
             .unwrap();
         found.counts.reference_points
     };

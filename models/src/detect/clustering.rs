@@ -4,7 +4,7 @@
 
 use nalgebra::{Point3, Quaternion, Translation3, UnitQuaternion, Vector3, Vector4};
 
-use crate::detect::voting::Hypothesis;
+use crate::detect::voting::VotedPose;
 use crate::geometry::grid::CellMap;
 use crate::Pose;
 
@@ -67,7 +67,7 @@ struct Accumulating {
 /// The vote-weighted mean of `members` (indices into `hypotheses`) with quaternion signs
 /// aligned to `reference`; `None` when the members carry no weight.
 fn weighted_mean(
-    hypotheses: &[Hypothesis],
+    hypotheses: &[VotedPose],
     members: impl Iterator<Item = u32>,
     reference: &UnitQuaternion<f32>,
 ) -> Option<Pose> {
@@ -97,7 +97,7 @@ fn weighted_mean(
 /// Clusters `hypotheses` of a model of diameter `diameter_mm`; the result is sorted by votes,
 /// best first.
 pub fn cluster_poses(
-    hypotheses: &[Hypothesis],
+    hypotheses: &[VotedPose],
     diameter_mm: f32,
     params: &ClusteringParams,
 ) -> Vec<PoseCluster> {
@@ -213,8 +213,8 @@ mod tests {
     use super::*;
     use nalgebra::Unit;
 
-    fn hyp(t: [f32; 3], axis: [f32; 3], angle_deg: f32, votes: u32) -> Hypothesis {
-        Hypothesis {
+    fn hyp(t: [f32; 3], axis: [f32; 3], angle_deg: f32, votes: u32) -> VotedPose {
+        VotedPose {
             pose: Pose::from_parts(
                 Translation3::new(t[0], t[1], t[2]),
                 UnitQuaternion::from_axis_angle(

@@ -111,9 +111,9 @@ impl DetectParams {
     }
 }
 
-/// Per-call options.
+/// Per-call options of [`Detector::detect`]: how many hypotheses to return, and when to give up.
 #[derive(Clone, Debug)]
-pub struct DetectOptions {
+pub struct RunOptions {
     /// How many hypotheses to return per object, best first.
     pub hypotheses_per_object: usize,
     /// Give up (with [`Error::DeadlineExceeded`]) once this instant has passed.
@@ -124,7 +124,7 @@ pub struct DetectOptions {
     pub cancel: Option<Arc<AtomicBool>>,
 }
 
-impl Default for DetectOptions {
+impl Default for RunOptions {
     fn default() -> Self {
         Self {
             hypotheses_per_object: 5,
@@ -293,7 +293,7 @@ impl Detector {
         &self,
         frame: &DepthFrame,
         models: &[&ObjectModel],
-        opts: &DetectOptions,
+        opts: &RunOptions,
     ) -> Result<Detections> {
         if models.is_empty() {
             return Err(Error::InvalidParameter("no objects requested".into()));
@@ -388,7 +388,7 @@ impl Detector {
         clusters: &[(Pose, u32)],
         scene: &SceneImage,
         edges: &OnceLock<EdgeMap>,
-        opts: &DetectOptions,
+        opts: &RunOptions,
         timings: &mut StageTimings,
     ) -> Vec<Hypothesis> {
         let p = &self.params;
@@ -545,7 +545,7 @@ mod tests {
             .unwrap();
         let detector = Detector::new(DetectParams::new());
         let cancel = Arc::new(AtomicBool::new(true));
-        let opts = DetectOptions {
+        let opts = RunOptions {
             cancel: Some(cancel.clone()),
             ..Default::default()
         };

@@ -83,7 +83,7 @@ impl Default for VotingParams {
 
 /// One pose proposed by one reference point's accumulator peak.
 #[derive(Clone, Copy, Debug)]
-pub struct Hypothesis {
+pub struct VotedPose {
     pub pose: Pose,
     pub votes: u32,
     /// Index of the scene reference point (in the prepared scene's points).
@@ -300,7 +300,7 @@ pub fn vote(
     model: &ObjectModel,
     scene: &PreparedScene,
     params: &VotingParams,
-) -> (Vec<Hypothesis>, VotingCounts) {
+) -> (Vec<VotedPose>, VotingCounts) {
     let selection = Selection::new(scene, params, &[], model.diameter_mm());
     vote_from(model, scene, &selection, params)
 }
@@ -372,7 +372,7 @@ pub fn vote_from(
     scene: &PreparedScene,
     selection: &Selection,
     params: &VotingParams,
-) -> (Vec<Hypothesis>, VotingCounts) {
+) -> (Vec<VotedPose>, VotingCounts) {
     let references = &selection.references[..];
     let skip_partner = |i: usize| selection.excluded.get(i).copied().unwrap_or(false);
     let data = model.data();
@@ -405,7 +405,7 @@ pub fn vote_from(
         .len()
         .div_ceil(4 * rayon::current_num_threads())
         .max(16);
-    let results: Vec<(Vec<Hypothesis>, u64, u64)> = references
+    let results: Vec<(Vec<VotedPose>, u64, u64)> = references
         .par_chunks(block)
         .map(|chunk| {
             let mut scratch = Scratch {
@@ -498,7 +498,7 @@ pub fn vote_from(
                         alpha += sub_bin_offset(below as u32, votes, above as u32)
                             * (2.0 * std::f32::consts::PI / nb as f32);
                     }
-                    out.push(Hypothesis {
+                    out.push(VotedPose {
                         pose: pose_from_alignment(&frame, &model_frames[m], alpha),
                         votes,
                         scene_point: r as u32,

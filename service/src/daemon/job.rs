@@ -11,7 +11,7 @@ use ppfd_protocol::clock::{instant_of, monotonic_now_ns};
 use ppfd_protocol::detect::{DetectRequestHeader, FrameSource, Status};
 use ppfd_protocol::frame::FrameHeader;
 
-use crate::engine::{DetectOptions, EngineError, FrameView};
+use crate::engine::{EngineError, EngineOptions, FrameView};
 use crate::responder::{DetectActive, Outcome, Served};
 
 use super::queue::Queued;
@@ -143,7 +143,7 @@ impl Daemon {
         let engine = self.engine.clone();
         let models = q.models;
         let cancel = Arc::new(AtomicBool::new(false));
-        let options = DetectOptions {
+        let options = EngineOptions {
             hypotheses_per_object: q.header.hypotheses_per_object as usize,
             deadline: (q.header.deadline_ns != 0).then(|| instant_of(q.header.deadline_ns)),
             cancel: cancel.clone(),
