@@ -71,7 +71,9 @@ impl Default for DetectParams {
 
 impl DetectParams {
     /// The scene clouds a detection of `models` subsamples and which one each model votes on:
-    /// [`shared_clouds`] with the leaf scaled by [`DetectParams::scene_leaf_ratio`].
+    /// models sorted by diameter share a cloud while their diameter is at most
+    /// [`DetectParams::shared_cloud_diameter_ratio`] times the first's, whose leaf, scaled by
+    /// [`DetectParams::scene_leaf_ratio`], the cloud is subsampled with.
     pub fn scene_clouds(&self, models: &[&ObjectModel]) -> (Vec<SubsampleParams>, Vec<usize>) {
         let (mut groups, cloud_of) = shared_clouds(models, self.shared_cloud_diameter_ratio);
         for g in &mut groups {
@@ -247,7 +249,7 @@ fn clusters_as_poses(clusters: &[crate::detect::clustering::PoseCluster]) -> Vec
 /// votes on: models sorted by diameter, a model whose diameter is at most
 /// `diameter_ratio` times the first of the current group's joins it (with that one's leaf),
 /// and any other starts a new group (see [`DetectParams::shared_cloud_diameter_ratio`]).
-pub fn shared_clouds(
+fn shared_clouds(
     models: &[&ObjectModel],
     diameter_ratio: f32,
 ) -> (Vec<SubsampleParams>, Vec<usize>) {

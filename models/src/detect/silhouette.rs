@@ -82,14 +82,9 @@ pub struct OutlineCounts {
 }
 
 impl OutlineCounts {
-    /// `matched / visible`: the fraction of the visible outline on scene edges.
-    pub fn fraction(&self) -> Option<f32> {
-        (self.visible > 0).then(|| self.matched as f32 / self.visible as f32)
-    }
-
-    /// Like [`fraction`](Self::fraction), but a pose whose outline is mostly hidden is not
-    /// judged on the little that shows: the denominator is at least `min_visible` of the whole
-    /// outline. A model placed behind the scene with one short piece of outline on an edge
+    /// `matched / visible`, the fraction of the visible outline on scene edges, except that a
+    /// pose whose outline is mostly hidden is not judged on the little that shows: the
+    /// denominator is at least `min_visible` of the whole outline. A model placed behind the scene with one short piece of outline on an edge
     /// would otherwise score as well as a pose whose whole outline matches.
     pub fn fraction_of_at_least(&self, min_visible: f32) -> Option<f32> {
         let denominator = (self.visible as f32).max(min_visible * self.total as f32);

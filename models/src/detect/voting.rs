@@ -532,7 +532,7 @@ fn fixed_bin(alpha_fixed: u16, bins: u32) -> u32 {
 /// Where the peak of a parabola through `(−1, below)`, `(0, centre)`, `(1, above)` lies, in
 /// bins, within `[−0.5, 0.5]` (0 when the centre is not a strict maximum of a concave parabola).
 #[inline]
-pub fn sub_bin_offset(below: u32, centre: u32, above: u32) -> f32 {
+fn sub_bin_offset(below: u32, centre: u32, above: u32) -> f32 {
     let (b, c, a) = (below as f32, centre as f32, above as f32);
     let curvature = b - 2.0 * c + a;
     if curvature >= 0.0 {

@@ -49,11 +49,6 @@ impl BoundingBox {
     pub fn centre(&self) -> Point3<f32> {
         nalgebra::center(&self.min, &self.max)
     }
-
-    /// Length of the box's diagonal: an upper bound of the diameter of what it holds.
-    pub fn diagonal(&self) -> f32 {
-        self.size().norm()
-    }
 }
 
 impl Mesh {

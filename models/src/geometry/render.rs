@@ -78,11 +78,6 @@ impl DepthImage {
         (d > 0.0).then_some(d)
     }
 
-    /// Which pixels have depth, row-major.
-    pub fn mask(&self) -> Vec<bool> {
-        self.depth_mm.iter().map(|&d| d > 0.0).collect()
-    }
-
     /// How many pixels have depth.
     pub fn foreground_count(&self) -> usize {
         self.depth_mm.iter().filter(|&&d| d > 0.0).count()
@@ -371,16 +366,6 @@ impl Renderer {
         }
         let d = self.depth_mm[((v - self.roi.v0) * self.roi.width + (u - self.roi.u0)) as usize];
         (d > 0.0).then_some(d)
-    }
-
-    /// The object seen at full-image pixel `(u, v)` (tracking on), `None` for background.
-    pub fn object_at(&self, u: u32, v: u32) -> Option<u32> {
-        if !self.roi.contains(u, v) || self.object_index.is_empty() {
-            return None;
-        }
-        let i =
-            self.object_index[((v - self.roi.v0) * self.roi.width + (u - self.roi.u0)) as usize];
-        (i != NO_OBJECT).then_some(i)
     }
 
     /// A copy of the region's depth as an image of the region's size.

@@ -38,7 +38,7 @@ fn angle_between_unit(a: &Vector3<f32>, b: &Vector3<f32>) -> f32 {
 /// `acos(x)` for `x` in `[-1, 1]` within 7e-5 rad (Abramowitz & Stegun 4.4.45): a twentieth of
 /// a degree is nothing against 12° bins, and the voting loop computes three per pair.
 #[inline]
-pub fn fast_acos(x: f32) -> f32 {
+fn fast_acos(x: f32) -> f32 {
     let a = x.abs();
     let r =
         (1.0 - a).sqrt() * (1.570_728_8 + a * (-0.212_114_4 + a * (0.074_261 - 0.018_729_3 * a)));
@@ -52,7 +52,7 @@ pub fn fast_acos(x: f32) -> f32 {
 /// `atan2(y, x)` within 2e-5 rad: a polynomial for `atan` on `[0, 1]` and the octant by
 /// swaps and signs. Used for `α` in the voting loop, once per pair.
 #[inline]
-pub fn fast_atan2(y: f32, x: f32) -> f32 {
+fn fast_atan2(y: f32, x: f32) -> f32 {
     let (ax, ay) = (x.abs(), y.abs());
     let (lo, hi) = if ax > ay { (ay, ax) } else { (ax, ay) };
     if hi == 0.0 {
@@ -205,7 +205,7 @@ impl Quantizer {
     ///
     /// Whether a dimension has a neighbour is a coin toss per pair, and the voting loop calls
     /// this for every pair: so the product is formed without branches on it, from a table of
-    /// which neighbours each of its keys takes (see [`NEIGHBOUR_MASKS`]). All 16 slots of
+    /// which neighbours each of its keys takes (`NEIGHBOUR_MASKS`). All 16 slots of
     /// `out` are written; those past the returned count hold repeats of the exact key.
     #[inline]
     pub fn keys_with_neighbours(&self, f: &PointPairFeature, out: &mut [u32; MAX_KEYS]) -> usize {
@@ -302,7 +302,7 @@ impl LocalFrame {
 
     /// `T · q`: a point in this frame's local coordinates.
     #[inline]
-    pub fn transform(&self, q: &Point3<f32>) -> Vector3<f32> {
+    fn transform(&self, q: &Point3<f32>) -> Vector3<f32> {
         self.rotation * (q - self.origin)
     }
 
@@ -315,7 +315,7 @@ impl LocalFrame {
     }
 
     /// `T` as an isometry.
-    pub fn isometry(&self) -> Isometry3<f32> {
+    fn isometry(&self) -> Isometry3<f32> {
         let r = UnitQuaternion::from_rotation_matrix(&self.rotation);
         Isometry3::from_parts(Translation3::from(r * -self.origin.coords), r)
     }

@@ -11,7 +11,6 @@ pub mod store;
 pub mod subsample;
 pub mod table;
 
-use std::f32::consts::PI;
 use std::sync::{Arc, Mutex};
 
 use memmap2::Mmap;
@@ -443,16 +442,6 @@ impl ObjectModel {
         )
     }
 
-    /// The table entries under `key`.
-    #[inline]
-    pub fn table_entries_of(&self, key: u32) -> &[rkyv::Archived<u32>] {
-        let d = self.data();
-        let k = key as usize;
-        let start = d.table_offsets[k].to_native() as usize;
-        let end = d.table_offsets[k + 1].to_native() as usize;
-        &d.table_entries[start..end]
-    }
-
     /// The lookup table, copied out (for tests and tools).
     pub fn table(&self) -> LookupTable {
         let d = self.data();
@@ -466,7 +455,7 @@ impl ObjectModel {
 /// The lookup table of every ordered pair `(i, j)`, `i ≠ j`, of `points`: under the key of
 /// `F(m_i, m_j)`, the entry `(i, α_m)`. Pairs farther apart than the quantiser's last distance
 /// bin (possible only by rounding) go into that last bin.
-pub fn build_table(points: &OrientedPoints, quantizer: &Quantizer) -> LookupTable {
+fn build_table(points: &OrientedPoints, quantizer: &Quantizer) -> LookupTable {
     let n = points.len();
     let pairs: Vec<(u32, u32)> = (0..n)
         .into_par_iter()
@@ -487,11 +476,6 @@ pub fn build_table(points: &OrientedPoints, quantizer: &Quantizer) -> LookupTabl
         key_count(quantizer.distance_bins, quantizer.angle_bins),
         &pairs,
     )
-}
-
-/// `α` bins' width, radians.
-pub fn alpha_step(alpha_bins: u32) -> f32 {
-    2.0 * PI / alpha_bins as f32
 }
 
 #[cfg(test)]

@@ -82,7 +82,7 @@ impl NoiseModel {
     }
 
     /// Axial σ (mm) at depth `z_mm` for a surface seen at angle `theta` (rad) from its normal.
-    pub fn sigma_mm(&self, z_mm: f32, theta: f32) -> f32 {
+    fn sigma_mm(&self, z_mm: f32, theta: f32) -> f32 {
         let z_m = z_mm / 1000.0;
         let mut sigma = self.axial_sigma_at_1m_mm * z_m * z_m;
         if self.grazing_term {
@@ -111,12 +111,7 @@ impl NoiseModel {
     }
 
     /// Applies the noise to a clean depth image (mm, 0 = none) in place.
-    pub fn apply(
-        &self,
-        depth: &mut DepthImage,
-        intrinsics: &Intrinsics,
-        rng: &mut Rng,
-    ) -> Result<()> {
+    fn apply(&self, depth: &mut DepthImage, intrinsics: &Intrinsics, rng: &mut Rng) -> Result<()> {
         self.validate()?;
         intrinsics.validate()?;
         let (w, h) = (depth.width as usize, depth.height as usize);
@@ -623,11 +618,6 @@ impl SyntheticScene {
             noise,
             &mut rng,
         )
-    }
-
-    /// The mask of pixels where object `index` (into `ground_truth`) is seen.
-    pub fn object_mask(&self, index: u32) -> Vec<bool> {
-        self.object_index.iter().map(|&i| i == index).collect()
     }
 }
 
