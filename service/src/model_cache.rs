@@ -55,10 +55,10 @@ pub struct ModelFiles {
 }
 
 impl ModelFiles {
-    /// The files of the mesh file `mesh`: the model file beside it (`<mesh stem>.ppfm`), its file
-    /// in `cache_dir` ([`store::cache_file`]) and its file there under the earlier name
-    /// `<mesh stem>.ppfm`. A model built is saved in the cache, never beside the mesh (a
-    /// dataset's folder may be read-only or shared), or beside it when there is no cache.
+    /// The files of the mesh file `mesh`: the model file beside it (`<mesh stem>.ppfm`) and its
+    /// file in `cache_dir` ([`store::cache_file`]). A model built is saved in the cache, never
+    /// beside the mesh (a dataset's folder may be read-only or shared), or beside it when there
+    /// is no cache.
     pub fn of_mesh(mesh: &Path, cache_dir: Option<&Path>) -> ModelFiles {
         let beside = mesh.with_extension(store::EXTENSION);
         let save_to = match cache_dir {
@@ -68,11 +68,6 @@ impl ModelFiles {
         let mut candidates = vec![beside];
         if save_to != candidates[0] {
             candidates.push(save_to.clone());
-        }
-        // A cache written before its files were named after their mesh's path held
-        // `<stem>.ppfm`: still good if built from this mesh.
-        if let (Some(dir), Some(file)) = (cache_dir, candidates[0].file_name()) {
-            candidates.push(dir.join(file));
         }
         ModelFiles {
             candidates,
@@ -407,11 +402,10 @@ mod tests {
         }
     }
 
-    /// With a cache, a model file beside the mesh is read but never written, and a cache
-    /// written when its files were named `<stem>.ppfm` is still read.
+    /// With a cache, a model file beside the mesh is looked at first, read but never written.
     #[test]
-    fn models_beside_the_mesh_and_under_the_earlier_cache_name_are_used() {
-        let root = scratch("earlier-name");
+    fn a_model_beside_the_mesh_is_read_but_never_written() {
+        let root = scratch("beside-with-cache");
         let (models, cache) = (root.join("models"), root.join("cache"));
         std::fs::create_dir_all(&models).unwrap();
         std::fs::create_dir_all(&cache).unwrap();
@@ -423,19 +417,11 @@ mod tests {
             files.candidates,
             [
                 models.join("obj_000001.ppfm"),
-                store::cache_file(&cache, &ply),
-                cache.join("obj_000001.ppfm")
+                store::cache_file(&cache, &ply)
             ]
         );
+        assert_eq!(files.save_to, files.candidates[1]);
         let mesh = Mesh::from_ply_file(&ply).unwrap();
-        let earlier = ObjectModel::build(&mesh, 1, "earlier", &params).unwrap();
-        store::save(&earlier, &cache.join("obj_000001.ppfm")).unwrap();
-        let found = load_or_build(MeshSource::File(&ply), 1, &params, &files).unwrap();
-        assert_eq!(found.model.name(), "earlier");
-        assert_eq!(found.file, Some(cache.join("obj_000001.ppfm")));
-
-        // The earlier one now records the file's CRC; so does one beside the mesh, which is
-        // looked at first.
         let beside = ObjectModel::build(&mesh, 1, "beside", &params)
             .unwrap()
             .with_source_crc(file_crc(&ply))
@@ -443,6 +429,7 @@ mod tests {
         store::save(&beside, &files.candidates[0]).unwrap();
         let found = load_or_build(MeshSource::File(&ply), 1, &params, &files).unwrap();
         assert_eq!(found.model.name(), "beside");
+        assert_eq!(found.file.as_ref(), Some(&files.candidates[0]));
         // Of another object id, it is rebuilt into the cache and left as it was.
         let before = std::fs::read(&files.candidates[0]).unwrap();
         let rebuilt = load_or_build(MeshSource::File(&ply), 4, &params, &files).unwrap();
