@@ -461,26 +461,6 @@ fn unit_f32(v: &Vector3<f64>) -> Option<Vector3<f32>> {
     Some(n / n.norm())
 }
 
-/// The shared test data (`../shared/data` beside the workspace, or `$PPFD_SHARED_DATA`), or
-/// `None` with a printed reason when it is absent; absent data fails the test under `CI=true`.
-#[cfg(test)]
-pub(crate) fn shared_test_data() -> Option<std::path::PathBuf> {
-    let root = std::env::var_os("PPFD_SHARED_DATA")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|| concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data").into());
-    if root.is_dir() {
-        return Some(root);
-    }
-    let ci = std::env::var("CI").is_ok_and(|v| v == "true");
-    assert!(
-        !ci,
-        "CI=true but the shared test data is missing at {}",
-        root.display()
-    );
-    println!("skipped: no shared test data at {}", root.display());
-    None
-}
-
 /// The sides of a cube whose corner `i` has the coordinate signs of bits 1, 2 and 4 of `i`, as
 /// quads counter-clockwise seen from outside.
 #[cfg(test)]

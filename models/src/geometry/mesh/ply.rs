@@ -968,7 +968,7 @@ mod tests {
     /// normals.
     #[test]
     fn every_shared_ply_file_loads() {
-        let Some(root) = crate::geometry::mesh::shared_test_data() else {
+        let Some(root) = ppfd_bop::shared_test_data("") else {
             return;
         };
         let mut files = Vec::new();
@@ -1020,7 +1020,7 @@ mod tests {
     /// point away from the object's centre almost everywhere: the windings are read right.
     #[test]
     fn normals_from_faces_of_real_meshes_point_outward() {
-        let Some(root) = crate::geometry::mesh::shared_test_data() else {
+        let Some(root) = ppfd_bop::shared_test_data("") else {
             return;
         };
         for obj in [1, 5, 9] {
@@ -1155,7 +1155,7 @@ mod tests {
     /// fingerprint.
     #[test]
     fn fingerprint_of_a_real_mesh_survives_conversion_to_binary() {
-        let Some(root) = crate::geometry::mesh::shared_test_data() else {
+        let Some(root) = ppfd_bop::shared_test_data("") else {
             return;
         };
         let path = root.join("lmo/models/obj_000001.ply");
