@@ -210,7 +210,8 @@ mod tests {
     }
 
     /// An object the daemon found no pose of gets a line saying so, in its place among the
-    /// objects asked for; it used to be left out, and with no pose at all the table was empty.
+    /// objects asked for, so that no object goes missing and a detection with no pose at all
+    /// still shows a table.
     #[test]
     fn an_object_without_a_pose_is_listed_as_such() {
         let found = Detections {

@@ -373,8 +373,8 @@ fn bench_refuses_fewer_requests_than_clients() {
     );
 }
 
-/// `--image` picks a frame of a dataset; without `--dataset` it was ignored and the generated
-/// scene shown. Now a usage error, before anything is built or started.
+/// `--image` picks a frame of a dataset; without `--dataset` it is a usage error, before
+/// anything is built or started, rather than ignored with the generated scene shown.
 #[test]
 fn demo_refuses_an_image_without_a_dataset() {
     let out = run(&mut ppf(&["demo", "--image", "2", "3"]));

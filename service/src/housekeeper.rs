@@ -2,8 +2,8 @@
 //!
 //! Both walk iceoryx2's directories — every node's, every service's — and take milliseconds
 //! (2–4 ms measured with a few hundred node entries left by earlier processes). On the I/O
-//! thread that time was a stall once a second: a request arriving during it waited, and showed
-//! up as milliseconds of transport in the latency tail. The housekeeper has its own iceoryx2
+//! thread that time would be a stall once a second: a request arriving during it would wait, and
+//! show up as milliseconds of transport in the latency tail. The housekeeper has its own iceoryx2
 //! node, wakes every period (or at once when asked, e.g. when a camera announces itself), and
 //! hands the camera names it finds to the I/O thread over a channel, waking it through the
 //! same eventfd the workers use.
@@ -26,8 +26,8 @@ type Ipc = ipc::Service;
 /// The cleanup of processes that died without removing their iceoryx2 resources. iceoryx2's own
 /// cleanup counts a dead node as cleaned up even when it leaves some of its entries (a process
 /// killed in its first milliseconds, before it wrote its node's details): such a node is listed
-/// as dead again at every round, and was logged as "removed" once a second for as long as the
-/// daemon ran. Here each dead node is cleaned up once; one still listed at a later round, or
+/// as dead again at every round, and would be logged as "removed" once a second for as long as
+/// the daemon runs. Here each dead node is cleaned up once; one still listed at a later round, or
 /// one iceoryx2 finds nothing of to clean up, has what is left of it removed by name: its
 /// monitor files and its entries in its node folder.
 #[derive(Default)]
@@ -369,7 +369,8 @@ mod tests {
 
     /// Monitor files of a node that iceoryx2 does not list (a process killed while it made its
     /// node leaves such) are removed once old enough, and only then; the files of a live node
-    /// stay. Before, nothing removed them, and their nodes were reported "removed" every round.
+    /// stay. Left alone, nothing would remove them, and their nodes would be reported "removed"
+    /// every round.
     #[test]
     fn orphaned_node_files_are_removed_once_and_live_nodes_kept() {
         let prefix = format!("ppfdhk_{}_", std::process::id());

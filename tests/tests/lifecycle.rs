@@ -64,9 +64,9 @@ fn a_stop_while_the_models_load_ends_the_daemon_before_it_serves() {
 }
 
 /// While the daemon loads its models at start, statistics are answered at once and say how far
-/// it is; the model list waits until every model is loaded, then lists them all. Before, the
-/// daemon answered nothing until it had loaded every model, and a monitor asking whether it was
-/// up timed out (here after 2 s, with 4 s of loading to go).
+/// it is; the model list waits until every model is loaded, then lists them all. A monitor
+/// asking whether the daemon is up gets its answer within its timeout (here 2 s, with 4 s of
+/// loading to go).
 #[test]
 fn statistics_are_answered_while_the_models_load() {
     let prefix = Prefix::new("loadstats");
@@ -112,8 +112,8 @@ fn statistics_are_answered_while_the_models_load() {
 
 /// While the daemon stops (here on SIGHUP, as when its terminal closes), a running detection
 /// finishes and is answered, and what comes meanwhile is answered at once: statistics and the
-/// model list as usual, detections and model loads "shutting down". Before, the new requests
-/// were left unanswered until their clients gave up, and SIGHUP ended the daemon at once.
+/// model list as usual, detections and model loads "shutting down": no client waits out its
+/// timeout for an answer that will not come, and SIGHUP does not cut the running detection off.
 #[test]
 fn requests_that_come_while_the_daemon_stops_are_answered() {
     let prefix = Prefix::new("stopping");

@@ -288,11 +288,11 @@ fn served_from(client: &ppfd_client::Client, camera: &str) {
     }
 }
 
-/// A driver that names its camera anew on each run (by process id, say) left one subscription
-/// behind per name: the daemon never let go of a camera, and each kept about three files and
-/// half a megabyte of the dead driver's shared memory (measured: 332 files after 100 names).
-/// A camera without a driver for `--forget-camera-after-ms` is now forgotten, and found again
-/// when a driver publishes under its name.
+/// A camera without a driver for `--forget-camera-after-ms` is forgotten, and found again when a
+/// driver publishes under its name. Otherwise a driver that names its camera anew on each run
+/// (by process id, say) would leave one subscription behind per name, each keeping about three
+/// files and half a megabyte of the dead driver's shared memory (measured: 332 files after 100
+/// names).
 #[test]
 fn cameras_whose_driver_is_gone_are_forgotten_and_found_again() {
     use ppfd_client::Status;
@@ -603,8 +603,8 @@ fn client_proc_served(prefix: &Prefix) -> Vec<String> {
     results(&mut c, Duration::from_secs(10))
 }
 
-/// A daemon killed while it works on a request never lets go of it: the client used to wait
-/// its whole timeout (here 60 s) for an answer that could not come.
+/// A daemon killed while it works on a request never answers it: the client learns so at once
+/// instead of waiting its whole timeout (here 60 s) for an answer that cannot come.
 #[test]
 fn a_client_learns_at_once_that_the_daemon_died_under_its_request() {
     let prefix = Prefix::new("died");

@@ -63,7 +63,7 @@ pub struct RescoringParams {
     pub min_visible_outline: f32,
     /// Silhouettes are rendered from a copy of the model's mesh with vertices merged on a grid
     /// of this fraction of the diameter: the outline moves by less than a cell, and the copy has
-    /// fewer triangles the larger the cell. Measured (release, 2026-12-01): 0.025, 0.04 and 0.05
+    /// fewer triangles the larger the cell. Measured (release): 0.025, 0.04 and 0.05
     /// give the same recall on the LM-O frame (VSD 0.750, AR 0.654) and synth-lmo-dev (0.931);
     /// re-scoring on a synth-lmo-dev frame takes 0.69–0.74 of 0.025's time at 0.04 and
     /// 0.63–0.66 at 0.05. 0.04 takes most of the gain for a smaller shift of the outline.

@@ -405,8 +405,8 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
-    /// A save removes what a writer killed mid-write left of the same file, and keeps a live
-    /// writer's file and files it did not name (they stayed for ever, tens of MB each).
+    /// A save removes what a writer killed mid-write left of the same file (else it would stay
+    /// for ever, tens of MB each), and keeps a live writer's file and files it did not name.
     #[test]
     fn a_save_removes_the_temporary_files_of_dead_writers() {
         let dir = temp_dir("deadtmp");
