@@ -528,8 +528,13 @@ fn a_detection_whose_client_died_is_cancelled() {
         .wait_exit(Duration::from_secs(5))
         .expect("victim died");
     let client = connect(&prefix);
+    // Its own detection takes the fake engine's 4 s, beyond the client's default timeout.
+    let opts = ppfd_client::DetectOptions {
+        timeout: Duration::from_secs(10),
+        ..Default::default()
+    };
     let found = client
-        .detect("cam0", &[1], &ppfd_client::DetectOptions::default())
+        .detect("cam0", &[1], &opts)
         .expect("next client served");
     let waited = Duration::from_nanos(found.latency.daemon.queue_wait_ns);
     eprintln!("the next request waited {waited:?} in the queue");
