@@ -276,8 +276,8 @@ mod tests {
     }
 
     /// `--image` picks a dataset's frame, `--seed` and `--no-noise` shape the generated scene:
-    /// each given for the other kind of scene is a usage error that says so (they were
-    /// ignored).
+    /// each given for the other kind of scene is a usage error that says so, rather than
+    /// ignored.
     #[test]
     fn demo_refuses_flags_of_the_other_scene() {
         for (args, named) in [

@@ -468,7 +468,8 @@ fn children_of(pid: u32) -> Vec<u32> {
 }
 
 /// Stopped with SIGTERM mid-detection, the demo stops its daemon and removes its work folder
-/// before it exits (both were left behind: the default action ended the process at once).
+/// before it exits (SIGTERM's default action would end the process at once and leave both
+/// behind).
 #[test]
 fn a_demo_stopped_by_sigterm_leaves_nothing_behind() {
     use std::io::BufRead;

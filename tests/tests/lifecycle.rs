@@ -37,8 +37,8 @@ fn connect(prefix: &Prefix) -> Client {
 
 /// A stop requested while the models load at start ends the daemon after the model being
 /// loaded, without serving: a supervisor's SIGTERM is not kept waiting for every model.
-/// Without the check between models, the daemon loaded all five (5 s), said it was ready and
-/// only then stopped.
+/// Without the check between models, the daemon would load all five (5 s), say it is ready and
+/// only then stop.
 #[test]
 fn a_stop_while_the_models_load_ends_the_daemon_before_it_serves() {
     let prefix = Prefix::new("stopload");

@@ -158,7 +158,7 @@ fn generated_scene_through_the_whole_path(test: &str, seed: u64, noisy: bool) {
     let _daemon = start_daemon(&prefix, &work.join("models"), &work.join("cache"), &[]);
     // The model files overwritten in place while the daemon holds their models (a redeploy by
     // `cp`): the daemon holds copies, so this changes nothing (a map of the files themselves
-    // took it down with SIGBUS at the first detection).
+    // would take it down with SIGBUS at the first detection).
     for entry in std::fs::read_dir(work.join("models")).unwrap() {
         std::fs::write(entry.unwrap().path(), b"overwritten").unwrap();
     }

@@ -200,8 +200,8 @@ fn a_camera_that_stops_is_reported_stale_with_the_age_of_its_last_frame() {
 /// A driver that publishes one frame and then waits (`e2e-camera --frames 1`, `ppf replay`
 /// without `--loop`), started before the daemon: the daemon gets that frame. The camera keeps
 /// its newest frame for a late subscriber, but iceoryx2 hands it over only when the publisher
-/// looks for subscribers; a driver that slept never did, and every request was refused "camera
-/// has published no frame yet".
+/// looks for subscribers: the driver waits with `CameraPublisher::idle`, since one that slept
+/// would never look, and every request would be refused "camera has published no frame yet".
 #[test]
 fn a_frame_published_before_the_daemon_started_is_served() {
     let prefix = Prefix::new("early");
@@ -546,8 +546,8 @@ fn a_detection_whose_client_died_is_cancelled() {
 
 /// While the daemon holds a request of a client that died, iceoryx2 keeps the connection to
 /// that client (its shared memory mapped, file descriptors open), and it panics once more than
-/// its buffer of such connections (128) pile up. Requests of dead clients were held forever,
-/// so the 129th client killed mid-request took the daemon down.
+/// its buffer of such connections (128) pile up: held for ever, requests of dead clients would
+/// let the 129th client killed mid-request take the daemon down.
 #[test]
 fn clients_killed_mid_request_by_the_hundred_leave_the_daemon_serving() {
     let prefix = Prefix::new("killings");
@@ -586,8 +586,8 @@ fn clients_killed_mid_request_by_the_hundred_leave_the_daemon_serving() {
         .expect("a live client is served");
     assert_eq!(found.hypotheses.len(), 1);
     // The dead clients' connections are let go: the files that stay open are the live
-    // client's (about three per dead client were left open before, one per batch when several
-    // requests of dead clients were released at once).
+    // client's, not about three per dead client (or one per batch of dead clients' requests
+    // released at once).
     std::thread::sleep(Duration::from_millis(300)); // a few housekeeping rounds
     let files_after = open_files();
     eprintln!(
@@ -754,7 +754,7 @@ fn a_client_beyond_the_most_the_daemon_serves_is_told_so() {
 }
 
 /// A daemon holding more models than a listing carries lists the 256 of lowest id and says how
-/// many it holds (the listing was cut short without a word).
+/// many it holds, rather than cutting the listing short without a word.
 #[test]
 fn a_listing_of_more_models_than_it_carries_says_how_many_are_loaded() {
     let prefix = Prefix::new("manymodels");

@@ -175,7 +175,7 @@ impl Quantizer {
         if x < 0.0 {
             return if clamp { Some(0) } else { None };
         }
-        // Truncation is the floor for x >= 0 (and gives 0 for NaN, as the floor did).
+        // Truncation is the floor for x >= 0 (and gives 0 for NaN, as the floor would).
         let b = x as u32;
         if b < bins {
             Some(b)
