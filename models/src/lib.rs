@@ -43,8 +43,8 @@
 //! [`silhouette`]: detect::silhouette
 //! [`detector::Detector`]: detect::detector::Detector
 //!
-//! The modules cite the method notes by section (`METHOD.md §2.3`): they are kept beside the
-//! repository, in `../shared/docs/METHOD.md`.
+//! The modules cite the method notes by section (`METHOD.md §2.3`): `docs/METHOD.md` in the
+//! repository describes the method as implemented, with every departure from the paper.
 //!
 //! Units: millimetres for lengths, radians for angles; a pose maps model coordinates into camera
 //! coordinates, `p_cam = R p_model + t`, OpenCV camera convention.
