@@ -295,7 +295,7 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
     use ppfd_models::detect::clustering::cluster_poses;
     use ppfd_models::detect::icp::refine;
     use ppfd_models::detect::plane::SupportingPlane;
-    use ppfd_models::detect::rescoring::{score_poses, Outline};
+    use ppfd_models::detect::rescoring::{prescreen, score_poses, Outline};
     use ppfd_models::detect::scene::{prepare, PreparedScene};
     use ppfd_models::detect::silhouette::EdgeMap;
     use ppfd_models::detect::voting::{vote_from, Selection};
@@ -447,8 +447,22 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             mesh: &mesh,
             sphere: &sphere,
             edges: &edges,
+            max_outline_px: p.filters.max_outline_px,
         };
-        // Every pose kept: the table ranks them all.
+        let coarse_outline = Outline {
+            max_outline_px: p.rescoring.coarse_outline(p.filters.max_outline_px),
+            ..outline
+        };
+        // As the detector: a sparse fit picks the clusters for the full re-scoring, and the
+        // outlines before ICP are coarse; every pose kept, the table ranks them all.
+        let top = prescreen(
+            &top,
+            &surface,
+            &scene,
+            p.rescoring.tolerance_mm(d),
+            p.rescoring.conflict_mm(d),
+            &p.rescoring,
+        );
         let scored = score_poses(
             &top,
             &surface,
@@ -456,7 +470,7 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             p.rescoring.tolerance_mm(d),
             p.rescoring.conflict_mm(d),
             &p.rescoring,
-            &outline,
+            &coarse_outline,
             top.len(),
         );
         let refined: Vec<_> = scored

@@ -328,8 +328,18 @@ fn the_image_border_is_no_depth_edge() {
     let y = (height as f32 - 1.0 - k.cy) * z / k.fy;
     let pose = Pose::from_parts(Translation3::new(0.0, y, z), UnitQuaternion::identity());
     let mut renderer = Renderer::new();
-    let counts = outline_counts(&mut renderer, &mesh, &sphere, &pose, &image, &edges, 15.0)
-        .expect("the box is in view");
+    let max = params.filters.max_outline_px;
+    let counts = outline_counts(
+        &mut renderer,
+        &mesh,
+        &sphere,
+        &pose,
+        &image,
+        &edges,
+        max,
+        15.0,
+    )
+    .expect("the box is in view");
     eprintln!("box cut by the border: {counts:?}");
     // The front face (at z − 30 mm) is `side` pixels wide: in view are its top side and half
     // of the two others, 2 × side in all; the cut along the border would add one more side.
@@ -348,7 +358,6 @@ fn the_image_border_is_no_depth_edge() {
 /// full-resolution outline gives, and still tells the true pose from nearby wrong ones.
 #[test]
 fn near_outlines_are_measured_coarser_with_the_same_agreement() {
-    use ppfd_models::detect::filters::FilterParams;
     use ppfd_models::detect::silhouette::outline_counts;
     let params = DetectParams::new();
     let part = Part::LBracket;
@@ -358,19 +367,22 @@ fn near_outlines_are_measured_coarser_with_the_same_agreement() {
     let sphere = bounding_sphere(&mesh);
     let conflict = params.rescoring.conflict_mm(d);
     let min_visible = params.rescoring.min_visible_outline;
-    let full_params = FilterParams {
-        max_outline_px: 0,
-        ..params.filters
-    };
-    let (coarse_edges, full_edges) = (
-        EdgeMap::new(&image, &params.filters),
-        EdgeMap::new(&image, &full_params),
-    );
+    let edges = EdgeMap::new(&image, &params.filters);
     let max = params.filters.max_outline_px;
     let mut renderer = Renderer::new();
-    let mut measure = |pose: &Pose, edges: &EdgeMap| {
-        let counts =
-            outline_counts(&mut renderer, &mesh, &sphere, pose, &image, edges, conflict).unwrap();
+    // An outline at most `px` wide (0: at full resolution).
+    let mut measure = |pose: &Pose, px: u32| {
+        let counts = outline_counts(
+            &mut renderer,
+            &mesh,
+            &sphere,
+            pose,
+            &image,
+            &edges,
+            px,
+            conflict,
+        )
+        .unwrap();
         let roi = renderer.roi();
         (
             counts.fraction_of_at_least(min_visible).unwrap(),
@@ -378,8 +390,8 @@ fn near_outlines_are_measured_coarser_with_the_same_agreement() {
             roi,
         )
     };
-    let (full, full_counts, full_roi) = measure(&truth, &full_edges);
-    let (coarse, coarse_counts, coarse_roi) = measure(&truth, &coarse_edges);
+    let (full, full_counts, full_roi) = measure(&truth, 0);
+    let (coarse, coarse_counts, coarse_roi) = measure(&truth, max);
     eprintln!("true pose: full {full:.3} {full_counts:?} {full_roi:?}; coarse {coarse:.3} {coarse_counts:?} {coarse_roi:?}");
     assert!(
         full_roi.width.max(full_roi.height) > max,
@@ -399,8 +411,8 @@ fn near_outlines_are_measured_coarser_with_the_same_agreement() {
         ([0.0; 3], 15.0),
     ] {
         let wrong = perturbed(&truth, &mesh, shift, [0.3, 1.0, 0.2], degrees);
-        let (f, _, _) = measure(&wrong, &full_edges);
-        let (c, _, _) = measure(&wrong, &coarse_edges);
+        let (f, _, _) = measure(&wrong, 0);
+        let (c, _, _) = measure(&wrong, max);
         eprintln!("{shift:?} {degrees}°: full {f:.3}, coarse {c:.3}");
         assert!(
             f < full && c < coarse,

@@ -407,13 +407,11 @@ impl Detector {
             mesh: mesh.as_ref(),
             sphere: &sphere,
             edges,
+            max_outline_px: p.filters.max_outline_px,
         };
-        let coarse_edges = (p.rescoring.coarse_outline_px > 0)
-            .then(|| edges.with_max_outline_px(p.rescoring.coarse_outline_px));
         let coarse_outline = Outline {
-            mesh: mesh.as_ref(),
-            sphere: &sphere,
-            edges: coarse_edges.as_ref().unwrap_or(edges),
+            max_outline_px: p.rescoring.coarse_outline(p.filters.max_outline_px),
+            ..outline
         };
         let t = Instant::now();
         let top = &clusters[..clusters.len().min(p.rescoring.top_clusters)];

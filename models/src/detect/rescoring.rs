@@ -91,6 +91,14 @@ impl RescoringParams {
         (self.tolerance_fraction * diameter_mm).max(self.min_tolerance_mm)
     }
 
+    /// The outline width before ICP: `coarse_outline_px`, or `after_icp_px` when that is 0.
+    pub fn coarse_outline(&self, after_icp_px: u32) -> u32 {
+        match self.coarse_outline_px {
+            0 => after_icp_px,
+            px => px,
+        }
+    }
+
     /// The depth difference beyond which the scene occludes or is seen through, mm.
     pub fn conflict_mm(&self, diameter_mm: f32) -> f32 {
         (self.conflict_fraction * diameter_mm).max(self.min_conflict_mm)
@@ -288,11 +296,13 @@ pub fn prescreen(
 
 /// What a silhouette is measured with: the model's mesh (a simplified copy, see
 /// [`RescoringParams::silhouette_mesh_cell_fraction`]), its bounding sphere in model
-/// coordinates, and the scene's depth edges.
+/// coordinates, the scene's depth edges, and the width in pixels beyond which an outline is
+/// drawn at a coarser scale (0: never).
 pub struct Outline<'a> {
     pub mesh: &'a crate::geometry::mesh::Mesh,
     pub sphere: &'a (Point3<f32>, f32),
     pub edges: &'a crate::detect::silhouette::EdgeMap,
+    pub max_outline_px: u32,
 }
 
 /// The whole re-scoring of `poses`: [`rescore`] with inlier tolerance `tolerance` (mm), then,
@@ -357,6 +367,7 @@ pub fn with_silhouettes(
                     &s.pose,
                     scene,
                     outline.edges,
+                    outline.max_outline_px,
                     occlusion_tolerance_mm,
                 )
                 .and_then(|c| c.fraction_of_at_least(params.min_visible_outline))
@@ -463,6 +474,7 @@ mod tests {
             mesh: &silhouettes,
             sphere: &sphere,
             edges: &edges,
+            max_outline_px: FilterParams::default().max_outline_px,
         };
         let mut every = scored.clone();
         let all = every.len();

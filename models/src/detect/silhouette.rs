@@ -53,22 +53,6 @@ pub struct EdgeMap {
     pub(super) max_outline_px: u32,
 }
 
-impl EdgeMap {
-    /// The same map, with outlines wider than `max_outline_px` drawn at a coarser scale (0:
-    /// never).
-    pub fn with_max_outline_px(&self, max_outline_px: u32) -> EdgeMap {
-        EdgeMap {
-            width: self.width,
-            height: self.height,
-            near_edge: self.near_edge.clone(),
-            jump_mm: self.jump_mm,
-            jump_fraction: self.jump_fraction,
-            probe_px: self.probe_px,
-            max_outline_px,
-        }
-    }
-}
-
 /// How the rendered outline of a pose meets the scene's depth edges.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct OutlineCounts {
@@ -120,12 +104,15 @@ pub fn silhouette_fraction(
         pose,
         scene,
         edges,
+        edges.max_outline_px,
         occlusion_tolerance_mm,
     )?
     .fraction_of_at_least(min_visible)
 }
 
-/// The counts behind [`silhouette_fraction`]; `None` when the mesh is out of view.
+/// The counts behind [`silhouette_fraction`]; `None` when the mesh is out of view. An outline
+/// wider than `max_outline_px` is drawn at a coarser scale (0: never).
+#[allow(clippy::too_many_arguments)]
 pub fn outline_counts(
     renderer: &mut Renderer,
     mesh: &Mesh,
@@ -133,6 +120,7 @@ pub fn outline_counts(
     pose: &Pose,
     scene: &SceneImage,
     edges: &EdgeMap,
+    max_outline_px: u32,
     occlusion_tolerance_mm: f32,
 ) -> Option<OutlineCounts> {
     let centre = pose * sphere.0;
@@ -144,7 +132,7 @@ pub fn outline_counts(
         scene.height,
     )?;
     // Full-resolution pixels per outline pixel along each axis.
-    let scale = match edges.max_outline_px {
+    let scale = match max_outline_px {
         0 => 1,
         max => full.width.max(full.height).div_ceil(max).max(1),
     };
