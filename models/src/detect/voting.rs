@@ -127,6 +127,8 @@ struct Accumulator {
     /// Per cell the reference point's votes, after [`Accumulator::merge`]; its length is the
     /// number of cells.
     totals: Vec<u16>,
+    /// Per row of [`ROW`] cells (one model point), the largest of its `totals`.
+    row_max: Vec<u16>,
 }
 
 impl Accumulator {
@@ -136,6 +138,7 @@ impl Accumulator {
             carries: vec![0; cells],
             carried: false,
             totals: vec![0; cells],
+            row_max: vec![0; cells.div_ceil(ROW)],
         }
     }
 
@@ -203,24 +206,54 @@ impl Accumulator {
         }
     }
 
-    /// Adds the copies (and carries) into `totals` and clears them for the next reference
-    /// point.
+    /// Adds the copies (and carries) into `totals`, clears them for the next reference
+    /// point, and writes each row's (model point's) largest total into `row_max`. One pass
+    /// reads each copy once and writes it once: at a few hundred cells per vote cast, this
+    /// pass and the peak search cost as much as the votes themselves when each walks all the
+    /// cells apart.
     fn merge(&mut self) {
         let n = self.totals.len();
-        self.totals.fill(0);
-        for lane in self.lanes.chunks_exact(n) {
-            for (t, &v) in self.totals.iter_mut().zip(lane) {
-                *t += v as u16;
+        let row_max = &mut self.row_max[..];
+        let (l0, rest) = self.lanes.split_at_mut(n);
+        let (l1, rest) = rest.split_at_mut(n);
+        let (l2, l3) = rest.split_at_mut(n);
+        debug_assert_eq!(LANES, 4);
+        for (((((t, a), b), c), d), m) in self
+            .totals
+            .chunks_exact_mut(ROW)
+            .zip(l0.chunks_exact_mut(ROW))
+            .zip(l1.chunks_exact_mut(ROW))
+            .zip(l2.chunks_exact_mut(ROW))
+            .zip(l3.chunks_exact_mut(ROW))
+            .zip(row_max.iter_mut())
+        {
+            let mut best = 0u16;
+            for i in 0..ROW {
+                let v = a[i] as u16 + b[i] as u16 + c[i] as u16 + d[i] as u16;
+                t[i] = v;
+                best = best.max(v);
             }
+            a.fill(0);
+            b.fill(0);
+            c.fill(0);
+            d.fill(0);
+            *m = best;
         }
         if self.carried {
-            for (t, c) in self.totals.iter_mut().zip(self.carries.iter_mut()) {
-                *t = (*t as u32 + ((*c as u32) << 8)).min(u16::MAX as u32) as u16;
-                *c = 0;
+            for ((t, c), m) in self
+                .totals
+                .chunks_exact_mut(ROW)
+                .zip(self.carries.chunks_exact_mut(ROW))
+                .zip(self.row_max.iter_mut())
+            {
+                for (t, c) in t.iter_mut().zip(c.iter_mut()) {
+                    *t = (*t as u32 + ((*c as u32) << 8)).min(u16::MAX as u32) as u16;
+                    *c = 0;
+                }
+                *m = t.iter().copied().max().unwrap_or(0);
             }
             self.carried = false;
         }
-        self.lanes.fill(0);
     }
 }
 
@@ -488,7 +521,7 @@ pub fn vote_from(
                 }
                 s.touched_keys.clear();
                 let totals = &s.accumulator.totals;
-                peaks(totals, nb, params, |cell, votes| {
+                peaks(totals, &s.accumulator.row_max, nb, params, |cell, votes| {
                     let (m, a) = (cell >> ROW_SHIFT, (cell & (ROW - 1)) as u32);
                     let mut alpha = alpha_of_bin(a, alpha_bins);
                     if params.interpolate_alpha {
@@ -545,23 +578,28 @@ fn sub_bin_offset(below: u32, centre: u32, above: u32) -> f32 {
 /// `peak_ratio` of the maximum (and at least one vote), highest first. A cell next to a better
 /// peak's cell in the same model point's row (±1 α bin, circularly over `nb` bins) is the same
 /// peak's flank, not a second pose: it is skipped, so one reference point does not vote twice
-/// for one pose cluster.
-fn peaks(acc: &[u16], nb: usize, params: &VotingParams, mut emit: impl FnMut(usize, u32)) {
+/// for one pose cluster. `row_max` holds each row's largest cell (rows of [`ROW`] cells).
+fn peaks(
+    acc: &[u16],
+    row_max: &[u16],
+    nb: usize,
+    params: &VotingParams,
+    mut emit: impl FnMut(usize, u32),
+) {
     let k = params.peaks_per_reference.max(1);
-    // Two passes that vectorise: the maximum, then the few cells near it.
-    let max = acc.iter().copied().max().unwrap_or(0) as u32;
+    debug_assert_eq!(row_max.len(), acc.len().div_ceil(ROW));
+    let max = row_max.iter().copied().max().unwrap_or(0) as u32;
     if max == 0 {
         return;
     }
     let threshold = ((params.peak_ratio * max as f32).ceil() as u32).clamp(1, max) as u16;
     // The best `3 k` cells at or above the threshold, highest first (equal counts in scan
     // order): each of the `k` peaks taken can hide at most two flank cells, so the `k` peaks
-    // are among them. Most rows hold no cell near the maximum: a row's maximum (vectorised)
-    // skips them whole.
+    // are among them. Most rows hold no cell near the maximum: their maximum skips them whole.
     let keep = 3 * k;
     let mut candidates: Vec<(u32, usize)> = Vec::with_capacity(keep + 1);
     for (row, cells) in acc.chunks(ROW).enumerate() {
-        if cells.iter().copied().max().unwrap_or(0) < threshold {
+        if row_max[row] < threshold {
             continue;
         }
         for (i, &v) in cells.iter().enumerate() {
@@ -603,6 +641,11 @@ mod tests {
     use super::*;
     use crate::model::table::entry_model_point;
 
+    /// Each row's largest cell, as [`Accumulator::merge`] leaves them for [`peaks`].
+    fn row_maxima(acc: &[u16]) -> Vec<u16> {
+        acc.chunks(ROW).map(|r| r.iter().copied().max().unwrap_or(0)).collect()
+    }
+
     /// Counts past a byte carry exactly, whichever copy takes the votes, and saturate at
     /// 65 535; a merge leaves every copy and carry cleared for the next reference point.
     #[test]
@@ -632,18 +675,21 @@ mod tests {
         acc.merge();
         assert_eq!(acc.totals[cell], 1022);
         assert_eq!(acc.totals.iter().map(|&v| v as u32).sum::<u32>(), 1022);
+        assert_eq!(acc.row_max, row_maxima(&acc.totals));
         assert!(acc.lanes.iter().all(|&v| v == 0) && acc.carries.iter().all(|&c| c == 0));
 
         // The next reference point starts from nothing.
         unsafe { acc.add_casts(&entries, &casts[1..2], bins) };
         acc.merge();
         assert_eq!(acc.totals[cell], 7);
+        assert_eq!(acc.row_max, [0, 0, 7, 0]);
 
         // 70 070 votes saturate.
         let many = vec![cast; 70];
         unsafe { acc.add_casts(&entries, &many, bins) };
         acc.merge();
         assert_eq!(acc.totals[cell], u16::MAX);
+        assert_eq!(acc.row_max, [0, 0, u16::MAX, 0]);
         assert_eq!(acc.totals.iter().filter(|&&v| v > 0).count(), 1);
     }
 
@@ -840,7 +886,7 @@ mod tests {
             ..Default::default()
         };
         let mut got = Vec::new();
-        peaks(&acc, 12, &params, |c, v| got.push((c, v)));
+        peaks(&acc, &row_maxima(&acc), 12, &params, |c, v| got.push((c, v)));
         assert_eq!(got, vec![(4, 10), (2, 9), (7, 8)]);
         let params = VotingParams {
             peaks_per_reference: 3,
@@ -848,10 +894,10 @@ mod tests {
             ..Default::default()
         };
         got.clear();
-        peaks(&acc, 12, &params, |c, v| got.push((c, v)));
+        peaks(&acc, &row_maxima(&acc), 12, &params, |c, v| got.push((c, v)));
         assert_eq!(got, vec![(4, 10)]);
         got.clear();
-        peaks(&[0, 0, 0], 3, &params, |c, v| got.push((c, v)));
+        peaks(&[0, 0, 0], &[0], 3, &params, |c, v| got.push((c, v)));
         assert!(got.is_empty());
         // Peaks in different accumulator rows (model points), one row without any.
         let mut acc = vec![0u16; 4 * ROW];
@@ -865,7 +911,7 @@ mod tests {
             ..Default::default()
         };
         got.clear();
-        peaks(&acc, 30, &params, |c, v| got.push((c, v)));
+        peaks(&acc, &row_maxima(&acc), 30, &params, |c, v| got.push((c, v)));
         assert_eq!(got, vec![(2 * ROW + 7, 50), (3 * ROW + 31, 45)]);
     }
 
@@ -886,7 +932,7 @@ mod tests {
         acc[ROW + 9] = 48; // flank of the peak
         acc[ROW + 20] = 30; // a second peak of the same model point
         let mut got = Vec::new();
-        peaks(&acc, nb, &params, |c, v| got.push((c, v)));
+        peaks(&acc, &row_maxima(&acc), nb, &params, |c, v| got.push((c, v)));
         assert_eq!(got, vec![(ROW + 10, 50), (ROW + 20, 30)]);
 
         // Across the wrap: bin 0 and bin 29 are neighbours.
@@ -895,7 +941,7 @@ mod tests {
         acc[2 * ROW + nb - 1] = 39;
         acc[ROW + nb - 1] = 35; // the same bin in another model point's row
         got.clear();
-        peaks(&acc, nb, &params, |c, v| got.push((c, v)));
+        peaks(&acc, &row_maxima(&acc), nb, &params, |c, v| got.push((c, v)));
         assert_eq!(got, vec![(2 * ROW, 40), (ROW + nb - 1, 35)]);
     }
 }
