@@ -179,8 +179,27 @@ mod tests {
         ])
         .unwrap();
         assert!(
-            matches!(cli.command, Command::Bench(ref a) if a.clients == 3 && a.objects == vec![2])
+            matches!(cli.command, Command::Bench(ref a) if a.clients == 3 && a.objects == vec![bench::Objects(vec![2])])
         );
+        // One list per client, in turn.
+        let cli = Cli::try_parse_from([
+            "ppf",
+            "bench",
+            "--camera",
+            "k",
+            "--objects",
+            "1,5",
+            "--objects",
+            "8,9,10",
+        ])
+        .unwrap();
+        match cli.command {
+            Command::Bench(a) => assert_eq!(
+                a.objects,
+                vec![bench::Objects(vec![1, 5]), bench::Objects(vec![8, 9, 10])]
+            ),
+            other => panic!("{other:?}"),
+        }
         for args in [
             vec!["ppf", "replay", "/d", "--camera", "k", "--loop"],
             vec!["ppf", "models", "--drop", "3"],

@@ -6,13 +6,28 @@
 //! ```sh
 //! cargo run --release -p ppfd-client --example picking_loop -- kinect 20 1,5,6 8,9
 //! ```
+//!
+//! `--timeout-ms=N` anywhere among the arguments sets the detect timeout (default: the
+//! library's).
 
 use std::time::{Duration, Instant};
 
 use ppfd_client::{isometry, Client, DetectOptions, Error, Status};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let mut args = std::env::args().skip(1);
+    // `--timeout-ms=N` anywhere sets the detect timeout (default: the library's).
+    let (timeouts, args): (Vec<String>, Vec<String>) = std::env::args()
+        .skip(1)
+        .partition(|a| a.starts_with("--timeout-ms="));
+    let timeout = match timeouts.last() {
+        Some(t) => Some(Duration::from_millis(
+            t["--timeout-ms=".len()..]
+                .parse()
+                .map_err(|e| format!("{t}: {e}"))?,
+        )),
+        None => None,
+    };
+    let mut args = args.into_iter();
     let camera = args.next().unwrap_or_else(|| "kinect".into());
     let cycles: usize = args.next().and_then(|v| v.parse().ok()).unwrap_or(10);
     let orders: Vec<Vec<u32>> = args
@@ -33,7 +48,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         max_frame_age: Some(Duration::from_millis(500)),
         ..Default::default()
     };
+    let options = DetectOptions {
+        timeout: timeout.unwrap_or(options.timeout),
+        ..options
+    };
     let mut picked = 0;
+    // How the cycles ended, for the summary line (a soak run reads it): refusals the cell
+    // expects (a stale camera, a daemon restarting), answers that never came, and answers that
+    // do not match their request (poses of objects not asked for).
+    let (mut refused, mut failed, mut mismatched) = (0usize, 0usize, 0usize);
     for cycle in 0..cycles {
         let order = &orders[cycle % orders.len()];
         let start = Instant::now();
@@ -48,6 +71,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     "cycle {cycle}: camera stale ({:.0} ms), waiting for the driver",
                     value as f64 / 1e6
                 );
+                refused += 1;
                 std::thread::sleep(Duration::from_millis(200));
                 continue;
             }
@@ -62,15 +86,29 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 }),
             ) => {
                 println!("cycle {cycle}: {e}; retrying in 0.5 s");
+                refused += 1;
                 std::thread::sleep(Duration::from_millis(500));
                 continue;
             }
             Err(e) => {
                 println!("cycle {cycle}: {e}");
+                failed += 1;
                 std::thread::sleep(Duration::from_millis(100));
                 continue;
             }
         };
+        if let Some(h) = found
+            .hypotheses
+            .iter()
+            .find(|h| !order.contains(&h.object_id))
+        {
+            println!(
+                "cycle {cycle}: MISMATCH: asked for {order:?}, answered object {}",
+                h.object_id
+            );
+            mismatched += 1;
+            continue;
+        }
         // The best-scored instance of any object of the order is the next pick.
         let Some(best) = found
             .hypotheses
@@ -99,6 +137,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             found.frame_age_ns as f64 / 1e6,
         );
     }
-    println!("{picked} picks in {cycles} cycles");
+    println!(
+        "{picked} picks in {cycles} cycles; {refused} refused or waited, {failed} failed, {mismatched} mismatched"
+    );
+    if mismatched > 0 {
+        return Err(format!("{mismatched} answers did not match their requests").into());
+    }
     Ok(())
 }

@@ -462,12 +462,30 @@ impl Client {
     ) -> Result<(ControlResponseHeader, Vec<ModelInfo>)> {
         let request = ControlRequest {
             command: command as u32,
-            request_id: self.request_id(),
-            reply_token: self.reply_token,
             object_id,
             path: text::encode_name("path", path)?,
             ..Default::default()
         };
+        self.send_control(request, self.control_timeout)
+    }
+
+    /// Sends a control request exactly as given, unchecked (to exercise the daemon's
+    /// refusals); only its id and reply token are set here.
+    pub fn send_raw_control(
+        &self,
+        request: &ControlRequest,
+        timeout: Duration,
+    ) -> Result<(ControlResponseHeader, Vec<ModelInfo>)> {
+        self.send_control(*request, timeout)
+    }
+
+    fn send_control(
+        &self,
+        mut request: ControlRequest,
+        timeout: Duration,
+    ) -> Result<(ControlResponseHeader, Vec<ModelInfo>)> {
+        request.request_id = self.request_id();
+        request.reply_token = self.reply_token;
         let pending = self
             .control
             .send_copy(request)
@@ -479,7 +497,7 @@ impl Client {
             });
         }
         let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
-        let deadline = instant_after(self.control_timeout);
+        let deadline = instant_after(timeout);
         let mut alive = AliveCheck::new();
         loop {
             let held = pending.is_connected();
@@ -507,7 +525,7 @@ impl Client {
             }
             let left = deadline.saturating_duration_since(Instant::now());
             if left.is_zero() {
-                return Err(Error::Timeout(self.control_timeout));
+                return Err(Error::Timeout(timeout));
             }
             self.wait_reply(left.min(HELD_CHECK_PERIOD))?;
         }
