@@ -643,7 +643,9 @@ mod tests {
 
     /// Each row's largest cell, as [`Accumulator::merge`] leaves them for [`peaks`].
     fn row_maxima(acc: &[u16]) -> Vec<u16> {
-        acc.chunks(ROW).map(|r| r.iter().copied().max().unwrap_or(0)).collect()
+        acc.chunks(ROW)
+            .map(|r| r.iter().copied().max().unwrap_or(0))
+            .collect()
     }
 
     /// Counts past a byte carry exactly, whichever copy takes the votes, and saturate at
@@ -886,7 +888,9 @@ mod tests {
             ..Default::default()
         };
         let mut got = Vec::new();
-        peaks(&acc, &row_maxima(&acc), 12, &params, |c, v| got.push((c, v)));
+        peaks(&acc, &row_maxima(&acc), 12, &params, |c, v| {
+            got.push((c, v))
+        });
         assert_eq!(got, vec![(4, 10), (2, 9), (7, 8)]);
         let params = VotingParams {
             peaks_per_reference: 3,
@@ -894,7 +898,9 @@ mod tests {
             ..Default::default()
         };
         got.clear();
-        peaks(&acc, &row_maxima(&acc), 12, &params, |c, v| got.push((c, v)));
+        peaks(&acc, &row_maxima(&acc), 12, &params, |c, v| {
+            got.push((c, v))
+        });
         assert_eq!(got, vec![(4, 10)]);
         got.clear();
         peaks(&[0, 0, 0], &[0], 3, &params, |c, v| got.push((c, v)));
@@ -911,7 +917,9 @@ mod tests {
             ..Default::default()
         };
         got.clear();
-        peaks(&acc, &row_maxima(&acc), 30, &params, |c, v| got.push((c, v)));
+        peaks(&acc, &row_maxima(&acc), 30, &params, |c, v| {
+            got.push((c, v))
+        });
         assert_eq!(got, vec![(2 * ROW + 7, 50), (3 * ROW + 31, 45)]);
     }
 
@@ -932,7 +940,9 @@ mod tests {
         acc[ROW + 9] = 48; // flank of the peak
         acc[ROW + 20] = 30; // a second peak of the same model point
         let mut got = Vec::new();
-        peaks(&acc, &row_maxima(&acc), nb, &params, |c, v| got.push((c, v)));
+        peaks(&acc, &row_maxima(&acc), nb, &params, |c, v| {
+            got.push((c, v))
+        });
         assert_eq!(got, vec![(ROW + 10, 50), (ROW + 20, 30)]);
 
         // Across the wrap: bin 0 and bin 29 are neighbours.
@@ -941,7 +951,9 @@ mod tests {
         acc[2 * ROW + nb - 1] = 39;
         acc[ROW + nb - 1] = 35; // the same bin in another model point's row
         got.clear();
-        peaks(&acc, &row_maxima(&acc), nb, &params, |c, v| got.push((c, v)));
+        peaks(&acc, &row_maxima(&acc), nb, &params, |c, v| {
+            got.push((c, v))
+        });
         assert_eq!(got, vec![(2 * ROW, 40), (ROW + nb - 1, 35)]);
     }
 }
