@@ -5,7 +5,6 @@ use std::path::PathBuf;
 use clap::Args;
 use ppfd_bop::dataset::BopDataset;
 use ppfd_models::detect::detector::{Detector, RunOptions};
-use rayon::prelude::*;
 
 use crate::offline::{dataset_models, symmetric_pose_errors};
 
@@ -289,18 +288,15 @@ fn ms(d: std::time::Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
 
-/// Runs the stages one by one for each object and prints where the first correct pose (within
-/// 0.1 D and 15° of the ground truth) ranks after each.
+/// For each object: how its scene cloud looks against the ground truth (points on the object,
+/// their normals' error), then the stages one by one ([`ppfd_models::detect::diagnosis`]):
+/// where the best candidate near the ground truth stands after each, and where it was lost.
 pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
-    use ppfd_models::detect::clustering::cluster_poses;
-    use ppfd_models::detect::icp::refine;
+    use ppfd_models::detect::diagnosis::{diagnose, PreparedFrame};
     use ppfd_models::detect::plane::SupportingPlane;
-    use ppfd_models::detect::rescoring::{prescreen, score_poses, Outline};
     use ppfd_models::detect::scene::{prepare, PreparedScene};
     use ppfd_models::detect::silhouette::EdgeMap;
-    use ppfd_models::detect::voting::{vote_from, Selection};
-    use ppfd_models::geometry::render::bounding_sphere;
-    use ppfd_models::geometry::simplify::simplified_mesh;
+    use ppfd_models::detect::voting::Selection;
     let dataset = BopDataset::open(&args.dataset)?;
     let gt = dataset.ground_truth(args.scene, args.image)?.to_vec();
     let ids = if args.objects.is_empty() {
@@ -338,13 +334,19 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
         );
     }
     let edges = EdgeMap::new(&scene, &p.filters);
+    let prepared = PreparedFrame {
+        image: &scene,
+        planes: &planes,
+        edges: &edges,
+    };
     // The clouds the detector would build for these objects together.
     let model_refs: Vec<&ppfd_models::model::ObjectModel> = models.iter().collect();
     let (groups, cloud_of) = p.scene_clouds(&model_refs);
     let clouds: Vec<PreparedScene> = p.prepare_clouds(&points, &groups)?;
-    println!("| object | cloud points | on object | normal error (median °) | reference points on object | proposing a correct pose | clusters | rank by votes | after re-scoring | after ICP + re-scoring | best cluster t err (mm) | R err (°) | voting + clustering (ms) |");
-    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
-    let (mut in_top10, mut first_after_icp) = (0, 0);
+    println!("| object | cloud points | on object | normal error (median °) | reference points on object | lost at |");
+    println!("|---:|---:|---:|---:|---:|---|");
+    let mut lines = Vec::new();
+    let mut found = 0;
     for (model, &group) in models.iter().zip(&cloud_of) {
         let d = model.diameter_mm();
         let truth = gt
@@ -356,16 +358,6 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             .model_info(model.object_id())
             .map(|i| i.symmetries_discrete.clone())
             .unwrap_or_default();
-        let ok = |pose: &ppfd_models::Pose| {
-            let (dt, dr) = symmetric_pose_errors(pose, &truth, &syms);
-            dt < 0.1 * d && dr < 15.0
-        };
-        let rank = |poses: Vec<ppfd_models::Pose>| {
-            poses
-                .iter()
-                .position(&ok)
-                .map_or("-".to_string(), |r| (r + 1).to_string())
-        };
         let cloud = &clouds[group];
         // The model's surface at the true pose, the side facing the camera only: the back of a
         // thin part (a handle, a spout) lies within millimetres of its front, with the opposite
@@ -376,7 +368,6 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             .map(|(q, n)| (truth * q, truth * n))
             .filter(|(q, n)| n.dot(&q.coords) < 0.0)
             .collect();
-        // Per cloud point, once: the nearest such surface point's normal, if it is on the object.
         let surface_normals: Vec<Option<nalgebra::Vector3<f32>>> = cloud
             .points
             .positions
@@ -389,128 +380,41 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
                     .map(|(_, n)| *n)
             })
             .collect();
-        let on_object = {
-            let mut errs: Vec<f32> = surface_normals
-                .iter()
-                .zip(&cloud.points.normals)
-                .filter_map(|(mn, n)| mn.map(|mn| n.dot(&mn).clamp(-1.0, 1.0).acos().to_degrees()))
-                .collect();
-            errs.sort_by(f32::total_cmp);
-            (
-                errs.len(),
-                errs.get(errs.len() / 2).copied().unwrap_or(f32::NAN),
-            )
-        };
-        let t = std::time::Instant::now();
-        let selection = Selection::new(cloud, &p.voting, &planes, d);
-        let (raw, _) = vote_from(model, cloud, &selection, &p.voting);
-        let clusters = cluster_poses(&raw, d, &p.clustering);
-        let vote_ms = t.elapsed().as_secs_f64() * 1e3;
-        // Reference points on the object, and how many of them put a correct pose among their
-        // accumulator's peaks: what voting gets right before clustering weighs it.
-        let references_on_object: Vec<u32> = selection
+        let mut errs: Vec<f32> = surface_normals
+            .iter()
+            .zip(&cloud.points.normals)
+            .filter_map(|(mn, n)| mn.map(|mn| n.dot(&mn).clamp(-1.0, 1.0).acos().to_degrees()))
+            .collect();
+        errs.sort_by(f32::total_cmp);
+        let median = errs.get(errs.len() / 2).copied().unwrap_or(f32::NAN);
+        let references_on_object = Selection::new(cloud, &p.voting, &planes, d)
             .references
             .iter()
             .filter(|&&r| surface_normals[r].is_some())
-            .map(|&r| r as u32)
-            .collect();
-        let proposing: std::collections::HashSet<u32> = raw
-            .iter()
-            .filter(|h| ok(&h.pose))
-            .map(|h| h.scene_point)
-            .collect();
-        let references_right = references_on_object
-            .iter()
-            .filter(|r| proposing.contains(r))
             .count();
-        let first_correct = |poses: &[ppfd_models::Pose]| poses.iter().position(&ok);
-        let cluster_poses_list: Vec<_> = clusters.iter().map(|c| c.pose).collect();
-        if first_correct(&cluster_poses_list).is_some_and(|r| r < 10) {
-            in_top10 += 1;
-        }
-        let best_err = clusters
-            .first()
-            .map(|c| symmetric_pose_errors(&c.pose, &truth, &syms))
-            .unwrap_or((f32::NAN, f32::NAN));
-        let surface = model.surface_points();
-        let top: Vec<_> = clusters
-            .iter()
-            .take(p.rescoring.top_clusters)
-            .map(|c| (c.pose, c.votes))
-            .collect();
-        let mesh = simplified_mesh(
-            &model.render_mesh(),
-            p.rescoring.silhouette_mesh_cell_fraction * d,
-        );
-        let sphere = bounding_sphere(&mesh);
-        let outline = Outline {
-            mesh: &mesh,
-            sphere: &sphere,
-            edges: &edges,
-            max_outline_px: p.filters.max_outline_px,
-        };
-        let coarse_outline = Outline {
-            max_outline_px: p.rescoring.coarse_outline(p.filters.max_outline_px),
-            ..outline
-        };
-        // As the detector: a sparse fit picks the clusters for the full re-scoring, and the
-        // outlines before ICP are coarse; every pose kept, the table ranks them all.
-        let top = prescreen(
-            &top,
-            &surface,
-            &scene,
-            p.rescoring.tolerance_mm(d),
-            p.rescoring.conflict_mm(d),
-            &p.rescoring,
-        );
-        let scored = score_poses(
-            &top,
-            &surface,
-            &scene,
-            p.rescoring.tolerance_mm(d),
-            p.rescoring.conflict_mm(d),
-            &p.rescoring,
-            &coarse_outline,
-            top.len(),
-        );
-        let refined: Vec<_> = scored
-            .par_iter()
-            .take(p.icp.top_poses)
-            .map(|s| (refine(&surface, &s.pose, &scene, d, &p.icp).pose, s.votes))
-            .collect();
-        let rescored = score_poses(
-            &refined,
-            &surface,
-            &scene,
-            p.rescoring.refined_tolerance_mm(d),
-            p.rescoring.conflict_mm(d),
-            &p.rescoring,
-            &outline,
-            refined.len(),
-        );
-        let final_poses: Vec<_> = rescored.iter().map(|s| s.pose).collect();
-        if first_correct(&final_poses) == Some(0) {
-            first_after_icp += 1;
+        let errors = |pose: &ppfd_models::Pose| symmetric_pose_errors(pose, &truth, &syms);
+        let diagnosis = diagnose(&p, &prepared, cloud, model, &errors, args.top.max(1));
+        if diagnosis.lost_at().is_none() {
+            found += 1;
         }
         println!(
-            "| {} | {} | {} | {:.1} | {} | {} | {} | {} | {} | {} | {:.1} | {:.1} | {vote_ms:.0} |",
+            "| {} | {} | {} | {median:.1} | {references_on_object} | {} |",
             model.object_id(),
             cloud.points.len(),
-            on_object.0,
-            on_object.1,
-            references_on_object.len(),
-            references_right,
-            clusters.len(),
-            rank(cluster_poses_list),
-            rank(scored.iter().map(|s| s.pose).collect()),
-            rank(final_poses),
-            best_err.0,
-            best_err.1,
+            errs.len(),
+            diagnosis.lost_at().unwrap_or("found"),
         );
+        lines.extend(diagnosis.lines());
+    }
+    println!();
+    for line in lines {
+        println!("{line}");
     }
     println!(
-        "\n{in_top10} of {} objects have a correct pose among the 10 best clusters; {first_after_icp} rank it first after ICP + re-scoring",
-        models.len()
+        "\n{found} of {} objects found near the ground truth (within {} D and {}°)",
+        models.len(),
+        ppfd_models::detect::diagnosis::NEAR_TRANSLATION_FRACTION,
+        ppfd_models::detect::diagnosis::NEAR_ROTATION_DEG
     );
     Ok(())
 }

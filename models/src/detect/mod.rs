@@ -2,10 +2,12 @@
 //! [`voting`] (with the supporting [`plane`]), [`clustering`], [`rescoring`], [`icp`] and the
 //! [`filters`]. [`silhouette`] holds what re-scoring and the filters both measure of a pose.
 //! [`detector::Detector`] runs all of it with [`detector::DetectParams`], whose fields
-//! [`settings`] names for `--set` and configuration files.
+//! [`settings`] names for `--set` and configuration files. [`diagnosis`] runs the same stages
+//! one by one to say where an object near a given pose was lost.
 
 pub mod clustering;
 pub mod detector;
+pub mod diagnosis;
 pub mod filters;
 pub mod icp;
 pub mod plane;
