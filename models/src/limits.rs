@@ -6,8 +6,8 @@
 
 use crate::file::Limit;
 
-/// Faces of one mesh. Building takes about 230 bytes per face (a 5-million-face mesh took
-/// 1.17 GB), so this bounds one build at about half a gigabyte.
+/// Faces of one mesh. Building takes about 230 bytes per face, so this bounds one build at
+/// about half a gigabyte.
 pub const MAX_MESH_FACES: usize = 2_000_000;
 /// Vertices of one mesh (a closed mesh has about half as many vertices as faces).
 pub const MAX_MESH_VERTICES: usize = 2_000_000;

@@ -14,6 +14,7 @@
 //! max_frame_age_ms = 1000           # older camera frames are refused "camera stale"
 //! housekeeping_ms = 1000            # period of camera discovery and dead-peer cleanup
 //! forget_camera_after_ms = 60000    # a camera without a driver this long is forgotten
+//! max_frame_pixels = 16777216       # larger frames are refused "invalid frame"
 //!
 //! [detector]                        # detector parameters by name (`ppf detect --set` names)
 //! voting.reference_step = 2         # every 2nd evenly spread candidate votes: about half the voting time

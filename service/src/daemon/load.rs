@@ -1,8 +1,8 @@
 //! A model loaded or built at run time (`LoadModel`): the path checked on the I/O thread, the
 //! loading on a thread of its own (building from a large mesh takes seconds), the model put in
 //! the registry when it reports. One model loads at a time and the rest wait their turn, up to
-//! [`MAX_WAITING_LOADS`]: a build takes memory in proportion to its mesh (four 5-million-face
-//! meshes built at once took 4.5 GB).
+//! [`MAX_WAITING_LOADS`]: a build takes memory in proportion to its mesh, and builds at once
+//! would add up.
 
 use std::path::PathBuf;
 
