@@ -35,7 +35,7 @@ pub struct BenchArgs {
           value_parser = clap::value_parser!(u32).range(1..=crate::common::MAX_HYPOTHESES))]
     pub hypotheses: u32,
     /// Timeout per request, milliseconds.
-    #[arg(long, default_value_t = 30_000)]
+    #[arg(long, default_value_t = 30_000, value_parser = clap::value_parser!(u64).range(1..))]
     pub timeout_ms: u64,
     /// Print the results as JSON.
     #[arg(long)]

@@ -198,8 +198,9 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
         return diagnose(&args);
     }
     let dataset = BopDataset::open(&args.dataset)?;
+    dataset.check_image(args.scene, args.image)?;
     let gt = dataset
-        .ground_truth(args.scene, args.image)
+        .ground_truth_if_any(args.scene, args.image)?
         .map(|g| g.to_vec())
         .unwrap_or_default();
     let ids = match &args.objects {
@@ -259,6 +260,13 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
                 h.score,
                 h.votes,
                 crate::common::checks_letters(h.checks.0)
+            );
+        }
+        if o.hypotheses.is_empty() {
+            let flag = if truth.is_some() { "no" } else { "-" };
+            println!(
+                "| {} | {d:.0} | - | (no hypothesis) | | | | | {flag} |",
+                o.object_id
             );
         }
     }

@@ -48,6 +48,11 @@ pub const MODEL_NAME_BYTES: usize = 48;
 pub const MAX_OBJECTS_PER_REQUEST: usize = 32;
 /// Hypotheses per object one detect request may ask for.
 pub const MAX_HYPOTHESES_PER_OBJECT: u32 = 16;
+/// The largest frame a daemon detects in by default, pixels: 4096 × 4096, 32 MiB of depth.
+/// A detection takes about 95 bytes per pixel, so this bounds one at about 1.6 GB; depth
+/// sensors of picking cells give 0.3 to 12 megapixels. The daemon's `max_frame_pixels` sets
+/// its own limit ([`frame::FrameHeader::check_pixels`]).
+pub const DEFAULT_MAX_FRAME_PIXELS: usize = 4096 * 4096;
 
 /// Refuses a header written by another protocol version.
 pub fn check_version(version: u32) -> Result<(), ProtocolError> {
@@ -84,6 +89,12 @@ pub enum ProtocolError {
         height: u32,
         values: usize,
     },
+    /// A frame of more pixels than the daemon's `max_frame_pixels`.
+    FrameTooLarge {
+        width: u32,
+        height: u32,
+        max_pixels: u64,
+    },
     /// Zero, negative or non-finite focal lengths, or a non-finite principal point.
     InvalidIntrinsics(frame::Intrinsics),
     /// Zero, negative or non-finite depth scale.
@@ -108,9 +119,9 @@ impl ProtocolError {
         use detect::Status;
         match self {
             ProtocolError::Version { .. } => Status::ProtocolVersion,
-            ProtocolError::FrameSize { .. } | ProtocolError::InvalidDepthScale(_) => {
-                Status::InvalidFrame
-            }
+            ProtocolError::FrameSize { .. }
+            | ProtocolError::FrameTooLarge { .. }
+            | ProtocolError::InvalidDepthScale(_) => Status::InvalidFrame,
             ProtocolError::InvalidIntrinsics(_) => Status::InvalidIntrinsics,
             ProtocolError::EmptyObjectList => Status::EmptyObjectList,
             _ => Status::InvalidRequest,
@@ -152,6 +163,17 @@ impl std::fmt::Display for ProtocolError {
                 f,
                 "depth frame {width}x{height} needs {} values, got {values}",
                 *width as usize * *height as usize
+            ),
+            ProtocolError::FrameTooLarge {
+                width,
+                height,
+                max_pixels,
+            } => write!(
+                f,
+                "depth frame {width}x{height} has {} pixels, more than the daemon's limit of \
+                 {max_pixels} (max_frame_pixels; raise it with ppfd --max-frame-pixels, or send \
+                 a smaller frame)",
+                *width as u64 * *height as u64
             ),
             ProtocolError::InvalidIntrinsics(k) => write!(
                 f,

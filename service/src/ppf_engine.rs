@@ -77,9 +77,11 @@ fn model_error(e: ppfd_models::Error) -> EngineError {
         // Only a client that is gone has its detection cancelled: the answer goes nowhere.
         Error::Cancelled { .. } => Status::Internal,
         Error::InvalidParameter(_) => Status::InvalidRequest,
-        Error::Io { .. } | Error::Ply { .. } | Error::InvalidMesh(_) | Error::ModelStore { .. } => {
-            Status::ModelError
-        }
+        Error::Io { .. }
+        | Error::File { .. }
+        | Error::Ply { .. }
+        | Error::InvalidMesh(_)
+        | Error::ModelStore { .. } => Status::ModelError,
         _ => Status::Internal,
     };
     let value = if let Error::UnknownObject(id) = e {
@@ -385,6 +387,41 @@ mod tests {
             by_name.info.diameter_mm
         );
         drop(by_name);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    /// The loader checks the file it opened, not the path again: a mesh path that is a link to
+    /// a device (swapped in after the I/O thread looked at it) is refused, never read.
+    #[test]
+    fn the_loader_refuses_a_special_file_on_the_handle_it_opened() {
+        let root = scratch("special");
+        let e = PpfEngine::default();
+        let ply = root.join("obj_000001.ply");
+        std::os::unix::fs::symlink("/dev/null", &ply).unwrap();
+        let err = e.load(&ply, None, Some(&root.join("cache"))).unwrap_err();
+        assert_eq!(err.status, Status::ModelError);
+        assert!(
+            err.message.contains("not a regular file"),
+            "{}",
+            err.message
+        );
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    /// A mesh in metres, and a model file whose diameter is not what its mesh measures, are
+    /// refused with the reason.
+    #[test]
+    fn a_mesh_in_metres_and_a_model_file_with_a_false_diameter_are_refused() {
+        let root = scratch("units");
+        let e = PpfEngine::default();
+        let ply = root.join("obj_000001.ply");
+        write_box_ply(&ply, [0.06, 0.04, 0.02]);
+        let err = e.load(&ply, None, Some(&root.join("cache"))).unwrap_err();
+        assert!(
+            err.message.contains("metres") && err.message.contains("--scale 1000"),
+            "{}",
+            err.message
+        );
         std::fs::remove_dir_all(&root).unwrap();
     }
 }

@@ -99,7 +99,10 @@ impl Daemon {
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 };
                 let fh = *sample.user_header();
-                if let Err(e) = fh.validate(sample.payload().len()) {
+                let checked = fh
+                    .validate(sample.payload().len())
+                    .and_then(|()| fh.check_pixels(self.config.max_frame_pixels));
+                if let Err(e) = checked {
                     let e = EngineError::new(
                         e.status(),
                         format!("camera {name:?} published a bad frame: {e}"),
