@@ -19,6 +19,8 @@ pub struct DetectArgs {
     pub timeout_ms: u64,
     /// Print the answer as JSON.
     pub json: bool,
+    /// What the poses must satisfy, and their order.
+    pub requirements: ppfd_client::Requirements,
     pub connect: Connect,
 }
 
@@ -27,6 +29,7 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
     let options = DetectOptions {
         hypotheses_per_object: args.hypotheses,
         timeout: millis(args.timeout_ms),
+        requirements: args.requirements,
         ..Default::default()
     };
     let found = client

@@ -58,6 +58,8 @@ pub struct DetectCommand {
     #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
     pub set: Vec<String>,
     #[command(flatten)]
+    pub requirements: crate::requirements::RequirementArgs,
+    #[command(flatten)]
     pub connect: crate::common::Connect,
 }
 
@@ -105,6 +107,7 @@ impl DetectCommand {
                 peaks: self.peaks,
                 top: self.hypotheses as usize,
                 set: self.set,
+                requirements: self.requirements.wire()?,
             }));
         }
         let given = |flags: &[(&'static str, bool)]| -> Vec<&'static str> {
@@ -157,6 +160,7 @@ impl DetectCommand {
             hypotheses: self.hypotheses,
             timeout_ms: self.timeout_ms,
             json: self.json,
+            requirements: self.requirements.wire()?,
             connect: self.connect,
         }))
     }
@@ -174,6 +178,7 @@ pub struct DatasetDetectArgs {
     pub peaks: Option<usize>,
     pub top: usize,
     pub set: Vec<String>,
+    pub requirements: ppfd_client::Requirements,
 }
 
 impl DatasetDetectArgs {
@@ -218,6 +223,7 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
     let refs: Vec<_> = models.iter().collect();
     let opts = RunOptions {
         hypotheses_per_object: args.top.max(10),
+        requirements: ppfd::ppf_engine::detector_requirements(&args.requirements)?,
         ..Default::default()
     };
     let det = detector.detect(&frame.view(), &refs, &opts)?;

@@ -11,6 +11,7 @@ mod model;
 mod offline;
 mod profile;
 mod replay;
+mod requirements;
 mod score;
 mod stop;
 

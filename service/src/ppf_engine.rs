@@ -99,7 +99,7 @@ fn model_error(e: ppfd_models::Error) -> EngineError {
 
 /// The detector's requirements of the wire's, refused as an invalid request where they are
 /// out of range.
-fn requirements(wire: &WireRequirements) -> Result<Requirements, EngineError> {
+pub fn detector_requirements(wire: &WireRequirements) -> Result<Requirements, EngineError> {
     let r = &wire.region_of_interest;
     let p = &wire.pose_restriction;
     Ok(Requirements {
@@ -271,7 +271,7 @@ impl DetectionEngine for PpfEngine {
             .collect::<Result<_, _>>()?;
         let opts = RunOptions {
             hypotheses_per_object: options.hypotheses_per_object,
-            requirements: requirements(&options.requirements)?,
+            requirements: detector_requirements(&options.requirements)?,
             deadline: options.deadline,
             cancel: Some(options.cancel.clone()),
         };
