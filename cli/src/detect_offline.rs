@@ -57,6 +57,15 @@ pub struct DetectCommand {
     /// parameters are set when it starts (`ppfd --set`).
     #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
     pub set: Vec<String>,
+    /// Write a picture of the frame with each pose's outline, axes and label (id, #rank,
+    /// score), and the ground truth's outline when known (PNG).
+    #[arg(long, value_name = "PNG")]
+    pub overlay: Option<PathBuf>,
+    /// With --camera --overlay: the folder of the daemon's models (PLY meshes or model files
+    /// named by object id, as given to `ppfd --models`), whose meshes the outlines are drawn
+    /// from.
+    #[arg(long, requires = "overlay", conflicts_with = "dataset")]
+    pub models: Option<PathBuf>,
     #[command(flatten)]
     pub requirements: crate::requirements::RequirementArgs,
     #[command(flatten)]
@@ -108,6 +117,7 @@ impl DetectCommand {
                 top: self.hypotheses as usize,
                 set: self.set,
                 requirements: self.requirements.wire()?,
+                overlay: self.overlay,
             }));
         }
         let given = |flags: &[(&'static str, bool)]| -> Vec<&'static str> {
@@ -154,6 +164,13 @@ impl DetectCommand {
         if self.objects.is_empty() {
             return Err("--camera needs --objects".into());
         }
+        if self.overlay.is_some() && self.models.is_none() {
+            return Err(
+                "--camera --overlay needs --models DIR, the daemon's models folder, to draw \
+                 the outlines from"
+                    .into(),
+            );
+        }
         Ok(DetectTarget::Camera(crate::detect::DetectArgs {
             camera: self.camera.ok_or(NO_MODE)?,
             objects: self.objects,
@@ -161,6 +178,7 @@ impl DetectCommand {
             timeout_ms: self.timeout_ms,
             json: self.json,
             requirements: self.requirements.wire()?,
+            overlay: self.overlay.zip(self.models),
             connect: self.connect,
         }))
     }
@@ -179,6 +197,7 @@ pub struct DatasetDetectArgs {
     pub top: usize,
     pub set: Vec<String>,
     pub requirements: ppfd_client::Requirements,
+    pub overlay: Option<PathBuf>,
 }
 
 impl DatasetDetectArgs {
@@ -268,6 +287,49 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
                 crate::common::checks_letters(h.checks.0)
             );
         }
+    }
+    if let Some(path) = &args.overlay {
+        let meshes: Vec<_> = models.iter().map(|m| m.render_mesh()).collect();
+        let colour = dataset
+            .colour_path(args.scene, args.image)
+            .map(|p| crate::overlay::read_colour_png(&p))
+            .transpose()?;
+        let view = frame.view();
+        let mut overlay = colour
+            .and_then(|(w, h, rgb)| crate::overlay::Overlay::from_colour(&view, w, h, rgb))
+            .unwrap_or_else(|| crate::overlay::Overlay::from_depth(&view));
+        let truth: Vec<crate::overlay::Drawn> = gt
+            .iter()
+            .filter_map(|g| {
+                let i = ids.iter().position(|&id| id == g.obj_id)?;
+                Some(crate::overlay::Drawn {
+                    mesh: &meshes[i],
+                    pose: g.pose,
+                    colour: crate::overlay::TRUTH,
+                    label: None,
+                })
+            })
+            .collect();
+        let poses: Vec<crate::overlay::Drawn> = det
+            .objects
+            .iter()
+            .zip(&meshes)
+            .flat_map(|(o, mesh)| {
+                o.hypotheses
+                    .iter()
+                    .take(args.top)
+                    .enumerate()
+                    .map(move |(rank, h)| crate::overlay::Drawn {
+                        mesh,
+                        pose: h.pose,
+                        colour: crate::overlay::check_colour(h.checks.0),
+                        label: Some(crate::overlay::label(o.object_id, rank, h.score)),
+                    })
+            })
+            .collect();
+        overlay.draw_all(&truth, &poses);
+        overlay.write_png(path)?;
+        println!("overlay written to {}", path.display());
     }
     if !gt.is_empty() {
         println!(

@@ -9,6 +9,7 @@ mod detect_offline;
 mod eval;
 mod model;
 mod offline;
+mod overlay;
 mod profile;
 mod replay;
 mod requirements;

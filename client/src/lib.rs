@@ -27,7 +27,7 @@
 mod camera;
 mod client;
 
-pub use camera::{CameraPublisher, FrameLoan, ReadyFrame};
+pub use camera::{CameraPublisher, CameraViewer, FrameLoan, ReadyFrame};
 pub use client::{
     isometry, Client, ClientOptions, DetectOptions, Detections, Latency, ModelListing,
 };
