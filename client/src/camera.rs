@@ -78,12 +78,7 @@ impl CameraPublisher {
             ..FrameHeader::default()
         };
         template.validate(template.pixel_count())?;
-        let config = iceoryx_config(prefix)?;
-        let node = NodeBuilder::new()
-            .config(&config)
-            .signal_handling_mode(SignalHandlingMode::Disabled)
-            .create::<Ipc>()
-            .map_err(transport("cannot create an iceoryx2 node"))?;
+        let node = node(prefix)?;
         let service = services::camera_builder(&node, camera)?
             .open_or_create()
             .map_err(transport("cannot open the camera service"))?;
@@ -242,6 +237,15 @@ impl ReadyFrame<'_> {
     }
 }
 
+/// A node of its own under `prefix`, for one camera port.
+fn node(prefix: Option<&str>) -> Result<Node<Ipc>> {
+    NodeBuilder::new()
+        .config(&iceoryx_config(prefix)?)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<Ipc>()
+        .map_err(transport("cannot create an iceoryx2 node"))
+}
+
 /// Reads a camera's frames beside the daemon (a viewer or recorder; a camera takes
 /// [`limits::MAX_CAMERA_SUBSCRIBERS`] readers). Not `Send`.
 pub struct CameraViewer {
@@ -253,12 +257,7 @@ pub struct CameraViewer {
 impl CameraViewer {
     /// Subscribes to `camera`, which a driver must be publishing on.
     pub fn open(prefix: Option<&str>, camera: &str) -> Result<CameraViewer> {
-        let config = iceoryx_config(prefix)?;
-        let node = NodeBuilder::new()
-            .config(&config)
-            .signal_handling_mode(SignalHandlingMode::Disabled)
-            .create::<Ipc>()
-            .map_err(transport("cannot create an iceoryx2 node"))?;
+        let node = node(prefix)?;
         let service = services::camera_builder(&node, camera)?
             .open()
             .map_err(|e| Error::Transport(format!("cannot open camera {camera:?}: {e:?}")))?;

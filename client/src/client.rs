@@ -624,6 +624,50 @@ fn decode_detect(
 mod tests {
     use super::*;
 
+    /// The request header of protocol version 1, before the request options: a daemon (or
+    /// client) of that version opens `ppfd/detect` with it.
+    #[derive(Debug, Clone, Copy, ZeroCopySend)]
+    #[type_name("ppfd::DetectRequestHeader")]
+    #[repr(C)]
+    struct VersionOneRequestHeader {
+        fields: [u64; 38],
+    }
+
+    /// A client meeting `ppfd/detect` served with the messages of another protocol version
+    /// is told so at `connect`, not given iceoryx2's type error alone.
+    #[test]
+    fn a_service_of_another_protocol_version_is_named_so_at_connect() {
+        let prefix = format!("ppfd_version_test_{}", std::process::id());
+        let config = iceoryx_config(Some(&prefix)).unwrap();
+        let node = NodeBuilder::new()
+            .config(&config)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<Ipc>()
+            .unwrap();
+        let _old = node
+            .service_builder(&ServiceName::new(services::DETECT).unwrap())
+            .request_response::<[u16], [PoseHypothesis]>()
+            .request_user_header::<VersionOneRequestHeader>()
+            .response_user_header::<DetectResponseHeader>()
+            .create()
+            .unwrap();
+        let e = Client::connect_with(&ClientOptions {
+            prefix: Some(prefix),
+            ..Default::default()
+        })
+        .err()
+        .expect("connect must fail");
+        let m = e.to_string();
+        assert!(
+            m.contains("cannot open ppfd/detect") && m.contains("another protocol version"),
+            "{m}"
+        );
+        assert!(
+            m.contains(&ppfd_protocol::PROTOCOL_VERSION.to_string()),
+            "{m}"
+        );
+    }
+
     #[test]
     fn refusals_decode_with_their_status_and_value() {
         let h = DetectResponseHeader {
