@@ -319,7 +319,8 @@ fn check_object_list(ids: &[u32]) -> Result<(), ProtocolError> {
 pub struct PoseHypothesis {
     /// Object id of the model.
     pub object_id: u32,
-    /// 0 for the best hypothesis of this object, 1 for the next, ...
+    /// 0 for the first hypothesis of this object in the request's order (the best scored, or
+    /// with [`order::DISTANCE`] the nearest), 1 for the next, ...
     pub instance_rank: u32,
     /// Rotation `R`, row-major (`r[3 * row + col]`), unitless.
     pub rotation: [f32; 9],
