@@ -98,6 +98,15 @@ impl DetectCommand {
         }) {
             return Err(format!("--objects lists object {id} twice"));
         }
+        if self.diagnose
+            && (self.overlay.is_some() || self.requirements.wire()? != Default::default())
+        {
+            return Err(
+                "--diagnose ranks the first correct pose after each stage, without request \
+                 options or an overlay: leave those out, or --diagnose"
+                    .into(),
+            );
+        }
         if let Some(dataset) = self.dataset {
             if self.connect.prefix.is_some() {
                 return Err(

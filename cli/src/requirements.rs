@@ -26,7 +26,7 @@ pub struct RequirementArgs {
     #[arg(long, value_name = "DIAMETERS")]
     pub instance_distance: Option<f32>,
     /// Take reference points only in this pixel rectangle: X,Y,WIDTH,HEIGHT.
-    #[arg(long, value_name = "X,Y,W,H", value_delimiter = ',', num_args = 4)]
+    #[arg(long, value_name = "X,Y,W,H", value_delimiter = ',', num_args = 1)]
     pub roi: Option<Vec<u32>>,
     /// Keep only poses whose model axis (--tilt-axis) leans at most this far from the camera
     /// direction (--tilt-direction), degrees, 0 to 180.
@@ -37,7 +37,7 @@ pub struct RequirementArgs {
         long,
         value_name = "X,Y,Z",
         value_delimiter = ',',
-        num_args = 3,
+        num_args = 1,
         allow_hyphen_values = true,
         requires = "max_tilt",
         default_value = "0,0,1"
@@ -48,7 +48,7 @@ pub struct RequirementArgs {
         long,
         value_name = "X,Y,Z",
         value_delimiter = ',',
-        num_args = 3,
+        num_args = 1,
         allow_hyphen_values = true,
         requires = "max_tilt",
         default_value = "0,0,-1"
@@ -62,7 +62,21 @@ pub struct RequirementArgs {
 impl RequirementArgs {
     /// The request's requirements, checked against their ranges.
     pub fn wire(&self) -> Result<Requirements, String> {
-        let three = |v: &[f32]| -> [f32; 3] { [v[0], v[1], v[2]] };
+        let three = |flag: &str, v: &[f32]| -> Result<[f32; 3], String> {
+            match v {
+                &[x, y, z] => Ok([x, y, z]),
+                _ => Err(format!("{flag} takes 3 numbers X,Y,Z, got {}", v.len())),
+            }
+        };
+        if let Some(r) = &self.roi {
+            if r.len() != 4 {
+                return Err(format!("--roi takes 4 numbers X,Y,W,H, got {}", r.len()));
+            }
+        }
+        let (model_axis, camera_direction) = (
+            three("--tilt-axis", &self.tilt_axis)?,
+            three("--tilt-direction", &self.tilt_direction)?,
+        );
         let requirements = Requirements {
             min_score: self.min_score,
             instance_distance_fraction: self.instance_distance.unwrap_or(0.0),
@@ -80,8 +94,8 @@ impl RequirementArgs {
             }),
             pose_restriction: match self.max_tilt {
                 Some(max_angle_deg) => PoseRestriction {
-                    model_axis: three(&self.tilt_axis),
-                    camera_direction: three(&self.tilt_direction),
+                    model_axis,
+                    camera_direction,
                     max_angle_deg,
                 },
                 None => PoseRestriction::default(),
