@@ -415,6 +415,18 @@ impl BopDataset {
             .join(format!("{im_id:06}.png")))
     }
 
+    /// Path of one image's colour PNG (`rgb/{im_id:06}.png` in the scene folder), when it
+    /// exists (BOP datasets may hold JPEG colour images instead, or none).
+    pub fn colour_path(&self, scene_id: u32, im_id: u32) -> Option<PathBuf> {
+        let path = self
+            .scene(scene_id)
+            .ok()?
+            .dir
+            .join("rgb")
+            .join(format!("{im_id:06}.png"));
+        path.is_file().then_some(path)
+    }
+
     /// Whether one image's depth PNG exists.
     pub fn has_depth(&self, scene_id: u32, im_id: u32) -> bool {
         self.depth_path(scene_id, im_id).is_ok_and(|p| p.is_file())

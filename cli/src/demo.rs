@@ -53,6 +53,12 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 1,
           value_parser = clap::value_parser!(u32).range(1..=MAX_HYPOTHESES))]
     pub hypotheses: u32,
+    /// Write a picture of the frame with each pose's outline, axes and label (id, #rank,
+    /// score), and the truth's outline (PNG).
+    #[arg(long, value_name = "PNG")]
+    pub overlay: Option<PathBuf>,
+    #[command(flatten)]
+    pub requirements: crate::requirements::RequirementArgs,
 }
 
 /// A scene to detect in, with the truth.
@@ -430,6 +436,7 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
     let options = DetectOptions {
         hypotheses_per_object: args.hypotheses,
         timeout: Duration::from_secs(900),
+        requirements: args.requirements.wire()?,
         ..Default::default()
     };
     // Publish until the daemon has subscribed and answers from this camera.
@@ -466,6 +473,16 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
         scene.truth.len()
     );
     print_latency(&found);
+    if let Some(path) = &args.overlay {
+        let meshes = scene
+            .model_files
+            .iter()
+            .map(|(id, file)| Ok((*id, crate::overlay::mesh_of_file(file)?)))
+            .collect::<Result<Vec<(u32, Mesh)>, String>>()?;
+        crate::overlay::draw_detections(&f.view(), None, &meshes, &found, &scene.truth)
+            .write_png(path)?;
+        println!("\noverlay written to {}", path.display());
+    }
     drop(camera);
     drop(client);
     drop(run);

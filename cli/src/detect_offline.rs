@@ -56,6 +56,17 @@ pub struct DetectCommand {
     /// parameters are set when it starts (`ppfd --set`).
     #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
     pub set: Vec<String>,
+    /// Write a picture of the frame with each pose's outline, axes and label (id, #rank,
+    /// score), and the ground truth's outline when known (PNG).
+    #[arg(long, value_name = "PNG")]
+    pub overlay: Option<PathBuf>,
+    /// With --camera --overlay: the folder of the daemon's models (PLY meshes or model files
+    /// named by object id, as given to `ppfd --models`), whose meshes the outlines are drawn
+    /// from.
+    #[arg(long, requires = "overlay", conflicts_with = "dataset")]
+    pub models: Option<PathBuf>,
+    #[command(flatten)]
+    pub requirements: crate::requirements::RequirementArgs,
     #[command(flatten)]
     pub connect: crate::common::Connect,
 }
@@ -86,6 +97,15 @@ impl DetectCommand {
         }) {
             return Err(format!("--objects lists object {id} twice"));
         }
+        if self.diagnose
+            && (self.overlay.is_some() || self.requirements.wire()? != Default::default())
+        {
+            return Err(
+                "--diagnose ranks the first correct pose after each stage, without request \
+                 options or an overlay: leave those out, or --diagnose"
+                    .into(),
+            );
+        }
         if let Some(dataset) = self.dataset {
             if self.connect.prefix.is_some() {
                 return Err(
@@ -104,6 +124,8 @@ impl DetectCommand {
                 peaks: self.peaks,
                 top: self.hypotheses as usize,
                 set: self.set,
+                requirements: self.requirements.wire()?,
+                overlay: self.overlay,
             }));
         }
         let given = |flags: &[(&'static str, bool)]| -> Vec<&'static str> {
@@ -150,12 +172,21 @@ impl DetectCommand {
         if self.objects.is_empty() {
             return Err("--camera needs --objects".into());
         }
+        if self.overlay.is_some() && self.models.is_none() {
+            return Err(
+                "--camera --overlay needs --models DIR, the daemon's models folder, to draw \
+                 the outlines from"
+                    .into(),
+            );
+        }
         Ok(DetectTarget::Camera(crate::detect::DetectArgs {
             camera: self.camera.ok_or(NO_MODE)?,
             objects: self.objects,
             hypotheses: self.hypotheses,
             timeout_ms: self.timeout_ms,
             json: self.json,
+            requirements: self.requirements.wire()?,
+            overlay: self.overlay.zip(self.models),
             connect: self.connect,
         }))
     }
@@ -173,6 +204,8 @@ pub struct DatasetDetectArgs {
     pub peaks: Option<usize>,
     pub top: usize,
     pub set: Vec<String>,
+    pub requirements: ppfd_client::Requirements,
+    pub overlay: Option<PathBuf>,
 }
 
 impl DatasetDetectArgs {
@@ -218,6 +251,7 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
     let refs: Vec<_> = models.iter().collect();
     let opts = RunOptions {
         hypotheses_per_object: args.top.max(10),
+        requirements: ppfd::ppf_engine::detector_requirements(&args.requirements)?,
         ..Default::default()
     };
     let det = detector.detect(&frame.view(), &refs, &opts)?;
@@ -269,6 +303,49 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
                 o.object_id
             );
         }
+    }
+    if let Some(path) = &args.overlay {
+        let meshes: Vec<_> = models.iter().map(|m| m.render_mesh()).collect();
+        let colour = dataset
+            .colour_path(args.scene, args.image)
+            .map(|p| crate::overlay::read_colour_png(&p))
+            .transpose()?;
+        let view = frame.view();
+        let mut overlay = colour
+            .and_then(|(w, h, rgb)| crate::overlay::Overlay::from_colour(&view, w, h, rgb))
+            .unwrap_or_else(|| crate::overlay::Overlay::from_depth(&view));
+        let truth: Vec<crate::overlay::Drawn> = gt
+            .iter()
+            .filter_map(|g| {
+                let i = ids.iter().position(|&id| id == g.obj_id)?;
+                Some(crate::overlay::Drawn {
+                    mesh: &meshes[i],
+                    pose: g.pose,
+                    colour: crate::overlay::TRUTH,
+                    label: None,
+                })
+            })
+            .collect();
+        let poses: Vec<crate::overlay::Drawn> = det
+            .objects
+            .iter()
+            .zip(&meshes)
+            .flat_map(|(o, mesh)| {
+                o.hypotheses
+                    .iter()
+                    .take(args.top)
+                    .enumerate()
+                    .map(move |(rank, h)| crate::overlay::Drawn {
+                        mesh,
+                        pose: h.pose,
+                        colour: crate::overlay::check_colour(h.checks.0),
+                        label: Some(crate::overlay::label(o.object_id, rank, h.score)),
+                    })
+            })
+            .collect();
+        overlay.draw_all(&truth, &poses);
+        overlay.write_png(path)?;
+        println!("overlay written to {}", path.display());
     }
     if !gt.is_empty() {
         println!(

@@ -9,8 +9,10 @@ mod detect_offline;
 mod eval;
 mod model;
 mod offline;
+mod overlay;
 mod profile;
 mod replay;
+mod requirements;
 mod score;
 mod stop;
 
@@ -208,6 +210,95 @@ mod tests {
         ] {
             Cli::try_parse_from(&args).unwrap_or_else(|e| panic!("{args:?}: {e}"));
         }
+    }
+
+    /// The request options' flags become the request's requirements, and a value out of
+    /// range is refused with its name and range before anything is sent; `--camera
+    /// --overlay` needs the models folder to draw from.
+    #[test]
+    fn detect_takes_the_request_options_and_refuses_them_out_of_range() {
+        use ppfd_client::{order, Requirements};
+        let target = |extra: &[&str]| -> Result<Requirements, String> {
+            let args = ["ppf", "detect", "--camera", "k", "--objects", "8"];
+            let args: Vec<&str> = args.iter().chain(extra).copied().collect();
+            let cli = Cli::try_parse_from(args).map_err(|e| e.to_string())?;
+            match cli.command {
+                Command::Detect(a) => match a.into_target()? {
+                    detect_offline::DetectTarget::Camera(c) => Ok(c.requirements),
+                    _ => panic!("a camera request"),
+                },
+                other => panic!("{other:?}"),
+            }
+        };
+        assert_eq!(target(&[]).unwrap(), Requirements::default());
+        let r = target(&[
+            "--min-score",
+            "0.3",
+            "--instance-distance",
+            "0.5",
+            "--roi",
+            "10,20,300,200",
+            "--max-tilt",
+            "30",
+            "--tilt-axis",
+            "-1,0,0",
+            "--order",
+            "distance",
+        ])
+        .unwrap();
+        assert_eq!(r.min_score, 0.3);
+        assert_eq!(r.instance_distance_fraction, 0.5);
+        assert_eq!((r.region_of_interest.x, r.region_of_interest.y), (10, 20));
+        assert_eq!(
+            (r.region_of_interest.width, r.region_of_interest.height),
+            (300, 200)
+        );
+        assert_eq!(r.pose_restriction.max_angle_deg, 30.0);
+        assert_eq!(r.pose_restriction.model_axis, [-1.0, 0.0, 0.0]);
+        assert_eq!(r.pose_restriction.camera_direction, [0.0, 0.0, -1.0]);
+        assert_eq!(r.order, order::DISTANCE);
+        for (extra, expected) in [
+            (&["--min-score", "2"][..], "minimum score 2 is out of range"),
+            (
+                &["--instance-distance", "0"],
+                "--instance-distance must be above 0",
+            ),
+            (&["--max-tilt", "200"], "200 degrees is out of range"),
+            (&["--roi", "5,5,0,10"], "region of interest 0x10"),
+            (
+                &["--max-tilt", "10", "--tilt-direction", "0,0,0"],
+                "camera direction",
+            ),
+            (&["--overlay", "o.png"], "--models DIR"),
+            (&["--roi", "5,5,10"], "--roi takes 4 numbers"),
+            (
+                &["--max-tilt", "10", "--tilt-axis", "1,0"],
+                "--tilt-axis takes 3 numbers",
+            ),
+        ] {
+            let e = target(extra).unwrap_err();
+            assert!(e.contains(expected), "{extra:?}: {e}");
+        }
+        let e = Cli::try_parse_from([
+            "ppf",
+            "detect",
+            "--dataset",
+            "/d",
+            "--scene",
+            "2",
+            "--image",
+            "3",
+            "--diagnose",
+            "--min-score",
+            "0.2",
+        ])
+        .map_err(|e| e.to_string())
+        .and_then(|cli| match cli.command {
+            Command::Detect(a) => a.into_target().map(|_| ()),
+            other => panic!("{other:?}"),
+        })
+        .unwrap_err();
+        assert!(e.contains("--diagnose"), "{e}");
     }
 
     /// A flag of the other mode is refused with its name, not dropped.

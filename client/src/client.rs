@@ -15,7 +15,7 @@ use ppfd_protocol::control::{
 };
 use ppfd_protocol::detect::{
     flags, DetectCounts, DetectRequestHeader, DetectResponseHeader, LatencyBreakdown,
-    PoseHypothesis, Status,
+    PoseHypothesis, Requirements, Status,
 };
 use ppfd_protocol::frame::FrameHeader;
 use ppfd_protocol::services::{self, wake, ControlService, DetectService, EventService};
@@ -36,6 +36,29 @@ fn client_port(
             services::limits::MAX_CLIENTS
         )),
         e => transport(what)(e),
+    }
+}
+
+/// The error of a request/response service that could not be opened; one whose messages have
+/// another layout than this client's, as a daemon of another protocol version serves them,
+/// says so.
+fn open_service(
+    service: &'static str,
+) -> impl FnOnce(iceoryx2::service::builder::request_response::RequestResponseOpenOrCreateError) -> Error
+{
+    use iceoryx2::service::builder::request_response::{
+        RequestResponseOpenError, RequestResponseOpenOrCreateError,
+    };
+    move |e| match e {
+        RequestResponseOpenOrCreateError::RequestResponseOpenError(
+            RequestResponseOpenError::IncompatibleRequestOrResponseType,
+        ) => Error::Transport(format!(
+            "cannot open {service}: it is served with the messages of another protocol version \
+             than this client's ({}); the daemon and its clients must come from the same ppfd \
+             release",
+            ppfd_protocol::PROTOCOL_VERSION
+        )),
+        e => Error::Transport(format!("cannot open {service}: {e:?}")),
     }
 }
 
@@ -95,6 +118,9 @@ pub struct DetectOptions {
     pub timeout: Duration,
     /// Oldest acceptable camera frame (`None`: the daemon's limit).
     pub max_frame_age: Option<Duration>,
+    /// What the hypotheses must satisfy (minimum score, instance distance, region of
+    /// interest, pose restriction), and their order; the default asks for nothing.
+    pub requirements: Requirements,
 }
 
 impl Default for DetectOptions {
@@ -103,6 +129,7 @@ impl Default for DetectOptions {
             hypotheses_per_object: 1,
             timeout: Duration::from_secs(3),
             max_frame_age: None,
+            requirements: Requirements::default(),
         }
     }
 }
@@ -265,7 +292,7 @@ impl Client {
             .map_err(transport("cannot create an iceoryx2 node"))?;
         let detect_service = services::detect_builder(&node)
             .open_or_create()
-            .map_err(transport("cannot open ppfd/detect"))?;
+            .map_err(open_service(services::DETECT))?;
         let detect = detect_service
             .client_builder()
             .initial_max_slice_len(options.inline_frame_capacity.max(1))
@@ -274,7 +301,7 @@ impl Client {
             .map_err(client_port("cannot create a ppfd/detect client"))?;
         let control_service = services::control_builder(&node)
             .open_or_create()
-            .map_err(transport("cannot open ppfd/control"))?;
+            .map_err(open_service(services::CONTROL))?;
         let control = control_service
             .client_builder()
             .create()
@@ -387,6 +414,7 @@ impl Client {
     ) -> Result<DetectRequestHeader> {
         let mut header = DetectRequestHeader {
             hypotheses_per_object: options.hypotheses_per_object,
+            requirements: options.requirements,
             ..Default::default()
         };
         header.set_objects(objects)?;
@@ -613,6 +641,50 @@ fn decode_detect(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The request header of protocol version 1, before the request options: a daemon (or
+    /// client) of that version opens `ppfd/detect` with it.
+    #[derive(Debug, Clone, Copy, ZeroCopySend)]
+    #[type_name("ppfd::DetectRequestHeader")]
+    #[repr(C)]
+    struct VersionOneRequestHeader {
+        fields: [u64; 38],
+    }
+
+    /// A client meeting `ppfd/detect` served with the messages of another protocol version
+    /// is told so at `connect`, not given iceoryx2's type error alone.
+    #[test]
+    fn a_service_of_another_protocol_version_is_named_so_at_connect() {
+        let prefix = format!("ppfd_version_test_{}", std::process::id());
+        let config = iceoryx_config(Some(&prefix)).unwrap();
+        let node = NodeBuilder::new()
+            .config(&config)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<Ipc>()
+            .unwrap();
+        let _old = node
+            .service_builder(&ServiceName::new(services::DETECT).unwrap())
+            .request_response::<[u16], [PoseHypothesis]>()
+            .request_user_header::<VersionOneRequestHeader>()
+            .response_user_header::<DetectResponseHeader>()
+            .create()
+            .unwrap();
+        let e = Client::connect_with(&ClientOptions {
+            prefix: Some(prefix),
+            ..Default::default()
+        })
+        .err()
+        .expect("connect must fail");
+        let m = e.to_string();
+        assert!(
+            m.contains("cannot open ppfd/detect") && m.contains("another protocol version"),
+            "{m}"
+        );
+        assert!(
+            m.contains(&ppfd_protocol::PROTOCOL_VERSION.to_string()),
+            "{m}"
+        );
+    }
 
     #[test]
     fn refusals_decode_with_their_status_and_value() {

@@ -27,14 +27,17 @@
 mod camera;
 mod client;
 
-pub use camera::{CameraPublisher, FrameLoan, ReadyFrame};
+pub use camera::{CameraPublisher, CameraViewer, FrameLoan, ReadyFrame};
 pub use client::{
     isometry, Client, ClientOptions, DetectOptions, Detections, Latency, ModelListing,
 };
 pub use ppfd_protocol as protocol;
 pub use ppfd_protocol::clock::monotonic_now_ns;
 pub use ppfd_protocol::control::{DaemonStats, ModelInfo};
-pub use ppfd_protocol::detect::{checks, DetectCounts, LatencyBreakdown, PoseHypothesis, Status};
+pub use ppfd_protocol::detect::{
+    checks, order, DetectCounts, LatencyBreakdown, PoseHypothesis, PoseRestriction,
+    RegionOfInterest, Requirements, Status,
+};
 pub use ppfd_protocol::frame::{FrameHeader, Intrinsics};
 
 /// What can go wrong talking to the daemon.

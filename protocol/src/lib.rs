@@ -35,7 +35,7 @@ pub mod services;
 pub mod text;
 
 /// Version of this contract; it travels in every header.
-pub const PROTOCOL_VERSION: u32 = 1;
+pub const PROTOCOL_VERSION: u32 = 2;
 /// Bytes of a camera name field (names are at most one less: the last byte stays NUL).
 pub const CAMERA_NAME_BYTES: usize = 32;
 /// Bytes of a message field.
@@ -111,6 +111,12 @@ pub enum ProtocolError {
     UnknownFlags(u32),
     /// A request naming a camera carried a payload.
     UnexpectedPayload(usize),
+    /// A value of [`detect::Requirements`] out of its range.
+    Requirement {
+        field: &'static str,
+        value: String,
+        expected: String,
+    },
 }
 
 impl ProtocolError {
@@ -197,6 +203,11 @@ impl std::fmt::Display for ProtocolError {
                 "hypotheses per object must be 1 to {MAX_HYPOTHESES_PER_OBJECT}, got {n}"
             ),
             ProtocolError::UnknownFlags(bits) => write!(f, "unknown request flags {bits:#x}"),
+            ProtocolError::Requirement {
+                field,
+                value,
+                expected,
+            } => write!(f, "{field} {value} is out of range: expected {expected}"),
             ProtocolError::UnexpectedPayload(n) => write!(
                 f,
                 "a request naming a camera must carry no frame, got {n} depth values \
@@ -245,6 +256,7 @@ mod tests {
                 "ppfd::ControlResponseHeader"
             );
             assert_eq!(control::ModelInfo::type_name(), "ppfd::ModelInfo");
+            assert_eq!(detect::Requirements::type_name(), "ppfd::Requirements");
         }
     }
 }

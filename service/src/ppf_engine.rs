@@ -4,11 +4,14 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use ppfd_models::detect::detector::{Detector, RunOptions};
+use ppfd_models::detect::requirements::{Order, PixelRegion, PoseRestriction, Requirements};
 use ppfd_models::geometry::camera::{DepthFrame, Intrinsics};
 use ppfd_models::model::store;
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_protocol::control::ModelInfo;
-use ppfd_protocol::detect::{DetectCounts, LatencyBreakdown, PoseHypothesis, Status};
+use ppfd_protocol::detect::{
+    order, DetectCounts, LatencyBreakdown, PoseHypothesis, Requirements as WireRequirements, Status,
+};
 use ppfd_protocol::text;
 
 use crate::engine::{
@@ -94,6 +97,37 @@ fn model_error(e: ppfd_models::Error) -> EngineError {
         message: e.to_string(),
         value,
     }
+}
+
+/// The detector's requirements of the wire's, refused as an invalid request where they are
+/// out of range.
+pub fn detector_requirements(wire: &WireRequirements) -> Result<Requirements, EngineError> {
+    let r = &wire.region_of_interest;
+    let p = &wire.pose_restriction;
+    Ok(Requirements {
+        min_score: wire.min_score,
+        instance_distance_fraction: (wire.instance_distance_fraction != 0.0)
+            .then_some(wire.instance_distance_fraction),
+        region: (!r.is_whole_frame()).then_some(PixelRegion {
+            x: r.x,
+            y: r.y,
+            width: r.width,
+            height: r.height,
+        }),
+        pose_restriction: if p.is_unrestricted() {
+            None
+        } else {
+            Some(
+                PoseRestriction::new(p.model_axis, p.camera_direction, p.max_angle_deg)
+                    .map_err(model_error)?,
+            )
+        },
+        order: if wire.order == order::DISTANCE {
+            Order::Distance
+        } else {
+            Order::Score
+        },
+    })
 }
 
 fn info_of(model: &ObjectModel) -> ModelInfo {
@@ -239,6 +273,7 @@ impl DetectionEngine for PpfEngine {
             .collect::<Result<_, _>>()?;
         let opts = RunOptions {
             hypotheses_per_object: options.hypotheses_per_object,
+            requirements: detector_requirements(&options.requirements)?,
             deadline: options.deadline,
             cancel: Some(options.cancel.clone()),
         };

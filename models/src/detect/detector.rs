@@ -16,6 +16,7 @@ use crate::detect::clustering::{cluster_poses, ClusteringParams};
 use crate::detect::filters::{is_consistent, FilterParams};
 use crate::detect::icp::{refine, IcpParams};
 use crate::detect::plane::{PlaneParams, SupportingPlane};
+use crate::detect::requirements::{Order, Requirements};
 use crate::detect::rescoring::{prescreen, score_poses, Outline, RescoringParams};
 use crate::detect::scene::{prepare, PreparedScene, SceneImage, SceneParams};
 use crate::detect::silhouette::{silhouette_fraction, EdgeMap};
@@ -113,11 +114,14 @@ impl DetectParams {
     }
 }
 
-/// Per-call options of [`Detector::detect`]: how many hypotheses to return, and when to give up.
+/// Per-call options of [`Detector::detect`]: how many hypotheses to return, what they must
+/// satisfy, and when to give up.
 #[derive(Clone, Debug)]
 pub struct RunOptions {
-    /// How many hypotheses to return per object, best first.
+    /// How many hypotheses to return per object, in [`Requirements::order`].
     pub hypotheses_per_object: usize,
+    /// What the hypotheses must satisfy, and their order.
+    pub requirements: Requirements,
     /// Give up (with [`Error::DeadlineExceeded`]) once this instant has passed.
     pub deadline: Option<Instant>,
     /// Give up (with [`Error::Cancelled`]) once this is set: another thread's way to stop a
@@ -130,6 +134,7 @@ impl Default for RunOptions {
     fn default() -> Self {
         Self {
             hypotheses_per_object: 5,
+            requirements: Requirements::default(),
             deadline: None,
             cancel: None,
         }
@@ -305,6 +310,8 @@ impl Detector {
                 "hypotheses_per_object must be at least 1".into(),
             ));
         }
+        frame.validate()?;
+        opts.requirements.check(frame.width, frame.height)?;
         let check_stop = |start: Instant| {
             if opts
                 .cancel
@@ -344,8 +351,18 @@ impl Detector {
             let scene = &clouds[cloud_of[i]];
             let mut timings = StageTimings::default();
             let t = Instant::now();
-            let selection =
-                Selection::new(scene, &self.params.voting, &planes, model.diameter_mm());
+            let region = opts
+                .requirements
+                .region
+                .as_ref()
+                .map(|r| (r, &frame.intrinsics));
+            let selection = Selection::within(
+                scene,
+                &self.params.voting,
+                &planes,
+                model.diameter_mm(),
+                region,
+            );
             let (raw, counts) = vote_from(model, scene, &selection, &self.params.voting);
             timings.voting = t.elapsed();
             let t = Instant::now();
@@ -414,6 +431,20 @@ impl Detector {
             ..outline
         };
         let t = Instant::now();
+        let wanted = &opts.requirements;
+        // Poses a gripper cannot take leave before re-scoring, so that its budget goes to
+        // those it can; ICP moves a pose a little, so the final ones are checked again below.
+        let allowed: Vec<(Pose, u32)>;
+        let clusters = if wanted.pose_restriction.is_some() {
+            allowed = clusters
+                .iter()
+                .filter(|(pose, _)| wanted.allows(pose))
+                .copied()
+                .collect();
+            &allowed[..]
+        } else {
+            clusters
+        };
         let top = &clusters[..clusters.len().min(p.rescoring.top_clusters)];
         let top = prescreen(
             top,
@@ -459,7 +490,12 @@ impl Detector {
 
         let t = Instant::now();
         let mut renderer = Renderer::new();
-        let nms = p.nms_distance_fraction * d;
+        let nms = wanted
+            .instance_distance_fraction
+            .unwrap_or(p.nms_distance_fraction)
+            * d;
+        let distance = |pose: &Pose| (pose * sphere.0).coords.norm();
+        let n = opts.hypotheses_per_object;
         let overlaps = |list: &[Hypothesis], pose: &Pose| {
             let centre = pose * sphere.0;
             list.iter()
@@ -469,10 +505,11 @@ impl Detector {
         let mut failed: Vec<Hypothesis> = Vec::new();
         let all = Checks::CONSISTENT | Checks::SILHOUETTE;
         for s in rescored.iter().take(p.filters.max_candidates) {
-            if passed.len() == opts.hypotheses_per_object {
+            // Nearest first needs every instance that passes, not the first `n`.
+            if passed.len() == n && wanted.order == Order::Score {
                 break;
             }
-            if overlaps(&passed, &s.pose) {
+            if s.score < wanted.min_score || !wanted.allows(&s.pose) || overlaps(&passed, &s.pose) {
                 continue;
             }
             let mut checks = Checks(Checks::RESCORED | Checks::REFINED);
@@ -508,11 +545,16 @@ impl Detector {
         }
         // Poses that failed a filter still fill the list, after those that passed, with their
         // checks saying so: those that passed one filter before those that passed none, each
-        // group by score (the sort is stable).
+        // group in the order asked for (the sorts are stable).
+        if wanted.order == Order::Distance {
+            passed.sort_by(|a, b| distance(&a.pose).total_cmp(&distance(&b.pose)));
+            failed.sort_by(|a, b| distance(&a.pose).total_cmp(&distance(&b.pose)));
+        }
+        passed.truncate(n);
         failed.sort_by_key(|h| std::cmp::Reverse((h.checks.0 & all).count_ones()));
         let mut out = passed;
         for h in failed {
-            if out.len() == opts.hypotheses_per_object {
+            if out.len() == n {
                 break;
             }
             if !overlaps(&out, &h.pose) {

@@ -10,7 +10,9 @@
 use rayon::prelude::*;
 
 use crate::detect::plane::SupportingPlane;
+use crate::detect::requirements::PixelRegion;
 use crate::detect::scene::PreparedScene;
+use crate::geometry::camera::Intrinsics;
 use crate::geometry::grid::{cell_of, CellMap};
 use crate::model::feature::{
     alpha_of_bin, pose_from_alignment, LocalFrame, PointPairFeature, MAX_KEYS,
@@ -360,6 +362,19 @@ impl Selection {
         planes: &[SupportingPlane],
         diameter_mm: f32,
     ) -> Selection {
+        Self::within(scene, params, planes, diameter_mm, None)
+    }
+
+    /// [`Selection::new`] with reference points only among the scene points that project into
+    /// `region` (seen through `intrinsics`); every admitted point stays a partner, so an object
+    /// the region cuts keeps the votes of its points outside it.
+    pub fn within(
+        scene: &PreparedScene,
+        params: &VotingParams,
+        planes: &[SupportingPlane],
+        diameter_mm: f32,
+        region: Option<(&PixelRegion, &Intrinsics)>,
+    ) -> Selection {
         let points = &scene.points;
         let planes: Vec<&SupportingPlane> = planes
             .iter()
@@ -373,7 +388,9 @@ impl Selection {
                 })
             })
             .collect();
-        let admitted = (0..points.len()).filter(|&i| !excluded[i]);
+        let admitted = (0..points.len()).filter(|&i| {
+            !excluded[i] && region.is_none_or(|(r, k)| r.holds(k, &points.positions[i]))
+        });
         let step = params.reference_step.max(1);
         let spacing = params.reference_spacing_fraction * diameter_mm;
         let references = if spacing > 0.0 {

@@ -148,6 +148,7 @@ impl Daemon {
         let cancel = Arc::new(AtomicBool::new(false));
         let options = EngineOptions {
             hypotheses_per_object: q.header.hypotheses_per_object as usize,
+            requirements: q.header.requirements,
             deadline: (q.header.deadline_ns != 0).then(|| instant_of(q.header.deadline_ns)),
             cancel: cancel.clone(),
         };
