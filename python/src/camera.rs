@@ -70,7 +70,10 @@ impl CameraPublisher {
     ) -> PyResult<u64> {
         let expected = format!("uint16 array of shape ({}, {})", self.height, self.width);
         let array = depth.cast::<PyArrayDyn<u16>>().map_err(|_| {
-            protocol_error(py, format!("depth must be a {expected}, got {}", describe(depth)))
+            protocol_error(
+                py,
+                format!("depth must be a {expected}, got {}", describe(depth)),
+            )
         })?;
         if array.shape() != [self.height as usize, self.width as usize] {
             return Err(protocol_error(
@@ -81,11 +84,14 @@ impl CameraPublisher {
         let view = array.try_readonly()?;
         let publisher = self.inner.get_mut()?;
         let loan = publisher.loan().map_err(|e| to_py(py, e))?;
+        // `as_slice` also takes a Fortran-ordered array, in its memory order: only a
+        // C-ordered one is copied in one piece.
         let frame = match view.as_slice() {
-            // C-contiguous: one memcpy into shared memory.
-            Ok(values) => loan.write_from_slice(values).map_err(|e| to_py(py, e))?,
+            Ok(values) if array.is_c_contiguous() => {
+                loan.write_from_slice(values).map_err(|e| to_py(py, e))?
+            }
             // Strided (a crop, a transposed or Fortran-ordered array): one pass in row order.
-            Err(_) => {
+            _ => {
                 let a = view.as_array();
                 let mut values = a.iter();
                 loan.write_from_fn(|_| values.next().copied().unwrap_or(0))

@@ -163,7 +163,12 @@ impl Detections {
         self.detections
             .iter()
             .filter(|d| d.get().hypothesis.object_id == object_id)
-            .max_by(|a, b| a.get().hypothesis.score.total_cmp(&b.get().hypothesis.score))
+            .max_by(|a, b| {
+                a.get()
+                    .hypothesis
+                    .score
+                    .total_cmp(&b.get().hypothesis.score)
+            })
             .map(|d| d.clone_ref(py))
     }
 
@@ -329,7 +334,11 @@ impl Client {
         };
         let client = &self.inner;
         let found = py
-            .detach(|| client.get().map(|c| c.detect(camera, &object_ids, &options)))?
+            .detach(|| {
+                client
+                    .get()
+                    .map(|c| c.detect(camera, &object_ids, &options))
+            })?
             .map_err(|e| to_py(py, e))?;
         detections(py, found)
     }
@@ -362,9 +371,9 @@ impl Client {
         path: std::path::PathBuf,
         object_id: u32,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let path = path.to_str().ok_or_else(|| {
-            protocol_error(py, format!("model path {path:?} is not valid UTF-8"))
-        })?;
+        let path = path
+            .to_str()
+            .ok_or_else(|| protocol_error(py, format!("model path {path:?} is not valid UTF-8")))?;
         let client = &self.inner;
         let model = py
             .detach(|| client.get().map(|c| c.load_model(path, object_id)))?

@@ -33,12 +33,14 @@ fn remove_prefix_leftovers(py: Python<'_>, prefix: &str) -> PyResult<usize> {
 #[pymodule]
 fn ppfd(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
-    m.add(
-        "PROTOCOL_VERSION",
-        ppfd_client::protocol::PROTOCOL_VERSION,
-    )?;
+    m.add("PROTOCOL_VERSION", ppfd_client::protocol::PROTOCOL_VERSION)?;
     m.add_class::<client::Client>()?;
     m.add_class::<client::Detections>()?;
+    // A sequence to `isinstance` and type checkers as well as to `len`, indexing and `for`.
+    m.py()
+        .import("collections.abc")?
+        .getattr("Sequence")?
+        .call_method1("register", (m.getattr("Detections")?,))?;
     m.add_class::<client::Detection>()?;
     m.add_class::<client::Checks>()?;
     m.add_class::<camera::CameraPublisher>()?;

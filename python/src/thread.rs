@@ -66,4 +66,3 @@ impl<T> Drop for ThreadBound<T> {
         // not allowed. iceoryx2 counts a leaked port as its process's until the process ends.
     }
 }
-
