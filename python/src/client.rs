@@ -321,6 +321,8 @@ impl Client {
         max_frame_age: Option<f64>,
     ) -> PyResult<Detections> {
         let defaults = DetectOptions::default();
+        // The options that have no keyword here keep the client library's defaults.
+        #[allow(clippy::needless_update)]
         let options = DetectOptions {
             hypotheses_per_object: hypotheses,
             timeout: match timeout {
