@@ -20,7 +20,7 @@ use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::store;
 use ppfd_models::model::ModelParams;
 use ppfd_models::synthetic::parts::Part;
-use ppfd_models::synthetic::scene::{NoiseModel, SceneSpec};
+use ppfd_models::synthetic::scene::{NoiseModel, SceneSpec, SyntheticScene};
 use ppfd_models::Pose;
 
 use crate::common::{print_latency, ScratchDir, MAX_HYPOTHESES};
@@ -71,20 +71,31 @@ struct DemoScene {
     label: String,
 }
 
-/// The embedded default: the generated parts resting on a table, seen by a Kinect-like camera.
-fn generated_scene(args: &DemoArgs, cache: &Path) -> Result<DemoScene, String> {
+/// The generated parts ([`Part::ALL`]) resting on a table, seen from a viewpoint drawn from
+/// `seed`, with Kinect-like noise unless `no_noise`; and each part's mesh. `ppf demo` shows it
+/// and `ppf generate` writes it.
+pub fn parts_scene(
+    seed: u64,
+    no_noise: bool,
+) -> Result<(Vec<(Part, Mesh)>, SyntheticScene), String> {
     let meshes: Vec<(Part, Mesh)> = Part::ALL.iter().map(|p| (*p, p.mesh())).collect();
-    let noise = if args.no_noise {
+    let noise = if no_noise {
         None
     } else {
         Some(NoiseModel::kinect())
     };
-    let seed = args.seed.unwrap_or(1);
     let mut spec = SceneSpec::new(seed).noise(noise);
     for (part, mesh) in &meshes {
         spec = spec.object(part.object_id(), mesh);
     }
     let scene = spec.build().map_err(|e| e.to_string())?;
+    Ok((meshes, scene))
+}
+
+/// The embedded default: the generated parts resting on a table, seen by a Kinect-like camera.
+fn generated_scene(args: &DemoArgs, cache: &Path) -> Result<DemoScene, String> {
+    let seed = args.seed.unwrap_or(1);
+    let (meshes, scene) = parts_scene(seed, args.no_noise)?;
     // Models are built here once and kept in the cache; the daemon maps the files.
     let params = ModelParams::default();
     let mut model_files = Vec::new();

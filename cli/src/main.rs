@@ -7,6 +7,7 @@ mod demo;
 mod detect;
 mod detect_offline;
 mod eval;
+mod generate;
 mod model;
 mod offline;
 mod overlay;
@@ -49,6 +50,9 @@ enum Command {
     Stats(daemon::StatsArgs),
     /// Start a daemon, publish a generated scene, detect, compare with the truth, stop.
     Demo(demo::DemoArgs),
+    /// Write the generated scene `demo` shows as a BOP dataset: the parts' meshes, the depth
+    /// image, its camera and ground truth.
+    Generate(generate::GenerateArgs),
     /// Run the ppfd daemon in this process, with ppfd's flags (what `ppf demo` starts);
     /// `ppf serve --help` prints ppfd's help.
     #[command(hide = true, disable_help_flag = true)]
@@ -133,6 +137,7 @@ fn main() {
         Command::Models(args) => daemon::models(args).map_err(Into::into),
         Command::Stats(args) => daemon::stats(args).map_err(Into::into),
         Command::Demo(args) => demo::run(args).map_err(Into::into),
+        Command::Generate(args) => generate::run(args).map_err(Into::into),
         Command::Serve { .. } => unreachable!("handled above"),
         Command::Score(args) => score::run(args),
         Command::Eval(args) => eval::run(args),
