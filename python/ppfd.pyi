@@ -5,7 +5,7 @@ frames into shared memory, where the daemon reads them in place. Every error is 
 with the message of the Rust client library. docs/PYTHON.md is the guide.
 """
 
-from typing import Iterator, Optional, Sequence, TypedDict, Union
+from typing import Iterator, Literal, Optional, Sequence, TypedDict, Union
 import os
 
 import numpy as np
@@ -157,10 +157,33 @@ class Client:
         timeout: Optional[float] = None,
         *,
         max_frame_age: Optional[float] = None,
+        min_score: float = 0.0,
+        instance_distance: Optional[float] = None,
+        roi: Optional[tuple[int, int, int, int]] = None,
+        max_tilt_deg: Optional[float] = None,
+        tilt_axis: Optional[Sequence[float]] = None,
+        tilt_direction: Optional[Sequence[float]] = None,
+        order: Literal["score", "distance"] = "score",
     ) -> Detections:
         """Detects `object_ids` in the newest frame of `camera`, releasing the GIL while the
         daemon works. `hypotheses` per object, 1 to 16; `timeout` in seconds (None: 3 s);
-        `max_frame_age` in seconds, the oldest frame accepted (None: the daemon's limit)."""
+        `max_frame_age` in seconds, the oldest frame accepted (None: the daemon's limit).
+
+        What the poses must satisfy; the defaults ask for nothing:
+
+        - `min_score`: poses scoring below it are left out, 0 to 1.
+        - `instance_distance`: poses whose model centres lie closer than this many diameters
+          are one instance, above 0 to 2 (None: the daemon's setting).
+        - `roi`: reference points only from this pixel rectangle `(x, y, width, height)`,
+          within the frame (None: the whole frame).
+        - `max_tilt_deg`: only poses whose model axis `tilt_axis` (None: `(0, 0, 1)`), turned
+          by the pose, lies within this angle of the camera direction `tilt_direction` (None:
+          `(0, 0, -1)`, towards the camera), 0 to 180 (None: any pose).
+        - `order`: each object's poses best score first, or nearest first.
+
+        A value out of its range raises `ProtocolError` with the client library's message
+        before the request is sent; a region reaching outside the frame is refused
+        `InvalidRequest` by the daemon."""
     def models(self) -> list[Model]:
         """The loaded models, by object id (at most 256, the lowest ids)."""
     def stats(self) -> Stats:

@@ -9,6 +9,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::errors::{protocol_error, to_py};
+use crate::requirements::RequirementArgs;
 use crate::thread::ThreadBound;
 
 /// A duration from seconds given in Python; `what` names the argument in the error.
@@ -310,7 +311,21 @@ impl Client {
     /// daemon works. `hypotheses` per object (1 to 16); `timeout` in seconds (None: the
     /// client library's, 3 s); `max_frame_age` in seconds, the oldest frame accepted (None:
     /// the daemon's limit).
-    #[pyo3(signature = (camera, object_ids, hypotheses=1, timeout=None, *, max_frame_age=None))]
+    ///
+    /// What the poses must satisfy (the defaults ask for nothing): `min_score`, 0 to 1;
+    /// `instance_distance` in diameters, above 0 to 2 (None: the daemon's); `roi`, a pixel
+    /// rectangle `(x, y, width, height)` reference points are taken from (None: the whole
+    /// frame); `max_tilt_deg`, 0 to 180, the largest angle between the model axis `tilt_axis`
+    /// (None: `(0, 0, 1)`) turned by the pose and the camera direction `tilt_direction` (None:
+    /// `(0, 0, -1)`, towards the camera) (None: any pose); `order`, `"score"` (best first) or
+    /// `"distance"` (nearest first). A value out of its range raises `ProtocolError` before
+    /// the request is sent.
+    #[pyo3(signature = (
+        camera, object_ids, hypotheses=1, timeout=None, *, max_frame_age=None, min_score=0.0,
+        instance_distance=None, roi=None, max_tilt_deg=None, tilt_axis=None,
+        tilt_direction=None, order="score"
+    ))]
+    #[allow(clippy::too_many_arguments)]
     fn detect(
         &self,
         py: Python<'_>,
@@ -319,20 +334,34 @@ impl Client {
         hypotheses: u32,
         timeout: Option<f64>,
         max_frame_age: Option<f64>,
+        min_score: f32,
+        instance_distance: Option<f32>,
+        roi: Option<&Bound<'_, PyAny>>,
+        max_tilt_deg: Option<f32>,
+        tilt_axis: Option<&Bound<'_, PyAny>>,
+        tilt_direction: Option<&Bound<'_, PyAny>>,
+        order: &str,
     ) -> PyResult<Detections> {
-        let defaults = DetectOptions::default();
-        // The options that have no keyword here keep the client library's defaults.
-        #[allow(clippy::needless_update)]
+        let requirements = RequirementArgs {
+            min_score,
+            instance_distance,
+            roi,
+            max_tilt_deg,
+            tilt_axis,
+            tilt_direction,
+            order,
+        }
+        .wire(py)?;
         let options = DetectOptions {
             hypotheses_per_object: hypotheses,
             timeout: match timeout {
                 Some(t) => seconds(py, "timeout", t)?,
-                None => defaults.timeout,
+                None => DetectOptions::default().timeout,
             },
             max_frame_age: max_frame_age
                 .map(|a| seconds(py, "max_frame_age", a))
                 .transpose()?,
-            ..defaults
+            requirements,
         };
         let client = &self.inner;
         let found = py

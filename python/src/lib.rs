@@ -12,6 +12,7 @@
 mod camera;
 mod client;
 mod errors;
+mod requirements;
 mod thread;
 
 use pyo3::prelude::*;

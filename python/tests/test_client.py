@@ -49,6 +49,78 @@ def test_a_malformed_request_is_a_value_error_before_it_is_sent(prefix, args, op
     assert says in str(e.value)
 
 
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({"min_score": 1.5}, "minimum score 1.5 is out of range: expected 0 to 1"),
+        (
+            {"instance_distance": 3.0},
+            "instance distance 3 diameters is out of range: expected above 0 and at most 2 "
+            "diameters, or 0 for the daemon's setting",
+        ),
+        (
+            {"roi": (10, 20, 50, 0)},
+            "region of interest 50x0 at (10, 20) is out of range: expected a width and height "
+            "of at least 1 pixel, or 0x0 for the whole frame",
+        ),
+        (
+            {"max_tilt_deg": 270.0},
+            "pose restriction angle 270 degrees is out of range: expected 0 to 180 degrees",
+        ),
+        (
+            {"max_tilt_deg": 30.0, "tilt_direction": (0.0, float("nan"), 0.0)},
+            "pose restriction camera direction [0.0, NaN, 0.0] is out of range: expected a "
+            "finite, non-zero vector",
+        ),
+        (
+            {"max_tilt_deg": 30.0, "tilt_axis": [0, 0, 0]},
+            "pose restriction model axis [0.0, 0.0, 0.0] is out of range: expected a finite, "
+            "non-zero vector",
+        ),
+        # The forms Python gives them in.
+        ({"order": "nearest"}, 'order must be "score" or "distance", got "nearest"'),
+        ({"roi": (1, 2, 3)}, "roi must be 4 pixel counts (x, y, width, height), got (1, 2, 3)"),
+        (
+            {"roi": (-1, 0, 10, 10)},
+            "roi must be 4 pixel counts (x, y, width, height), got (-1, 0, 10, 10)",
+        ),
+        (
+            {"max_tilt_deg": 30.0, "tilt_axis": "up"},
+            "tilt_axis must be 3 numbers (x, y, z), got 'up'",
+        ),
+        (
+            {"tilt_axis": (1.0, 0.0, 0.0)},
+            "tilt_axis applies only with max_tilt_deg: give max_tilt_deg too",
+        ),
+    ],
+)
+def test_a_requirement_out_of_range_raises_the_rust_message_before_sending(
+    prefix, options, message
+):
+    # No daemon serves this prefix: a request that got as far as sending would raise NoDaemon.
+    client = ppfd.Client(prefix=prefix)
+    with pytest.raises(ppfd.ProtocolError) as e:
+        client.detect("parts", [1], **options)
+    assert isinstance(e.value, ValueError)
+    assert str(e.value) == message
+
+
+def test_requirements_in_range_are_sent(prefix):
+    client = ppfd.Client(prefix=prefix)
+    with pytest.raises(ppfd.NoDaemon):
+        client.detect(
+            "parts",
+            [1],
+            min_score=0.5,
+            instance_distance=0.5,
+            roi=[0, 0, 64, 48],
+            max_tilt_deg=30.0,
+            tilt_axis=np.array([1.0, 0.0, 0.0]),
+            tilt_direction=(0, 0, -1),
+            order="distance",
+        )
+
+
 @pytest.fixture
 def publisher(prefix):
     p = ppfd.CameraPublisher("pycam", 64, 48, 60.0, 60.0, 32.0, 24.0, 1.0, prefix=prefix)

@@ -176,3 +176,104 @@ def test_a_client_is_used_by_the_thread_that_made_it(client):
     t.join()
     assert len(errors) == 1 and "used only by the thread that made it" in errors[0]
     assert client.models()
+
+
+def found_at(detection, truth, diameter) -> bool:
+    dt = np.linalg.norm(detection.pose[:3, 3] - truth[:3, 3])
+    return dt < MAX_TRANSLATION_OF_DIAMETER * diameter and (
+        rotation_deg(detection.pose, truth) < MAX_ROTATION_DEG
+    )
+
+
+def vertices(scene, object_id) -> np.ndarray:
+    """The vertex positions of a part's ASCII PLY mesh, mm."""
+    lines = scene.model_path(object_id).read_text().splitlines()
+    count = next(int(line.split()[2]) for line in lines if line.startswith("element vertex"))
+    start = lines.index("end_header") + 1
+    return np.array([line.split()[:3] for line in lines[start:start + count]], float)
+
+
+def mesh_centre(scene, object_id) -> np.ndarray:
+    """The centre of the mesh's bounding box: the model centre whose distance orders poses."""
+    v = vertices(scene, object_id)
+    return (v.min(axis=0) + v.max(axis=0)) / 2
+
+
+def distance(detection, centre) -> float:
+    return float(np.linalg.norm(detection.pose[:3, :3] @ centre + detection.pose[:3, 3]))
+
+
+def pixel_box(scene, object_id, truth):
+    """The pixel rectangle (x0, y0, x1, y1), inclusive, the part's mesh projects into."""
+    points = vertices(scene, object_id) @ truth[:3, :3].T + truth[:3, 3]
+    u = np.floor(scene.fx * points[:, 0] / points[:, 2] + scene.cx)
+    v = np.floor(scene.fy * points[:, 1] / points[:, 2] + scene.cy)
+    return int(u.min()), int(v.min()), int(u.max()), int(v.max())
+
+
+def test_a_region_of_interest_finds_the_part_in_it_and_not_one_outside(client, camera, scene):
+    height, width = scene.depth.shape
+    boxes = {
+        object_id: pixel_box(scene, object_id, truth) for object_id, truth in scene.truth
+    }
+    apart = [
+        (a, b)
+        for a, (ax0, ay0, ax1, ay1) in boxes.items()
+        for b, (bx0, by0, bx1, by1) in boxes.items()
+        if a != b and (bx0 > ax1 or bx1 < ax0 or by0 > ay1 or by1 < ay0)
+    ]
+    assert apart, f"no two parts apart in the picture: {boxes}"
+    inside, outside = apart[0]
+    x0, y0, x1, y1 = boxes[inside]
+    x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, width - 1), min(y1, height - 1)
+    roi = (x0, y0, x1 - x0 + 1, y1 - y0 + 1)
+    truth = dict(scene.truth)
+    diameters = {m["object_id"]: m["diameter_mm"] for m in client.models()}
+
+    whole = detect_when_subscribed(client, camera, scene.depth, [inside, outside])
+    within = detect_when_subscribed(client, camera, scene.depth, [inside, outside], roi=roi)
+    for object_id in (inside, outside):
+        assert found_at(whole.best(object_id), truth[object_id], diameters[object_id])
+    assert found_at(within.best(inside), truth[inside], diameters[inside])
+    assert not any(
+        found_at(d, truth[outside], diameters[outside]) for d in within.of(outside)
+    ), f"object {outside} found from the region {roi} of object {inside}"
+    assert within.counts["reference_points"] < whole.counts["reference_points"] / 2
+
+    # In range, but outside the frame: only the daemon, which knows the frame, tells.
+    with pytest.raises(ppfd.InvalidRequest, match=f"outside the {width}x{height} frame"):
+        detect_when_subscribed(
+            client, camera, scene.depth, [inside], roi=(width - 10, 0, 100, 10)
+        )
+
+
+def test_nearest_first_above_a_minimum_score(client, camera, scene):
+    plain = detect_when_subscribed(client, camera, scene.depth, scene.object_ids, hypotheses=4)
+    scores = sorted(d.score for d in plain)
+    # Just above the lowest score: that pose goes, and enough stay to have an order.
+    min_score = (scores[0] + scores[1]) / 2
+    assert scores[0] < min_score < scores[1], scores
+
+    found = detect_when_subscribed(
+        client,
+        camera,
+        scene.depth,
+        scene.object_ids,
+        hypotheses=4,
+        min_score=min_score,
+        order="distance",
+    )
+    assert found and all(d.score >= min_score for d in found)
+    filters = ppfd.Checks.CONSISTENT | ppfd.Checks.SILHOUETTE
+    ordered = 0
+    for object_id in scene.object_ids:
+        centre = mesh_centre(scene, object_id)
+        poses = found.of(object_id)
+        assert [d.rank for d in poses] == list(range(len(poses)))
+        # Nearest first among the poses that passed as many filters; those that passed fewer
+        # come after, as with the best score first.
+        for first, second in zip(poses, poses[1:]):
+            if bin(first.checks & filters).count("1") == bin(second.checks & filters).count("1"):
+                assert distance(first, centre) <= distance(second, centre) + 1e-3, object_id
+                ordered += 1
+    assert ordered > 0, "no two poses of one object to order"
