@@ -1,7 +1,9 @@
 //! `ppf detect`: one detect request against a running daemon; prints the poses and the latency
 //! breakdown.
 
-use ppfd_client::DetectOptions;
+use std::path::{Path, PathBuf};
+
+use ppfd_client::{DetectOptions, PoseHint};
 
 use crate::common::{millis, print_hypotheses, print_latency, Connect};
 
@@ -19,10 +21,77 @@ pub struct DetectArgs {
     pub timeout_ms: u64,
     /// Print the answer as JSON.
     pub json: bool,
+    /// A JSON file of poses to refine first.
+    pub hints: Option<PathBuf>,
     pub connect: Connect,
 }
 
+/// The poses of a hints file: the `hypotheses` of `ppf detect --json` output, or a list of
+/// objects with `object_id`, `rotation` (9 numbers, row-major) and `translation_mm` (3).
+pub fn read_hints(path: &Path) -> Result<Vec<PoseHint>, String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let value: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| format!("{}: not JSON: {e}", path.display()))?;
+    let list = value
+        .get("hypotheses")
+        .unwrap_or(&value)
+        .as_array()
+        .ok_or_else(|| {
+            format!(
+                "{}: expected a list of poses, or an object with a \"hypotheses\" list (ppf \
+                 detect --json)",
+                path.display()
+            )
+        })?;
+    list.iter()
+        .enumerate()
+        .map(|(i, entry)| {
+            let numbers = |field: &str, n: usize| -> Result<Vec<f32>, String> {
+                let bad = || {
+                    format!(
+                        "{}: pose {i}: \"{field}\" must be a list of {n} numbers",
+                        path.display()
+                    )
+                };
+                let values = entry
+                    .get(field)
+                    .and_then(|v| v.as_array())
+                    .ok_or_else(bad)?;
+                if values.len() != n {
+                    return Err(bad());
+                }
+                values
+                    .iter()
+                    .map(|v| v.as_f64().map(|x| x as f32).ok_or_else(bad))
+                    .collect()
+            };
+            let object_id = entry
+                .get("object_id")
+                .and_then(|v| v.as_u64())
+                .and_then(|v| u32::try_from(v).ok())
+                .ok_or_else(|| {
+                    format!(
+                        "{}: pose {i}: \"object_id\" must be an object id",
+                        path.display()
+                    )
+                })?;
+            let mut hint = PoseHint {
+                object_id,
+                ..Default::default()
+            };
+            hint.rotation.copy_from_slice(&numbers("rotation", 9)?);
+            hint.translation_mm
+                .copy_from_slice(&numbers("translation_mm", 3)?);
+            Ok(hint)
+        })
+        .collect()
+}
+
 pub fn run(args: DetectArgs) -> Result<(), String> {
+    let hints = match &args.hints {
+        Some(path) => read_hints(path)?,
+        None => Vec::new(),
+    };
     let client = args.connect.client()?;
     let options = DetectOptions {
         hypotheses_per_object: args.hypotheses,
@@ -30,7 +99,7 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
         ..Default::default()
     };
     let found = client
-        .detect(&args.camera, &args.objects, &options)
+        .detect_with_hints(&args.camera, &args.objects, &hints, &options)
         .map_err(|e| e.to_string())?;
     if args.json {
         let hyps: Vec<serde_json::Value> = found

@@ -40,6 +40,11 @@ pub struct DetectCommand {
     /// protocol's bits (1 re-scored, 2 refined, 4 consistent, 8 silhouette), times in ns.
     #[arg(long, conflicts_with = "dataset")]
     pub json: bool,
+    /// With --camera: a JSON file of poses the objects are expected near, refined before any
+    /// voting: `ppf detect --json` output, or a list of `{"object_id", "rotation",
+    /// "translation_mm"}`. Poses from hints carry check bit 16.
+    #[arg(long, value_name = "POSES.JSON", conflicts_with = "dataset")]
+    pub hints: Option<PathBuf>,
     /// With --dataset: instead of detecting, print the rank of the first correct pose after
     /// each stage.
     #[arg(long)]
@@ -157,6 +162,7 @@ impl DetectCommand {
             hypotheses: self.hypotheses,
             timeout_ms: self.timeout_ms,
             json: self.json,
+            hints: self.hints,
             connect: self.connect,
         }))
     }

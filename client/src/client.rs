@@ -14,7 +14,7 @@ use ppfd_protocol::control::{
     ControlCommand, ControlRequest, ControlResponseHeader, DaemonStats, ModelInfo,
 };
 use ppfd_protocol::detect::{
-    flags, DetectCounts, DetectRequestHeader, DetectResponseHeader, LatencyBreakdown,
+    flags, DetectCounts, DetectRequestHeader, DetectResponseHeader, LatencyBreakdown, PoseHint,
     PoseHypothesis, Status,
 };
 use ppfd_protocol::frame::FrameHeader;
@@ -95,6 +95,9 @@ pub struct DetectOptions {
     pub timeout: Duration,
     /// Oldest acceptable camera frame (`None`: the daemon's limit).
     pub max_frame_age: Option<Duration>,
+    /// The score (0 to 1) a refined hint of [`Client::detect_with_hints`] needs besides passing
+    /// the filters; 0 leaves it to the filters.
+    pub hint_min_score: f32,
 }
 
 impl Default for DetectOptions {
@@ -103,6 +106,7 @@ impl Default for DetectOptions {
             hypotheses_per_object: 1,
             timeout: Duration::from_secs(3),
             max_frame_age: None,
+            hint_min_score: 0.0,
         }
     }
 }
@@ -328,8 +332,24 @@ impl Client {
         objects: &[u32],
         options: &DetectOptions,
     ) -> Result<Detections> {
+        self.detect_with_hints(camera, objects, &[], options)
+    }
+
+    /// Detects `objects` in the newest frame of `camera`, each hinted object first from its
+    /// `hints` alone (at most [`ppfd_protocol::MAX_HINTS_PER_REQUEST`], each a pose of one of
+    /// `objects`, for example a previous answer: `PoseHint::from(&hypothesis)`). A hint is
+    /// refined by ICP, re-scored and filtered; only the objects with a hint that fails (or
+    /// with none) go through voting. Poses from hints carry [`checks::HINT`](crate::checks::HINT).
+    pub fn detect_with_hints(
+        &self,
+        camera: &str,
+        objects: &[u32],
+        hints: &[PoseHint],
+        options: &DetectOptions,
+    ) -> Result<Detections> {
         services::check_camera_name(camera)?;
         let mut header = self.request_header(objects, options)?;
+        header.set_hints(hints)?;
         header.camera_name = text::encode_name("camera", camera)?;
         header.validate(0)?;
         let request = self
@@ -387,6 +407,7 @@ impl Client {
     ) -> Result<DetectRequestHeader> {
         let mut header = DetectRequestHeader {
             hypotheses_per_object: options.hypotheses_per_object,
+            hint_min_score: options.hint_min_score,
             ..Default::default()
         };
         header.set_objects(objects)?;

@@ -34,7 +34,9 @@ pub use client::{
 pub use ppfd_protocol as protocol;
 pub use ppfd_protocol::clock::monotonic_now_ns;
 pub use ppfd_protocol::control::{DaemonStats, ModelInfo};
-pub use ppfd_protocol::detect::{checks, DetectCounts, LatencyBreakdown, PoseHypothesis, Status};
+pub use ppfd_protocol::detect::{
+    checks, DetectCounts, LatencyBreakdown, PoseHint, PoseHypothesis, Status,
+};
 pub use ppfd_protocol::frame::{FrameHeader, Intrinsics};
 
 /// What can go wrong talking to the daemon.

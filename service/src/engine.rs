@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use ppfd_protocol::control::ModelInfo;
-use ppfd_protocol::detect::{DetectCounts, LatencyBreakdown, PoseHypothesis, Status};
+use ppfd_protocol::detect::{DetectCounts, LatencyBreakdown, PoseHint, PoseHypothesis, Status};
 use ppfd_protocol::frame::Intrinsics;
 
 /// A depth frame as the engine sees it: borrowed straight from shared memory.
@@ -57,6 +57,10 @@ pub struct EngineOptions {
     /// Set by the daemon when the request's client is gone: stop early (the answer would go
     /// nowhere) and free the worker for the requests behind it.
     pub cancel: Arc<AtomicBool>,
+    /// The request's hints, checked against the contract (each a pose of a requested object).
+    pub hints: Vec<PoseHint>,
+    /// The score a refined hint needs besides passing the filters.
+    pub hint_min_score: f32,
 }
 
 /// What one detection found, in wire types.

@@ -147,6 +147,8 @@ impl Daemon {
             hypotheses_per_object: q.header.hypotheses_per_object as usize,
             deadline: (q.header.deadline_ns != 0).then(|| instant_of(q.header.deadline_ns)),
             cancel: cancel.clone(),
+            hints: q.header.hints().to_vec(),
+            hint_min_score: q.header.hint_min_score,
         };
         let done = self.done_tx.clone();
         let signaller = self.signaller;
