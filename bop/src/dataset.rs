@@ -415,16 +415,30 @@ impl BopDataset {
             .join(format!("{im_id:06}.png")))
     }
 
+    /// Path of one image's colour PNG (`rgb/{im_id:06}.png` in the scene folder), when it
+    /// exists (BOP datasets may hold JPEG colour images instead, or none).
+    pub fn colour_path(&self, scene_id: u32, im_id: u32) -> Option<PathBuf> {
+        let path = self
+            .scene(scene_id)
+            .ok()?
+            .dir
+            .join("rgb")
+            .join(format!("{im_id:06}.png"));
+        path.is_file().then_some(path)
+    }
+
     /// Whether one image's depth PNG exists.
     pub fn has_depth(&self, scene_id: u32, im_id: u32) -> bool {
         self.depth_path(scene_id, im_id).is_ok_and(|p| p.is_file())
     }
 
     /// One image's depth frame: the 16-bit PNG with the image's intrinsics and depth scale.
+    /// A PNG of another size than `camera.json` gives is refused.
     pub fn depth_frame(&self, scene_id: u32, im_id: u32) -> Result<OwnedDepthFrame> {
         let camera = self.scene_camera(scene_id, im_id)?;
         let path = self.depth_path(scene_id, im_id)?;
         let (width, height, depth) = read_depth_png(&path)?;
+        self.check_depth_size(&path, width, height)?;
         let frame = OwnedDepthFrame {
             width,
             height,
@@ -437,6 +451,42 @@ impl BopDataset {
             .validate()
             .map_err(|e| dataset_error(&path, e.to_string()))?;
         Ok(frame)
+    }
+
+    /// Refuses a depth image whose size is not the one `camera.json` gives (when it has one).
+    fn check_depth_size(&self, path: &Path, width: u32, height: u32) -> Result<()> {
+        match self.camera {
+            Some(c) if (c.width, c.height) != (width, height) => Err(dataset_error(
+                path,
+                format!(
+                    "depth image is {width}x{height}, camera.json gives {}x{}",
+                    c.width, c.height
+                ),
+            )),
+            _ => Ok(()),
+        }
+    }
+
+    /// The ground truth of one image, or `None` when the scene has no `scene_gt.json` (a test
+    /// split without annotations). A file that is there but malformed, or that does not list
+    /// the image, is an error: a pose would otherwise be judged against no truth.
+    pub fn ground_truth_if_any(&self, scene_id: u32, im_id: u32) -> Result<Option<&[GtPose]>> {
+        if !self.scene(scene_id)?.dir.join("scene_gt.json").exists() {
+            return Ok(None);
+        }
+        self.ground_truth(scene_id, im_id).map(Some)
+    }
+
+    /// Checks what a detection on one image will read, without decoding its depth: its camera,
+    /// its ground truth when the scene has one, and its depth PNG's header (present, a PNG, the
+    /// size `camera.json` gives). Commands run it over every image before any work starts, so
+    /// that a broken file is reported at once rather than after hours of detections.
+    pub fn check_image(&self, scene_id: u32, im_id: u32) -> Result<()> {
+        self.scene_camera(scene_id, im_id)?;
+        self.ground_truth_if_any(scene_id, im_id)?;
+        let path = self.depth_path(scene_id, im_id)?;
+        let (width, height) = depth_png_size(&path)?;
+        self.check_depth_size(&path, width, height)
     }
 
     fn scene(&self, scene_id: u32) -> Result<&Scene> {
@@ -566,17 +616,25 @@ fn lone_model(scene_dir: &Path) -> Result<Option<(u32, PathBuf)>> {
     })
 }
 
+/// The largest JSON file of a dataset read: the largest `scene_gt.json` of the BOP datasets
+/// is a few megabytes.
+pub const JSON_FILE: ppfd_models::file::Limit = ppfd_models::file::Limit {
+    what: "dataset JSON file",
+    max_bytes: 256 << 20,
+    raise: "raise ppfd_bop::dataset::JSON_FILE and rebuild",
+};
+
 /// Reads and parses one JSON file, then turns it into `T`; any failure names the file.
 fn parse_file<T>(
     path: &Path,
     parse: impl FnOnce(&Value) -> std::result::Result<T, String>,
 ) -> Result<T> {
-    let text = std::fs::read_to_string(path).map_err(|e| {
-        let reason = match e.kind() {
-            std::io::ErrorKind::NotFound => "file is missing".to_string(),
-            _ => format!("cannot be read: {e}"),
-        };
-        dataset_error(path, reason)
+    let text = ppfd_models::file::read_text_bounded(path, &JSON_FILE).map_err(|e| match e {
+        Error::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound => {
+            dataset_error(path, "file is missing")
+        }
+        Error::Io { source, .. } => dataset_error(path, format!("cannot be read: {source}")),
+        other => other,
     })?;
     let value: Value = serde_json::from_str(&text)
         .map_err(|e| dataset_error(path, format!("not valid JSON: {e}")))?;
@@ -959,16 +1017,33 @@ pub fn read_test_targets(path: impl AsRef<Path>) -> Result<Vec<TestTarget>> {
     parse_file(path.as_ref(), parse_test_targets)
 }
 
+/// Opens a depth PNG, checked on the open file (a regular file).
+fn open_depth_png(path: &Path) -> Result<std::fs::File> {
+    ppfd_models::file::open_regular(path)
+        .map(|(file, _)| file)
+        .map_err(|e| match e {
+            Error::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound => {
+                dataset_error(path, "depth image is missing")
+            }
+            Error::Io { source, .. } => dataset_error(path, format!("cannot be read: {source}")),
+            other => other,
+        })
+}
+
+/// The width and height a depth PNG's header gives, without decoding it.
+fn depth_png_size(path: &Path) -> Result<(u32, u32)> {
+    let file = open_depth_png(path)?;
+    let info = png::Decoder::new(BufReader::new(file))
+        .read_info()
+        .map_err(|e| dataset_error(path, format!("not a readable PNG: {e}")))?;
+    let info = info.info();
+    Ok((info.width, info.height))
+}
+
 /// Reads a 16-bit grayscale PNG into row-major samples. PNG stores 16-bit samples big-endian,
 /// and the decoder (with no transformations) hands them over as stored.
 fn read_depth_png(path: &Path) -> Result<(u32, u32, Vec<u16>)> {
-    let file = std::fs::File::open(path).map_err(|e| {
-        let reason = match e.kind() {
-            std::io::ErrorKind::NotFound => "depth image is missing".to_string(),
-            _ => format!("cannot be read: {e}"),
-        };
-        dataset_error(path, reason)
-    })?;
+    let file = open_depth_png(path)?;
     let bad = |e: png::DecodingError| dataset_error(path, format!("not a readable PNG: {e}"));
     let mut decoder = png::Decoder::new(BufReader::new(file));
     decoder.set_transformations(png::Transformations::IDENTITY);

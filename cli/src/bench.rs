@@ -1,7 +1,8 @@
 //! `ppf bench`: latency profile of a running daemon — K client threads (one iceoryx2 client
 //! each) send N requests in all, back to back; p50/p90/p99/max per stage and end to end (exact,
-//! from every request's value), the overhead (end to end minus detection), throughput, and an
-//! HDR histogram of end to end.
+//! from every request's value), the overhead (end to end minus detection), throughput, an HDR
+//! histogram of end to end, and with several clients the same per client (each may ask for
+//! its own objects: `--objects 1,5 --objects 8,9`), which shows whether one starves another.
 
 use std::time::Instant;
 
@@ -16,9 +17,10 @@ pub struct BenchArgs {
     /// Camera whose newest frame to use.
     #[arg(long)]
     pub camera: String,
-    /// Object ids, comma-separated.
-    #[arg(long, value_delimiter = ',', required = true)]
-    pub objects: Vec<u32>,
+    /// Object ids, comma-separated; repeated, one list per client in turn (client i asks for
+    /// list i modulo the number of lists).
+    #[arg(long, required = true, value_parser = parse_objects)]
+    pub objects: Vec<Objects>,
     /// Requests in all (after warm-up).
     #[arg(long, default_value_t = 200)]
     pub requests: usize,
@@ -33,13 +35,28 @@ pub struct BenchArgs {
           value_parser = clap::value_parser!(u32).range(1..=crate::common::MAX_HYPOTHESES))]
     pub hypotheses: u32,
     /// Timeout per request, milliseconds.
-    #[arg(long, default_value_t = 30_000)]
+    #[arg(long, default_value_t = 30_000, value_parser = clap::value_parser!(u64).range(1..))]
     pub timeout_ms: u64,
     /// Print the results as JSON.
     #[arg(long)]
     pub json: bool,
     #[command(flatten)]
     pub connect: Connect,
+}
+
+/// One client's object ids (one `--objects` list).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Objects(pub Vec<u32>);
+
+fn parse_objects(list: &str) -> Result<Objects, String> {
+    list.split(',')
+        .map(|id| {
+            id.trim()
+                .parse::<u32>()
+                .map_err(|e| format!("object id {id:?}: {e}"))
+        })
+        .collect::<Result<Vec<u32>, String>>()
+        .map(Objects)
 }
 
 /// The distribution of `samples` at three significant digits, for the end-to-end printout.
@@ -102,6 +119,7 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         timeout: millis(args.timeout_ms),
         ..Default::default()
     };
+    let objects_of = |client: usize| &args.objects[client % args.objects.len()].0[..];
     let started = std::sync::Barrier::new(args.clients);
     let per_client: Vec<usize> = (0..args.clients)
         .map(|i| args.requests / args.clients + usize::from(i < args.requests % args.clients))
@@ -110,13 +128,15 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     let results: Vec<Result<Vec<Latency>, String>> = std::thread::scope(|s| {
         let handles: Vec<_> = per_client
             .iter()
-            .map(|&n| {
+            .enumerate()
+            .map(|(i, &n)| {
                 let (args, options, started, wall) = (&args, &options, &started, &wall);
+                let objects = objects_of(i);
                 s.spawn(move || -> Result<Vec<Latency>, String> {
                     let client = args.connect.client()?;
                     for _ in 0..args.warmup {
                         client
-                            .detect(&args.camera, &args.objects, options)
+                            .detect(&args.camera, objects, options)
                             .map_err(|e| e.to_string())?;
                     }
                     started.wait();
@@ -124,7 +144,7 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
                     let mut out = Vec::with_capacity(n);
                     for _ in 0..n {
                         let d = client
-                            .detect(&args.camera, &args.objects, options)
+                            .detect(&args.camera, objects, options)
                             .map_err(|e| e.to_string())?;
                         out.push(d.latency);
                     }
@@ -146,8 +166,11 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         .map(|t| t.elapsed())
         .unwrap_or_default();
     let mut all = Vec::new();
-    for r in results {
-        all.extend(r?);
+    let mut per_client = Vec::new();
+    for (i, r) in results.into_iter().enumerate() {
+        let r = r?;
+        per_client.push(ClientFigures::of(i, objects_of(i), &r));
+        all.extend(r);
     }
 
     let names: Vec<&'static str> = stages(&Default::default())
@@ -206,9 +229,10 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             .map(|v| serde_json::json!({"quantile": v.quantile_iterated_to(), "ns": v.value_iterated_to()}))
             .collect();
         let out = serde_json::json!({
-            "camera": args.camera, "objects": args.objects, "requests": all.len(), "clients": args.clients,
+            "camera": args.camera, "objects": args.objects.iter().map(|o| o.0.clone()).collect::<Vec<_>>(), "requests": all.len(), "clients": args.clients,
             "seconds": elapsed.as_secs_f64(), "throughput_per_s": throughput,
             "latency": rows, "end_to_end_distribution": distribution,
+            "per_client": per_client.iter().map(ClientFigures::json).collect::<Vec<_>>(),
         });
         println!(
             "{}",
@@ -224,7 +248,7 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         elapsed.as_secs_f64(),
         throughput,
         args.camera,
-        args.objects
+        args.objects.iter().map(|o| &o.0).collect::<Vec<_>>()
     );
     println!(
         "{:<20} {:>10} {:>10} {:>10} {:>10}",
@@ -240,6 +264,24 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             ms(m.at(1.0))
         );
     }
+    if per_client.len() > 1 {
+        println!("\nper client (ms):");
+        println!(
+            "{:<8} {:<16} {:>8} {:>12} {:>12} {:>12} {:>14} {:>14} {:>14}",
+            "client",
+            "objects",
+            "requests",
+            "e2e p50",
+            "e2e p99",
+            "e2e max",
+            "queue wait p50",
+            "queue wait max",
+            "overhead p50"
+        );
+        for c in &per_client {
+            c.print();
+        }
+    }
     println!("\nend to end, HDR histogram (ms at percentile, three significant digits):");
     for q in [0.0, 0.25, 0.5, 0.75, 0.9, 0.95, 0.99, 0.999, 1.0] {
         println!(
@@ -249,6 +291,61 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         );
     }
     Ok(())
+}
+
+/// One client's share of the run: how many of its requests were served and how long they took,
+/// beside the others'.
+struct ClientFigures {
+    client: usize,
+    objects: Vec<u32>,
+    end_to_end: Vec<u64>,
+    queue_wait: Vec<u64>,
+    overhead: Vec<u64>,
+}
+
+impl ClientFigures {
+    fn of(client: usize, objects: &[u32], latencies: &[Latency]) -> ClientFigures {
+        let sorted = |f: &dyn Fn(&Latency) -> u64| {
+            let mut v: Vec<u64> = latencies.iter().map(f).collect();
+            v.sort_unstable();
+            v
+        };
+        ClientFigures {
+            client,
+            objects: objects.to_vec(),
+            end_to_end: sorted(&|l| l.end_to_end_ns),
+            queue_wait: sorted(&|l| l.daemon.queue_wait_ns),
+            overhead: sorted(&|l| l.overhead_ns()),
+        }
+    }
+
+    fn print(&self) {
+        let objects: Vec<String> = self.objects.iter().map(u32::to_string).collect();
+        println!(
+            "{:<8} {:<16} {:>8} {:>12} {:>12} {:>12} {:>14} {:>14} {:>14}",
+            self.client,
+            objects.join(","),
+            self.end_to_end.len(),
+            ms(nearest_rank(&self.end_to_end, 0.5)),
+            ms(nearest_rank(&self.end_to_end, 0.99)),
+            ms(nearest_rank(&self.end_to_end, 1.0)),
+            ms(nearest_rank(&self.queue_wait, 0.5)),
+            ms(nearest_rank(&self.queue_wait, 1.0)),
+            ms(nearest_rank(&self.overhead, 0.5)),
+        );
+    }
+
+    fn json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "client": self.client, "objects": self.objects, "requests": self.end_to_end.len(),
+            "end_to_end_p50_ns": nearest_rank(&self.end_to_end, 0.5),
+            "end_to_end_p99_ns": nearest_rank(&self.end_to_end, 0.99),
+            "end_to_end_max_ns": nearest_rank(&self.end_to_end, 1.0),
+            "queue_wait_p50_ns": nearest_rank(&self.queue_wait, 0.5),
+            "queue_wait_max_ns": nearest_rank(&self.queue_wait, 1.0),
+            "overhead_p50_ns": nearest_rank(&self.overhead, 0.5),
+        })
+    }
 }
 
 #[cfg(test)]

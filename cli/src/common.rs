@@ -16,6 +16,11 @@ pub struct Connect {
 }
 
 impl Connect {
+    /// The prefix given, else the one of PPFD_PREFIX.
+    pub fn prefix(&self) -> Option<String> {
+        self.prefix.clone().or_else(ppfd_client::prefix_from_env)
+    }
+
     pub fn client(&self) -> Result<Client, String> {
         self.client_with(ClientOptions::default().control_timeout)
     }
@@ -23,7 +28,7 @@ impl Connect {
     /// A client whose control requests wait up to `control_timeout` for their answers.
     pub fn client_with(&self, control_timeout: Duration) -> Result<Client, String> {
         let options = ClientOptions {
-            prefix: self.prefix.clone().or_else(ppfd_client::prefix_from_env),
+            prefix: self.prefix(),
             control_timeout,
             ..Default::default()
         };

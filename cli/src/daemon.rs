@@ -18,12 +18,12 @@ pub struct ModelsArgs {
     /// digits ending a PLY file's name).
     #[arg(long, requires = "load", value_parser = clap::value_parser!(u32).range(1..))]
     pub id: Option<u32>,
-    /// Drop the model with this object id.
-    #[arg(long)]
+    /// Drop the model with this object id (not with `--load`: one change per call).
+    #[arg(long, conflicts_with = "load")]
     pub drop: Option<u32>,
     /// Give up waiting for the daemon's answer after this long, milliseconds (building a model
     /// from a mesh of millions of faces takes a while; a daemon that dies is noticed at once).
-    #[arg(long, default_value_t = 600_000)]
+    #[arg(long, default_value_t = 600_000, value_parser = clap::value_parser!(u64).range(1..))]
     pub timeout_ms: u64,
     #[command(flatten)]
     pub connect: Connect,
@@ -115,7 +115,7 @@ pub struct StatsArgs {
     pub json: bool,
     /// Give up waiting for the daemon's answer after this long, milliseconds (a daemon answers
     /// once it has loaded the models it starts with).
-    #[arg(long, default_value_t = 5_000)]
+    #[arg(long, default_value_t = 5_000, value_parser = clap::value_parser!(u64).range(1..))]
     pub timeout_ms: u64,
     #[command(flatten)]
     pub connect: Connect,

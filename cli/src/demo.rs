@@ -20,7 +20,7 @@ use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::store;
 use ppfd_models::model::ModelParams;
 use ppfd_models::synthetic::parts::Part;
-use ppfd_models::synthetic::scene::{NoiseModel, SceneSpec};
+use ppfd_models::synthetic::scene::{NoiseModel, SceneSpec, SyntheticScene};
 use ppfd_models::Pose;
 
 use crate::common::{print_latency, ScratchDir, MAX_HYPOTHESES};
@@ -53,6 +53,12 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 1,
           value_parser = clap::value_parser!(u32).range(1..=MAX_HYPOTHESES))]
     pub hypotheses: u32,
+    /// Write a picture of the frame with each pose's outline, axes and label (id, #rank,
+    /// score), and the truth's outline (PNG).
+    #[arg(long, value_name = "PNG")]
+    pub overlay: Option<PathBuf>,
+    #[command(flatten)]
+    pub requirements: crate::requirements::RequirementArgs,
 }
 
 /// A scene to detect in, with the truth.
@@ -65,20 +71,31 @@ struct DemoScene {
     label: String,
 }
 
-/// The embedded default: the generated parts resting on a table, seen by a Kinect-like camera.
-fn generated_scene(args: &DemoArgs, cache: &Path) -> Result<DemoScene, String> {
+/// The generated parts ([`Part::ALL`]) resting on a table, seen from a viewpoint drawn from
+/// `seed`, with Kinect-like noise unless `no_noise`; and each part's mesh. `ppf demo` shows it
+/// and `ppf generate` writes it.
+pub fn parts_scene(
+    seed: u64,
+    no_noise: bool,
+) -> Result<(Vec<(Part, Mesh)>, SyntheticScene), String> {
     let meshes: Vec<(Part, Mesh)> = Part::ALL.iter().map(|p| (*p, p.mesh())).collect();
-    let noise = if args.no_noise {
+    let noise = if no_noise {
         None
     } else {
         Some(NoiseModel::kinect())
     };
-    let seed = args.seed.unwrap_or(1);
     let mut spec = SceneSpec::new(seed).noise(noise);
     for (part, mesh) in &meshes {
         spec = spec.object(part.object_id(), mesh);
     }
     let scene = spec.build().map_err(|e| e.to_string())?;
+    Ok((meshes, scene))
+}
+
+/// The embedded default: the generated parts resting on a table, seen by a Kinect-like camera.
+fn generated_scene(args: &DemoArgs, cache: &Path) -> Result<DemoScene, String> {
+    let seed = args.seed.unwrap_or(1);
+    let (meshes, scene) = parts_scene(seed, args.no_noise)?;
     // Models are built here once and kept in the cache; the daemon maps the files.
     let params = ModelParams::default();
     let mut model_files = Vec::new();
@@ -430,6 +447,7 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
     let options = DetectOptions {
         hypotheses_per_object: args.hypotheses,
         timeout: Duration::from_secs(900),
+        requirements: args.requirements.wire()?,
         ..Default::default()
     };
     // Publish until the daemon has subscribed and answers from this camera.
@@ -466,6 +484,16 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
         scene.truth.len()
     );
     print_latency(&found);
+    if let Some(path) = &args.overlay {
+        let meshes = scene
+            .model_files
+            .iter()
+            .map(|(id, file)| Ok((*id, crate::overlay::mesh_of_file(file)?)))
+            .collect::<Result<Vec<(u32, Mesh)>, String>>()?;
+        crate::overlay::draw_detections(&f.view(), None, &meshes, &found, &scene.truth)
+            .write_png(path)?;
+        println!("\noverlay written to {}", path.display());
+    }
     drop(camera);
     drop(client);
     drop(run);

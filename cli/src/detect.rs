@@ -21,6 +21,10 @@ pub struct DetectArgs {
     pub timeout_ms: u64,
     /// Print the answer as JSON.
     pub json: bool,
+    /// What the poses must satisfy, and their order.
+    pub requirements: ppfd_client::Requirements,
+    /// Where to write the overlay picture, and the models folder to draw outlines from.
+    pub overlay: Option<(PathBuf, PathBuf)>,
     /// A JSON file of poses to refine first.
     pub hints: Option<PathBuf>,
     pub connect: Connect,
@@ -93,14 +97,27 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
         None => Vec::new(),
     };
     let client = args.connect.client()?;
+    // Subscribed before the request, so that the frame the daemon uses arrives here too.
+    let viewer = match &args.overlay {
+        Some(_) => Some(
+            ppfd_client::CameraViewer::open(args.connect.prefix().as_deref(), &args.camera)
+                .map_err(|e| e.to_string())?,
+        ),
+        None => None,
+    };
     let options = DetectOptions {
         hypotheses_per_object: args.hypotheses,
         timeout: millis(args.timeout_ms),
+        requirements: args.requirements,
+        hints,
         ..Default::default()
     };
     let found = client
-        .detect_with_hints(&args.camera, &args.objects, &hints, &options)
+        .detect(&args.camera, &args.objects, &options)
         .map_err(|e| e.to_string())?;
+    if let (Some((path, models)), Some(viewer)) = (&args.overlay, &viewer) {
+        write_overlay(path, models, viewer, &found, &args.objects)?;
+    }
     if args.json {
         let hyps: Vec<serde_json::Value> = found
             .hypotheses
@@ -151,5 +168,67 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
     );
     print_hypotheses(&found, &args.objects);
     print_latency(&found);
+    Ok(())
+}
+
+/// Draws the answer over the frame it was found in (the newest this process received when
+/// that one has gone by) and writes the picture.
+fn write_overlay(
+    path: &std::path::Path,
+    models: &std::path::Path,
+    viewer: &ppfd_client::CameraViewer,
+    found: &ppfd_client::Detections,
+    objects: &[u32],
+) -> Result<(), String> {
+    let frames = viewer.frames().map_err(|e| e.to_string())?;
+    let (header, depth) = frames
+        .iter()
+        .find(|(h, _)| h.sequence == found.frame_sequence)
+        .or(frames.last())
+        .ok_or("the camera sent this process no frame to draw the overlay on")?;
+    if header.sequence != found.frame_sequence {
+        eprintln!(
+            "note: the overlay shows frame {}, the detection used frame {}",
+            header.sequence, found.frame_sequence
+        );
+    }
+    let mut meshes = Vec::new();
+    for entry in std::fs::read_dir(models).map_err(|e| format!("{}: {e}", models.display()))? {
+        let file = entry.map_err(|e| e.to_string())?.path();
+        let id = ppfd::ppf_engine::object_id_of_file(&file);
+        let usable = file.extension().is_some_and(|e| {
+            e.eq_ignore_ascii_case("ply") || e == ppfd::ppf_engine::MODEL_EXTENSION
+        });
+        if let Some(id) = id.filter(|id| usable && objects.contains(id)) {
+            if !meshes.iter().any(|(m, _)| *m == id) {
+                meshes.push((id, crate::overlay::mesh_of_file(&file)?));
+            }
+        }
+    }
+    if let Some(missing) = objects
+        .iter()
+        .find(|id| !meshes.iter().any(|(m, _)| m == *id))
+    {
+        return Err(format!(
+            "{} holds no mesh or model file of object {missing} to draw",
+            models.display()
+        ));
+    }
+    let k = header.intrinsics;
+    let frame = ppfd_models::geometry::camera::DepthFrame {
+        width: header.width,
+        height: header.height,
+        intrinsics: ppfd_models::geometry::camera::Intrinsics {
+            fx: k.fx,
+            fy: k.fy,
+            cx: k.cx,
+            cy: k.cy,
+        },
+        depth_scale_mm: header.depth_scale_mm,
+        depth,
+    };
+    crate::overlay::draw_detections(&frame, None, &meshes, found, &[]).write_png(path)?;
+    // On stderr: stdout may be the JSON answer.
+    eprintln!("overlay written to {}", path.display());
     Ok(())
 }

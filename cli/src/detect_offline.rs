@@ -5,7 +5,6 @@ use std::path::PathBuf;
 use clap::Args;
 use ppfd_bop::dataset::BopDataset;
 use ppfd_models::detect::detector::{Detector, RunOptions};
-use rayon::prelude::*;
 
 use crate::offline::{dataset_models, symmetric_pose_errors};
 
@@ -37,7 +36,8 @@ pub struct DetectCommand {
           value_parser = clap::value_parser!(u64).range(1..))]
     pub timeout_ms: u64,
     /// Print the answer as JSON (with --camera): ranks from 1 like the table, `checks` as the
-    /// protocol's bits (1 re-scored, 2 refined, 4 consistent, 8 silhouette), times in ns.
+    /// protocol's bits (1 re-scored, 2 refined, 4 consistent, 8 silhouette, 16 from a
+    /// hint), times in ns.
     #[arg(long, conflicts_with = "dataset")]
     pub json: bool,
     /// With --camera: a JSON file of poses the objects are expected near, refined before any
@@ -62,6 +62,17 @@ pub struct DetectCommand {
     /// parameters are set when it starts (`ppfd --set`).
     #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
     pub set: Vec<String>,
+    /// Write a picture of the frame with each pose's outline, axes and label (id, #rank,
+    /// score), and the ground truth's outline when known (PNG).
+    #[arg(long, value_name = "PNG")]
+    pub overlay: Option<PathBuf>,
+    /// With --camera --overlay: the folder of the daemon's models (PLY meshes or model files
+    /// named by object id, as given to `ppfd --models`), whose meshes the outlines are drawn
+    /// from.
+    #[arg(long, requires = "overlay", conflicts_with = "dataset")]
+    pub models: Option<PathBuf>,
+    #[command(flatten)]
+    pub requirements: crate::requirements::RequirementArgs,
     #[command(flatten)]
     pub connect: crate::common::Connect,
 }
@@ -92,6 +103,15 @@ impl DetectCommand {
         }) {
             return Err(format!("--objects lists object {id} twice"));
         }
+        if self.diagnose
+            && (self.overlay.is_some() || self.requirements.wire()? != Default::default())
+        {
+            return Err(
+                "--diagnose ranks the first correct pose after each stage, without request \
+                 options or an overlay: leave those out, or --diagnose"
+                    .into(),
+            );
+        }
         if let Some(dataset) = self.dataset {
             if self.connect.prefix.is_some() {
                 return Err(
@@ -110,6 +130,8 @@ impl DetectCommand {
                 peaks: self.peaks,
                 top: self.hypotheses as usize,
                 set: self.set,
+                requirements: self.requirements.wire()?,
+                overlay: self.overlay,
             }));
         }
         let given = |flags: &[(&'static str, bool)]| -> Vec<&'static str> {
@@ -156,12 +178,21 @@ impl DetectCommand {
         if self.objects.is_empty() {
             return Err("--camera needs --objects".into());
         }
+        if self.overlay.is_some() && self.models.is_none() {
+            return Err(
+                "--camera --overlay needs --models DIR, the daemon's models folder, to draw \
+                 the outlines from"
+                    .into(),
+            );
+        }
         Ok(DetectTarget::Camera(crate::detect::DetectArgs {
             camera: self.camera.ok_or(NO_MODE)?,
             objects: self.objects,
             hypotheses: self.hypotheses,
             timeout_ms: self.timeout_ms,
             json: self.json,
+            requirements: self.requirements.wire()?,
+            overlay: self.overlay.zip(self.models),
             hints: self.hints,
             connect: self.connect,
         }))
@@ -180,6 +211,8 @@ pub struct DatasetDetectArgs {
     pub peaks: Option<usize>,
     pub top: usize,
     pub set: Vec<String>,
+    pub requirements: ppfd_client::Requirements,
+    pub overlay: Option<PathBuf>,
 }
 
 impl DatasetDetectArgs {
@@ -205,8 +238,9 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
         return diagnose(&args);
     }
     let dataset = BopDataset::open(&args.dataset)?;
+    dataset.check_image(args.scene, args.image)?;
     let gt = dataset
-        .ground_truth(args.scene, args.image)
+        .ground_truth_if_any(args.scene, args.image)?
         .map(|g| g.to_vec())
         .unwrap_or_default();
     let ids = match &args.objects {
@@ -224,6 +258,7 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
     let refs: Vec<_> = models.iter().collect();
     let opts = RunOptions {
         hypotheses_per_object: args.top.max(10),
+        requirements: ppfd::ppf_engine::detector_requirements(&args.requirements)?,
         ..Default::default()
     };
     let det = detector.detect(&frame.view(), &refs, &opts)?;
@@ -268,6 +303,56 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
                 crate::common::checks_letters(h.checks.0)
             );
         }
+        if o.hypotheses.is_empty() {
+            let flag = if truth.is_some() { "no" } else { "-" };
+            println!(
+                "| {} | {d:.0} | - | (no hypothesis) | | | | | {flag} |",
+                o.object_id
+            );
+        }
+    }
+    if let Some(path) = &args.overlay {
+        let meshes: Vec<_> = models.iter().map(|m| m.render_mesh()).collect();
+        let colour = dataset
+            .colour_path(args.scene, args.image)
+            .map(|p| crate::overlay::read_colour_png(&p))
+            .transpose()?;
+        let view = frame.view();
+        let mut overlay = colour
+            .and_then(|(w, h, rgb)| crate::overlay::Overlay::from_colour(&view, w, h, rgb))
+            .unwrap_or_else(|| crate::overlay::Overlay::from_depth(&view));
+        let truth: Vec<crate::overlay::Drawn> = gt
+            .iter()
+            .filter_map(|g| {
+                let i = ids.iter().position(|&id| id == g.obj_id)?;
+                Some(crate::overlay::Drawn {
+                    mesh: &meshes[i],
+                    pose: g.pose,
+                    colour: crate::overlay::TRUTH,
+                    label: None,
+                })
+            })
+            .collect();
+        let poses: Vec<crate::overlay::Drawn> = det
+            .objects
+            .iter()
+            .zip(&meshes)
+            .flat_map(|(o, mesh)| {
+                o.hypotheses
+                    .iter()
+                    .take(args.top)
+                    .enumerate()
+                    .map(move |(rank, h)| crate::overlay::Drawn {
+                        mesh,
+                        pose: h.pose,
+                        colour: crate::overlay::check_colour(h.checks.0),
+                        label: Some(crate::overlay::label(o.object_id, rank, h.score)),
+                    })
+            })
+            .collect();
+        overlay.draw_all(&truth, &poses);
+        overlay.write_png(path)?;
+        println!("overlay written to {}", path.display());
     }
     if !gt.is_empty() {
         println!(
@@ -295,18 +380,15 @@ fn ms(d: std::time::Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
 
-/// Runs the stages one by one for each object and prints where the first correct pose (within
-/// 0.1 D and 15° of the ground truth) ranks after each.
+/// For each object: how its scene cloud looks against the ground truth (points on the object,
+/// their normals' error), then the stages one by one ([`ppfd_models::detect::diagnosis`]):
+/// where the best candidate near the ground truth stands after each, and where it was lost.
 pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
-    use ppfd_models::detect::clustering::cluster_poses;
-    use ppfd_models::detect::icp::refine;
+    use ppfd_models::detect::diagnosis::{diagnose, PreparedFrame};
     use ppfd_models::detect::plane::SupportingPlane;
-    use ppfd_models::detect::rescoring::{prescreen, score_poses, Outline};
     use ppfd_models::detect::scene::{prepare, PreparedScene};
     use ppfd_models::detect::silhouette::EdgeMap;
-    use ppfd_models::detect::voting::{vote_from, Selection};
-    use ppfd_models::geometry::render::bounding_sphere;
-    use ppfd_models::geometry::simplify::simplified_mesh;
+    use ppfd_models::detect::voting::Selection;
     let dataset = BopDataset::open(&args.dataset)?;
     let gt = dataset.ground_truth(args.scene, args.image)?.to_vec();
     let ids = if args.objects.is_empty() {
@@ -344,13 +426,19 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
         );
     }
     let edges = EdgeMap::new(&scene, &p.filters);
+    let prepared = PreparedFrame {
+        image: &scene,
+        planes: &planes,
+        edges: &edges,
+    };
     // The clouds the detector would build for these objects together.
     let model_refs: Vec<&ppfd_models::model::ObjectModel> = models.iter().collect();
     let (groups, cloud_of) = p.scene_clouds(&model_refs);
     let clouds: Vec<PreparedScene> = p.prepare_clouds(&points, &groups)?;
-    println!("| object | cloud points | on object | normal error (median °) | reference points on object | proposing a correct pose | clusters | rank by votes | after re-scoring | after ICP + re-scoring | best cluster t err (mm) | R err (°) | voting + clustering (ms) |");
-    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
-    let (mut in_top10, mut first_after_icp) = (0, 0);
+    println!("| object | cloud points | on object | normal error (median °) | reference points on object | lost at |");
+    println!("|---:|---:|---:|---:|---:|---|");
+    let mut lines = Vec::new();
+    let mut found = 0;
     for (model, &group) in models.iter().zip(&cloud_of) {
         let d = model.diameter_mm();
         let truth = gt
@@ -362,16 +450,6 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             .model_info(model.object_id())
             .map(|i| i.symmetries_discrete.clone())
             .unwrap_or_default();
-        let ok = |pose: &ppfd_models::Pose| {
-            let (dt, dr) = symmetric_pose_errors(pose, &truth, &syms);
-            dt < 0.1 * d && dr < 15.0
-        };
-        let rank = |poses: Vec<ppfd_models::Pose>| {
-            poses
-                .iter()
-                .position(&ok)
-                .map_or("-".to_string(), |r| (r + 1).to_string())
-        };
         let cloud = &clouds[group];
         // The model's surface at the true pose, the side facing the camera only: the back of a
         // thin part (a handle, a spout) lies within millimetres of its front, with the opposite
@@ -382,7 +460,6 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             .map(|(q, n)| (truth * q, truth * n))
             .filter(|(q, n)| n.dot(&q.coords) < 0.0)
             .collect();
-        // Per cloud point, once: the nearest such surface point's normal, if it is on the object.
         let surface_normals: Vec<Option<nalgebra::Vector3<f32>>> = cloud
             .points
             .positions
@@ -395,128 +472,41 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
                     .map(|(_, n)| *n)
             })
             .collect();
-        let on_object = {
-            let mut errs: Vec<f32> = surface_normals
-                .iter()
-                .zip(&cloud.points.normals)
-                .filter_map(|(mn, n)| mn.map(|mn| n.dot(&mn).clamp(-1.0, 1.0).acos().to_degrees()))
-                .collect();
-            errs.sort_by(f32::total_cmp);
-            (
-                errs.len(),
-                errs.get(errs.len() / 2).copied().unwrap_or(f32::NAN),
-            )
-        };
-        let t = std::time::Instant::now();
-        let selection = Selection::new(cloud, &p.voting, &planes, d);
-        let (raw, _) = vote_from(model, cloud, &selection, &p.voting);
-        let clusters = cluster_poses(&raw, d, &p.clustering);
-        let vote_ms = t.elapsed().as_secs_f64() * 1e3;
-        // Reference points on the object, and how many of them put a correct pose among their
-        // accumulator's peaks: what voting gets right before clustering weighs it.
-        let references_on_object: Vec<u32> = selection
+        let mut errs: Vec<f32> = surface_normals
+            .iter()
+            .zip(&cloud.points.normals)
+            .filter_map(|(mn, n)| mn.map(|mn| n.dot(&mn).clamp(-1.0, 1.0).acos().to_degrees()))
+            .collect();
+        errs.sort_by(f32::total_cmp);
+        let median = errs.get(errs.len() / 2).copied().unwrap_or(f32::NAN);
+        let references_on_object = Selection::new(cloud, &p.voting, &planes, d)
             .references
             .iter()
             .filter(|&&r| surface_normals[r].is_some())
-            .map(|&r| r as u32)
-            .collect();
-        let proposing: std::collections::HashSet<u32> = raw
-            .iter()
-            .filter(|h| ok(&h.pose))
-            .map(|h| h.scene_point)
-            .collect();
-        let references_right = references_on_object
-            .iter()
-            .filter(|r| proposing.contains(r))
             .count();
-        let first_correct = |poses: &[ppfd_models::Pose]| poses.iter().position(&ok);
-        let cluster_poses_list: Vec<_> = clusters.iter().map(|c| c.pose).collect();
-        if first_correct(&cluster_poses_list).is_some_and(|r| r < 10) {
-            in_top10 += 1;
-        }
-        let best_err = clusters
-            .first()
-            .map(|c| symmetric_pose_errors(&c.pose, &truth, &syms))
-            .unwrap_or((f32::NAN, f32::NAN));
-        let surface = model.surface_points();
-        let top: Vec<_> = clusters
-            .iter()
-            .take(p.rescoring.top_clusters)
-            .map(|c| (c.pose, c.votes))
-            .collect();
-        let mesh = simplified_mesh(
-            &model.render_mesh(),
-            p.rescoring.silhouette_mesh_cell_fraction * d,
-        );
-        let sphere = bounding_sphere(&mesh);
-        let outline = Outline {
-            mesh: &mesh,
-            sphere: &sphere,
-            edges: &edges,
-            max_outline_px: p.filters.max_outline_px,
-        };
-        let coarse_outline = Outline {
-            max_outline_px: p.rescoring.coarse_outline(p.filters.max_outline_px),
-            ..outline
-        };
-        // As the detector: a sparse fit picks the clusters for the full re-scoring, and the
-        // outlines before ICP are coarse; every pose kept, the table ranks them all.
-        let top = prescreen(
-            &top,
-            &surface,
-            &scene,
-            p.rescoring.tolerance_mm(d),
-            p.rescoring.conflict_mm(d),
-            &p.rescoring,
-        );
-        let scored = score_poses(
-            &top,
-            &surface,
-            &scene,
-            p.rescoring.tolerance_mm(d),
-            p.rescoring.conflict_mm(d),
-            &p.rescoring,
-            &coarse_outline,
-            top.len(),
-        );
-        let refined: Vec<_> = scored
-            .par_iter()
-            .take(p.icp.top_poses)
-            .map(|s| (refine(&surface, &s.pose, &scene, d, &p.icp).pose, s.votes))
-            .collect();
-        let rescored = score_poses(
-            &refined,
-            &surface,
-            &scene,
-            p.rescoring.refined_tolerance_mm(d),
-            p.rescoring.conflict_mm(d),
-            &p.rescoring,
-            &outline,
-            refined.len(),
-        );
-        let final_poses: Vec<_> = rescored.iter().map(|s| s.pose).collect();
-        if first_correct(&final_poses) == Some(0) {
-            first_after_icp += 1;
+        let errors = |pose: &ppfd_models::Pose| symmetric_pose_errors(pose, &truth, &syms);
+        let diagnosis = diagnose(&p, &prepared, cloud, model, &errors, args.top.max(1));
+        if diagnosis.lost_at().is_none() {
+            found += 1;
         }
         println!(
-            "| {} | {} | {} | {:.1} | {} | {} | {} | {} | {} | {} | {:.1} | {:.1} | {vote_ms:.0} |",
+            "| {} | {} | {} | {median:.1} | {references_on_object} | {} |",
             model.object_id(),
             cloud.points.len(),
-            on_object.0,
-            on_object.1,
-            references_on_object.len(),
-            references_right,
-            clusters.len(),
-            rank(cluster_poses_list),
-            rank(scored.iter().map(|s| s.pose).collect()),
-            rank(final_poses),
-            best_err.0,
-            best_err.1,
+            errs.len(),
+            diagnosis.lost_at().unwrap_or("found"),
         );
+        lines.extend(diagnosis.lines());
+    }
+    println!();
+    for line in lines {
+        println!("{line}");
     }
     println!(
-        "\n{in_top10} of {} objects have a correct pose among the 10 best clusters; {first_after_icp} rank it first after ICP + re-scoring",
-        models.len()
+        "\n{found} of {} objects found near the ground truth (within {} D and {}°)",
+        models.len(),
+        ppfd_models::detect::diagnosis::NEAR_TRANSLATION_FRACTION,
+        ppfd_models::detect::diagnosis::NEAR_ROTATION_DEG
     );
     Ok(())
 }

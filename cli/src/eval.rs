@@ -83,6 +83,22 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
     } else {
         args.objects.clone()
     };
+    // Every image's files are checked before any work starts, and the objects each image
+    // asks for come from its ground truth (every object where the scene has none).
+    let mut wanted_per_image = Vec::with_capacity(images.len());
+    for &(scene, im) in &images {
+        dataset.check_image(scene, im)?;
+        let wanted: Vec<u32> = match dataset.ground_truth_if_any(scene, im)? {
+            Some(gt) if args.objects.is_empty() && !gt.is_empty() => {
+                let mut v: Vec<u32> = gt.iter().map(|g| g.obj_id).collect();
+                v.sort_unstable();
+                v.dedup();
+                v
+            }
+            _ => ids.clone(),
+        };
+        wanted_per_image.push(wanted);
+    }
     // Parameters before models: a mistyped name fails at once, not after the builds.
     let mut params = ppfd_models::detect::detector::DetectParams::new();
     for kv in &args.set {
@@ -116,16 +132,7 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
         .unwrap(),
     );
     let mut rows = Vec::new();
-    for &(scene, im) in &images {
-        let wanted: Vec<u32> = match dataset.ground_truth(scene, im) {
-            Ok(gt) if args.objects.is_empty() && !gt.is_empty() => {
-                let mut v: Vec<u32> = gt.iter().map(|g| g.obj_id).collect();
-                v.sort_unstable();
-                v.dedup();
-                v
-            }
-            _ => ids.clone(),
-        };
+    for (&(scene, im), wanted) in images.iter().zip(&wanted_per_image) {
         let refs: Vec<_> = models
             .iter()
             .filter(|m| wanted.contains(&m.object_id()))

@@ -7,10 +7,13 @@ mod demo;
 mod detect;
 mod detect_offline;
 mod eval;
+mod generate;
 mod model;
 mod offline;
+mod overlay;
 mod profile;
 mod replay;
+mod requirements;
 mod score;
 mod stop;
 
@@ -47,6 +50,9 @@ enum Command {
     Stats(daemon::StatsArgs),
     /// Start a daemon, publish a generated scene, detect, compare with the truth, stop.
     Demo(demo::DemoArgs),
+    /// Write the generated scene `demo` shows as a BOP dataset: the parts' meshes, the depth
+    /// image, its camera and ground truth.
+    Generate(generate::GenerateArgs),
     /// Run the ppfd daemon in this process, with ppfd's flags (what `ppf demo` starts);
     /// `ppf serve --help` prints ppfd's help.
     #[command(hide = true, disable_help_flag = true)]
@@ -131,6 +137,7 @@ fn main() {
         Command::Models(args) => daemon::models(args).map_err(Into::into),
         Command::Stats(args) => daemon::stats(args).map_err(Into::into),
         Command::Demo(args) => demo::run(args).map_err(Into::into),
+        Command::Generate(args) => generate::run(args).map_err(Into::into),
         Command::Serve { .. } => unreachable!("handled above"),
         Command::Score(args) => score::run(args),
         Command::Eval(args) => eval::run(args),
@@ -179,8 +186,27 @@ mod tests {
         ])
         .unwrap();
         assert!(
-            matches!(cli.command, Command::Bench(ref a) if a.clients == 3 && a.objects == vec![2])
+            matches!(cli.command, Command::Bench(ref a) if a.clients == 3 && a.objects == vec![bench::Objects(vec![2])])
         );
+        // One list per client, in turn.
+        let cli = Cli::try_parse_from([
+            "ppf",
+            "bench",
+            "--camera",
+            "k",
+            "--objects",
+            "1,5",
+            "--objects",
+            "8,9,10",
+        ])
+        .unwrap();
+        match cli.command {
+            Command::Bench(a) => assert_eq!(
+                a.objects,
+                vec![bench::Objects(vec![1, 5]), bench::Objects(vec![8, 9, 10])]
+            ),
+            other => panic!("{other:?}"),
+        }
         for args in [
             vec!["ppf", "replay", "/d", "--camera", "k", "--loop"],
             vec!["ppf", "models", "--drop", "3"],
@@ -189,6 +215,95 @@ mod tests {
         ] {
             Cli::try_parse_from(&args).unwrap_or_else(|e| panic!("{args:?}: {e}"));
         }
+    }
+
+    /// The request options' flags become the request's requirements, and a value out of
+    /// range is refused with its name and range before anything is sent; `--camera
+    /// --overlay` needs the models folder to draw from.
+    #[test]
+    fn detect_takes_the_request_options_and_refuses_them_out_of_range() {
+        use ppfd_client::{order, Requirements};
+        let target = |extra: &[&str]| -> Result<Requirements, String> {
+            let args = ["ppf", "detect", "--camera", "k", "--objects", "8"];
+            let args: Vec<&str> = args.iter().chain(extra).copied().collect();
+            let cli = Cli::try_parse_from(args).map_err(|e| e.to_string())?;
+            match cli.command {
+                Command::Detect(a) => match a.into_target()? {
+                    detect_offline::DetectTarget::Camera(c) => Ok(c.requirements),
+                    _ => panic!("a camera request"),
+                },
+                other => panic!("{other:?}"),
+            }
+        };
+        assert_eq!(target(&[]).unwrap(), Requirements::default());
+        let r = target(&[
+            "--min-score",
+            "0.3",
+            "--instance-distance",
+            "0.5",
+            "--roi",
+            "10,20,300,200",
+            "--max-tilt",
+            "30",
+            "--tilt-axis",
+            "-1,0,0",
+            "--order",
+            "distance",
+        ])
+        .unwrap();
+        assert_eq!(r.min_score, 0.3);
+        assert_eq!(r.instance_distance_fraction, 0.5);
+        assert_eq!((r.region_of_interest.x, r.region_of_interest.y), (10, 20));
+        assert_eq!(
+            (r.region_of_interest.width, r.region_of_interest.height),
+            (300, 200)
+        );
+        assert_eq!(r.pose_restriction.max_angle_deg, 30.0);
+        assert_eq!(r.pose_restriction.model_axis, [-1.0, 0.0, 0.0]);
+        assert_eq!(r.pose_restriction.camera_direction, [0.0, 0.0, -1.0]);
+        assert_eq!(r.order, order::DISTANCE);
+        for (extra, expected) in [
+            (&["--min-score", "2"][..], "minimum score 2 is out of range"),
+            (
+                &["--instance-distance", "0"],
+                "--instance-distance must be above 0",
+            ),
+            (&["--max-tilt", "200"], "200 degrees is out of range"),
+            (&["--roi", "5,5,0,10"], "region of interest 0x10"),
+            (
+                &["--max-tilt", "10", "--tilt-direction", "0,0,0"],
+                "camera direction",
+            ),
+            (&["--overlay", "o.png"], "--models DIR"),
+            (&["--roi", "5,5,10"], "--roi takes 4 numbers"),
+            (
+                &["--max-tilt", "10", "--tilt-axis", "1,0"],
+                "--tilt-axis takes 3 numbers",
+            ),
+        ] {
+            let e = target(extra).unwrap_err();
+            assert!(e.contains(expected), "{extra:?}: {e}");
+        }
+        let e = Cli::try_parse_from([
+            "ppf",
+            "detect",
+            "--dataset",
+            "/d",
+            "--scene",
+            "2",
+            "--image",
+            "3",
+            "--diagnose",
+            "--min-score",
+            "0.2",
+        ])
+        .map_err(|e| e.to_string())
+        .and_then(|cli| match cli.command {
+            Command::Detect(a) => a.into_target().map(|_| ()),
+            other => panic!("{other:?}"),
+        })
+        .unwrap_err();
+        assert!(e.contains("--diagnose"), "{e}");
     }
 
     /// A flag of the other mode is refused with its name, not dropped.

@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use ppfd_models::geometry::mesh::Mesh;
+use ppfd_models::model::sanity;
 use ppfd_models::model::store;
 use ppfd_models::model::{ModelParams, ObjectModel};
 
@@ -38,6 +39,20 @@ pub struct BuildArgs {
     /// Object id for a single mesh, from 1 (instead of the digits ending its name).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     pub id: Option<u32>,
+    /// Multiply every coordinate by this to get millimetres: 1000 for a mesh in metres. A mesh
+    /// whose diameter is not 2 mm to 10 m is refused without it.
+    #[arg(long, value_parser = positive_scale)]
+    pub scale: Option<f32>,
+}
+
+/// A `--scale` factor: finite and positive.
+fn positive_scale(text: &str) -> Result<f32, String> {
+    match text.parse::<f32>() {
+        Ok(f) if f.is_finite() && f > 0.0 => Ok(f),
+        _ => Err(format!(
+            "{text:?}: a finite positive number (1000 turns metres into millimetres)"
+        )),
+    }
 }
 
 #[derive(Args, Debug)]
@@ -45,9 +60,9 @@ pub struct BenchArgs {
     /// PLY meshes to build.
     #[arg(required = true)]
     pub meshes: Vec<PathBuf>,
-    /// Repetitions per model; the table shows medians.
-    #[arg(long, default_value_t = 5)]
-    pub repeat: usize,
+    /// Repetitions per model, 1 to 1000; the table shows medians.
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub repeat: u32,
 }
 
 /// Refuses a path that cannot be a mesh file before it is read as one (a folder would be
@@ -164,23 +179,36 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
         let name = name_of(path);
         bar.set_message(name.clone());
         let result = Mesh::from_ply_file(path)
-            .and_then(|mesh| ObjectModel::build(&mesh, id, &name, &params))
-            .and_then(|model| {
+            .and_then(|mut mesh| {
+                if let Some(factor) = args.scale {
+                    mesh.scale(factor);
+                }
+                ObjectModel::build_with_report(&mesh, id, &name, &params)
+            })
+            .and_then(|(model, report)| {
                 let out = args.out.join(format!("{name}.{}", store::EXTENSION));
-                store::save(&model, &out).map(|_| (model, out))
+                store::save(&model, &out).map(|_| (model, report, out))
             });
         match result {
             // `suspend`, not `ProgressBar::println`: that prints nothing when the bar is
             // hidden (output not a terminal), and a script would see no reason for a failure.
-            Ok((model, out)) => bar.suspend(|| {
+            Ok((model, report, out)) => bar.suspend(|| {
                 println!(
-                    "{}: object {id}, {} points, {} table entries, {:.1} MB -> {}",
+                    "{}: object {id}, {}, {} points, {} table entries, {:.1} MB -> {}",
                     path.display(),
+                    report.describe(),
                     model.point_count(),
                     model.table_entry_count(),
                     model.byte_size() as f64 / 1e6,
                     out.display()
-                )
+                );
+                if report.inward_normals {
+                    println!(
+                        "note: {}: the normals of this closed mesh pointed inward; the model \
+                         has them flipped to point outward",
+                        path.display()
+                    );
+                }
             }),
             Err(e) => {
                 failures += 1;
@@ -234,7 +262,21 @@ fn info(file: &Path) -> Result<(), Box<dyn std::error::Error>> {
     println!("format version  {}", store::FORMAT_VERSION);
     println!("object id       {}", model.object_id());
     println!("name            {}", model.name());
+    let mesh = model.render_mesh();
     println!("diameter        {:.3} mm", model.diameter_mm());
+    match sanity::check_mesh(&mesh) {
+        Ok(report) => {
+            let s = report.size_mm;
+            println!("size            {:.1} × {:.1} × {:.1} mm", s.x, s.y, s.z);
+            let surface = match (report.closed, report.inward_normals) {
+                (true, false) => "closed, normals outward",
+                (true, true) => "closed, normals INWARD (rebuild it with this build of ppf)",
+                (false, _) => "open (normals not checked)",
+            };
+            println!("surface         {surface}");
+        }
+        Err(e) => println!("sanity          refused: {e}"),
+    }
     println!(
         "model points    {} (leaf {:.2} mm)",
         model.point_count(),
@@ -248,14 +290,13 @@ fn info(file: &Path) -> Result<(), Box<dyn std::error::Error>> {
         table.offsets.len() - 1,
         largest
     );
-    let mesh = model.render_mesh();
     println!(
         "mesh            {} vertices, {} triangles, fingerprint {:08x}",
         mesh.positions.len(),
         mesh.faces.len(),
         model.mesh_fingerprint()
     );
-    println!("size            {:.2} MB", model.byte_size() as f64 / 1e6);
+    println!("bytes           {:.2} MB", model.byte_size() as f64 / 1e6);
     println!("parameters      {p:?}");
     Ok(())
 }
@@ -288,7 +329,7 @@ fn bench(args: BenchArgs) -> Result<(), Box<dyn std::error::Error>> {
     // Removed on every way out, a failed mesh included.
     let scratch = ScratchDir::create("ppf-model-bench")?;
     let dir = scratch.path();
-    let repeat = args.repeat.max(1);
+    let repeat = args.repeat;
     println!("| model | build (ms) | points | table entries | size (MB) | load (ms) | D (mm) |");
     println!("|---|---:|---:|---:|---:|---:|---:|");
     let params = ModelParams::default();

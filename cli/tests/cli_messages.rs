@@ -21,12 +21,7 @@ fn ppf(args: &[&str]) -> Command {
 /// Runs the command; its output, printed for a failing test to show.
 fn run(command: &mut Command) -> Output {
     let out = command.output().unwrap();
-    eprintln!(
-        "{command:?}: {:?}\nstdout:\n{}\nstderr:\n{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    common::show(command, &out);
     out
 }
 

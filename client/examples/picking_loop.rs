@@ -8,6 +8,9 @@
 //! ```sh
 //! cargo run --release -p ppfd-client --example picking_loop -- kinect 20 1,5,6 8,9
 //! ```
+//!
+//! `--timeout-ms=N` anywhere among the arguments sets the detect timeout (default: the
+//! library's).
 
 use std::time::{Duration, Instant};
 
@@ -17,7 +20,19 @@ use ppfd_client::{
 };
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let mut args = std::env::args().skip(1);
+    // `--timeout-ms=N` anywhere sets the detect timeout (default: the library's).
+    let (timeouts, args): (Vec<String>, Vec<String>) = std::env::args()
+        .skip(1)
+        .partition(|a| a.starts_with("--timeout-ms="));
+    let timeout = match timeouts.last() {
+        Some(t) => Some(Duration::from_millis(
+            t["--timeout-ms=".len()..]
+                .parse()
+                .map_err(|e| format!("{t}: {e}"))?,
+        )),
+        None => None,
+    };
+    let mut args = args.into_iter();
     let camera = args.next().unwrap_or_else(|| "kinect".into());
     let cycles: usize = args.next().and_then(|v| v.parse().ok()).unwrap_or(10);
     let orders: Vec<Vec<u32>> = args
@@ -38,19 +53,27 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         max_frame_age: Some(Duration::from_millis(500)),
         ..Default::default()
     };
+    let mut options = DetectOptions {
+        timeout: timeout.unwrap_or(options.timeout),
+        ..options
+    };
     let mut picked = 0;
     // The previous cycle's poses that passed both filters, less the one picked.
     let mut known: Vec<PoseHypothesis> = Vec::new();
+    // How the cycles ended, for the summary line (a soak run reads it): refusals the cell
+    // expects (a stale camera, a daemon restarting), answers that never came, and answers that
+    // do not match their request (poses of objects not asked for).
+    let (mut refused, mut failed, mut mismatched) = (0usize, 0usize, 0usize);
     for cycle in 0..cycles {
         let order = &orders[cycle % orders.len()];
         let start = Instant::now();
-        let hints: Vec<PoseHint> = known
+        options.hints = known
             .iter()
             .filter(|h| order.contains(&h.object_id))
             .take(MAX_HINTS_PER_REQUEST)
             .map(PoseHint::from)
             .collect();
-        let found = match client.detect_with_hints(&camera, order, &hints, &options) {
+        let found = match client.detect(&camera, order, &options) {
             Ok(found) => found,
             Err(Error::Refused {
                 status: Status::CameraStale,
@@ -61,6 +84,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     "cycle {cycle}: camera stale ({:.0} ms), waiting for the driver",
                     value as f64 / 1e6
                 );
+                refused += 1;
                 std::thread::sleep(Duration::from_millis(200));
                 continue;
             }
@@ -75,15 +99,29 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 }),
             ) => {
                 println!("cycle {cycle}: {e}; retrying in 0.5 s");
+                refused += 1;
                 std::thread::sleep(Duration::from_millis(500));
                 continue;
             }
             Err(e) => {
                 println!("cycle {cycle}: {e}");
+                failed += 1;
                 std::thread::sleep(Duration::from_millis(100));
                 continue;
             }
         };
+        if let Some(h) = found
+            .hypotheses
+            .iter()
+            .find(|h| !order.contains(&h.object_id))
+        {
+            println!(
+                "cycle {cycle}: MISMATCH: asked for {order:?}, answered object {}",
+                h.object_id
+            );
+            mismatched += 1;
+            continue;
+        }
         let both = checks::CONSISTENT | checks::SILHOUETTE;
         let passed: Vec<&PoseHypothesis> = found
             .hypotheses
@@ -128,7 +166,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             t.y,
             t.z,
             passed.len(),
-            hints.len(),
+            options.hints.len(),
             start.elapsed().as_secs_f64() * 1e3,
             found.latency.daemon.detection_ns as f64 / 1e6,
             found.latency.overhead_ns() as f64 / 1e6,
@@ -136,6 +174,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             found.frame_age_ns as f64 / 1e6,
         );
     }
-    println!("{picked} picks in {cycles} cycles");
+    println!(
+        "{picked} picks in {cycles} cycles; {refused} refused or waited, {failed} failed, {mismatched} mismatched"
+    );
+    if mismatched > 0 {
+        return Err(format!("{mismatched} answers did not match their requests").into());
+    }
     Ok(())
 }

@@ -78,12 +78,7 @@ impl CameraPublisher {
             ..FrameHeader::default()
         };
         template.validate(template.pixel_count())?;
-        let config = iceoryx_config(prefix)?;
-        let node = NodeBuilder::new()
-            .config(&config)
-            .signal_handling_mode(SignalHandlingMode::Disabled)
-            .create::<Ipc>()
-            .map_err(transport("cannot create an iceoryx2 node"))?;
+        let node = node(prefix)?;
         let service = services::camera_builder(&node, camera)?
             .open_or_create()
             .map_err(transport("cannot open the camera service"))?;
@@ -239,5 +234,55 @@ impl ReadyFrame<'_> {
             .send()
             .map_err(transport("cannot publish the frame"))?;
         Ok(*self.sequence)
+    }
+}
+
+/// A node of its own under `prefix`, for one camera port.
+fn node(prefix: Option<&str>) -> Result<Node<Ipc>> {
+    NodeBuilder::new()
+        .config(&iceoryx_config(prefix)?)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<Ipc>()
+        .map_err(transport("cannot create an iceoryx2 node"))
+}
+
+/// Reads a camera's frames beside the daemon (a viewer or recorder; a camera takes
+/// [`limits::MAX_CAMERA_SUBSCRIBERS`] readers). Not `Send`.
+pub struct CameraViewer {
+    subscriber: iceoryx2::port::subscriber::Subscriber<Ipc, [u16], FrameHeader>,
+    _service: CameraService<Ipc>,
+    _node: Node<Ipc>,
+}
+
+impl CameraViewer {
+    /// Subscribes to `camera`, which a driver must be publishing on.
+    pub fn open(prefix: Option<&str>, camera: &str) -> Result<CameraViewer> {
+        let node = node(prefix)?;
+        let service = services::camera_builder(&node, camera)?
+            .open()
+            .map_err(|e| Error::Transport(format!("cannot open camera {camera:?}: {e:?}")))?;
+        let subscriber = service
+            .subscriber_builder()
+            .create()
+            .map_err(transport("cannot subscribe to the camera"))?;
+        Ok(CameraViewer {
+            subscriber,
+            _service: service,
+            _node: node,
+        })
+    }
+
+    /// The frames received since the last call, oldest first (at most
+    /// [`limits::CAMERA_SUBSCRIBER_BUFFER`]: older ones are replaced), copied out.
+    pub fn frames(&self) -> Result<Vec<(FrameHeader, Vec<u16>)>> {
+        let mut out = Vec::new();
+        while let Some(sample) = self
+            .subscriber
+            .receive()
+            .map_err(transport("cannot receive a frame"))?
+        {
+            out.push((*sample.user_header(), sample.payload().to_vec()));
+        }
+        Ok(out)
     }
 }

@@ -15,7 +15,7 @@ use ppfd_protocol::control::{
 };
 use ppfd_protocol::detect::{
     flags, DetectCounts, DetectRequestHeader, DetectResponseHeader, LatencyBreakdown, PoseHint,
-    PoseHypothesis, Status,
+    PoseHypothesis, Requirements, Status,
 };
 use ppfd_protocol::frame::FrameHeader;
 use ppfd_protocol::services::{self, wake, ControlService, DetectService, EventService};
@@ -36,6 +36,29 @@ fn client_port(
             services::limits::MAX_CLIENTS
         )),
         e => transport(what)(e),
+    }
+}
+
+/// The error of a request/response service that could not be opened; one whose messages have
+/// another layout than this client's, as a daemon of another protocol version serves them,
+/// says so.
+fn open_service(
+    service: &'static str,
+) -> impl FnOnce(iceoryx2::service::builder::request_response::RequestResponseOpenOrCreateError) -> Error
+{
+    use iceoryx2::service::builder::request_response::{
+        RequestResponseOpenError, RequestResponseOpenOrCreateError,
+    };
+    move |e| match e {
+        RequestResponseOpenOrCreateError::RequestResponseOpenError(
+            RequestResponseOpenError::IncompatibleRequestOrResponseType,
+        ) => Error::Transport(format!(
+            "cannot open {service}: it is served with the messages of another protocol version \
+             than this client's ({}); the daemon and its clients must come from the same ppfd \
+             release",
+            ppfd_protocol::PROTOCOL_VERSION
+        )),
+        e => Error::Transport(format!("cannot open {service}: {e:?}")),
     }
 }
 
@@ -83,8 +106,8 @@ impl Default for ClientOptions {
     }
 }
 
-/// Per-request options of [`Client::detect`].
-#[derive(Debug, Clone, Copy)]
+/// Per-request options of [`Client::detect`] and [`Client::detect_inline`].
+#[derive(Debug, Clone)]
 pub struct DetectOptions {
     /// Best hypotheses wanted per object (1 to 16).
     pub hypotheses_per_object: u32,
@@ -95,9 +118,16 @@ pub struct DetectOptions {
     pub timeout: Duration,
     /// Oldest acceptable camera frame (`None`: the daemon's limit).
     pub max_frame_age: Option<Duration>,
-    /// The score (0 to 1) a refined hint of [`Client::detect_with_hints`] needs besides passing
-    /// the filters; 0 leaves it to the filters.
-    pub hint_min_score: f32,
+    /// What the hypotheses must satisfy (minimum score, instance distance, region of
+    /// interest, pose restriction), and their order; the default asks for nothing.
+    pub requirements: Requirements,
+    /// Poses the objects are expected near, at most [`ppfd_protocol::MAX_HINTS_PER_REQUEST`],
+    /// each a pose of one of the requested objects: for example the previous cycle's answers
+    /// (`PoseHint::from(&hypothesis)`). A hinted object is first looked for from its hints
+    /// alone (ICP, re-scoring, the filters and the `requirements`); only the objects with a
+    /// hint that fails (or with none) go through voting. Poses from hints carry
+    /// [`checks::HINT`](crate::checks::HINT).
+    pub hints: Vec<PoseHint>,
 }
 
 impl Default for DetectOptions {
@@ -106,7 +136,8 @@ impl Default for DetectOptions {
             hypotheses_per_object: 1,
             timeout: Duration::from_secs(3),
             max_frame_age: None,
-            hint_min_score: 0.0,
+            requirements: Requirements::default(),
+            hints: Vec::new(),
         }
     }
 }
@@ -269,7 +300,7 @@ impl Client {
             .map_err(transport("cannot create an iceoryx2 node"))?;
         let detect_service = services::detect_builder(&node)
             .open_or_create()
-            .map_err(transport("cannot open ppfd/detect"))?;
+            .map_err(open_service(services::DETECT))?;
         let detect = detect_service
             .client_builder()
             .initial_max_slice_len(options.inline_frame_capacity.max(1))
@@ -278,7 +309,7 @@ impl Client {
             .map_err(client_port("cannot create a ppfd/detect client"))?;
         let control_service = services::control_builder(&node)
             .open_or_create()
-            .map_err(transport("cannot open ppfd/control"))?;
+            .map_err(open_service(services::CONTROL))?;
         let control = control_service
             .client_builder()
             .create()
@@ -325,31 +356,16 @@ impl Client {
         id
     }
 
-    /// Detects `objects` in the newest frame of `camera`.
+    /// Detects `objects` in the newest frame of `camera` (from [`DetectOptions::hints`] first,
+    /// where it has any).
     pub fn detect(
         &self,
         camera: &str,
         objects: &[u32],
         options: &DetectOptions,
     ) -> Result<Detections> {
-        self.detect_with_hints(camera, objects, &[], options)
-    }
-
-    /// Detects `objects` in the newest frame of `camera`, each hinted object first from its
-    /// `hints` alone (at most [`ppfd_protocol::MAX_HINTS_PER_REQUEST`], each a pose of one of
-    /// `objects`, for example a previous answer: `PoseHint::from(&hypothesis)`). A hint is
-    /// refined by ICP, re-scored and filtered; only the objects with a hint that fails (or
-    /// with none) go through voting. Poses from hints carry [`checks::HINT`](crate::checks::HINT).
-    pub fn detect_with_hints(
-        &self,
-        camera: &str,
-        objects: &[u32],
-        hints: &[PoseHint],
-        options: &DetectOptions,
-    ) -> Result<Detections> {
         services::check_camera_name(camera)?;
         let mut header = self.request_header(objects, options)?;
-        header.set_hints(hints)?;
         header.camera_name = text::encode_name("camera", camera)?;
         header.validate(0)?;
         let request = self
@@ -407,10 +423,11 @@ impl Client {
     ) -> Result<DetectRequestHeader> {
         let mut header = DetectRequestHeader {
             hypotheses_per_object: options.hypotheses_per_object,
-            hint_min_score: options.hint_min_score,
+            requirements: options.requirements,
             ..Default::default()
         };
         header.set_objects(objects)?;
+        header.set_hints(&options.hints)?;
         header.max_frame_age_ns = options
             .max_frame_age
             .map(|d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
@@ -483,12 +500,30 @@ impl Client {
     ) -> Result<(ControlResponseHeader, Vec<ModelInfo>)> {
         let request = ControlRequest {
             command: command as u32,
-            request_id: self.request_id(),
-            reply_token: self.reply_token,
             object_id,
             path: text::encode_name("path", path)?,
             ..Default::default()
         };
+        self.send_control(request, self.control_timeout)
+    }
+
+    /// Sends a control request exactly as given, unchecked (to exercise the daemon's
+    /// refusals); only its id and reply token are set here.
+    pub fn send_raw_control(
+        &self,
+        request: &ControlRequest,
+        timeout: Duration,
+    ) -> Result<(ControlResponseHeader, Vec<ModelInfo>)> {
+        self.send_control(*request, timeout)
+    }
+
+    fn send_control(
+        &self,
+        mut request: ControlRequest,
+        timeout: Duration,
+    ) -> Result<(ControlResponseHeader, Vec<ModelInfo>)> {
+        request.request_id = self.request_id();
+        request.reply_token = self.reply_token;
         let pending = self
             .control
             .send_copy(request)
@@ -500,7 +535,7 @@ impl Client {
             });
         }
         let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
-        let deadline = instant_after(self.control_timeout);
+        let deadline = instant_after(timeout);
         let mut alive = AliveCheck::new();
         loop {
             let held = pending.is_connected();
@@ -528,7 +563,7 @@ impl Client {
             }
             let left = deadline.saturating_duration_since(Instant::now());
             if left.is_zero() {
-                return Err(Error::Timeout(self.control_timeout));
+                return Err(Error::Timeout(timeout));
             }
             self.wait_reply(left.min(HELD_CHECK_PERIOD))?;
         }
@@ -616,6 +651,50 @@ fn decode_detect(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The request header of protocol version 1, before the request options: a daemon (or
+    /// client) of that version opens `ppfd/detect` with it.
+    #[derive(Debug, Clone, Copy, ZeroCopySend)]
+    #[type_name("ppfd::DetectRequestHeader")]
+    #[repr(C)]
+    struct VersionOneRequestHeader {
+        fields: [u64; 38],
+    }
+
+    /// A client meeting `ppfd/detect` served with the messages of another protocol version
+    /// is told so at `connect`, not given iceoryx2's type error alone.
+    #[test]
+    fn a_service_of_another_protocol_version_is_named_so_at_connect() {
+        let prefix = format!("ppfd_version_test_{}", std::process::id());
+        let config = iceoryx_config(Some(&prefix)).unwrap();
+        let node = NodeBuilder::new()
+            .config(&config)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<Ipc>()
+            .unwrap();
+        let _old = node
+            .service_builder(&ServiceName::new(services::DETECT).unwrap())
+            .request_response::<[u16], [PoseHypothesis]>()
+            .request_user_header::<VersionOneRequestHeader>()
+            .response_user_header::<DetectResponseHeader>()
+            .create()
+            .unwrap();
+        let e = Client::connect_with(&ClientOptions {
+            prefix: Some(prefix),
+            ..Default::default()
+        })
+        .err()
+        .expect("connect must fail");
+        let m = e.to_string();
+        assert!(
+            m.contains("cannot open ppfd/detect") && m.contains("another protocol version"),
+            "{m}"
+        );
+        assert!(
+            m.contains(&ppfd_protocol::PROTOCOL_VERSION.to_string()),
+            "{m}"
+        );
+    }
 
     #[test]
     fn refusals_decode_with_their_status_and_value() {

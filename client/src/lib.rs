@@ -27,7 +27,7 @@
 mod camera;
 mod client;
 
-pub use camera::{CameraPublisher, FrameLoan, ReadyFrame};
+pub use camera::{CameraPublisher, CameraViewer, FrameLoan, ReadyFrame};
 pub use client::{
     isometry, Client, ClientOptions, DetectOptions, Detections, Latency, ModelListing,
 };
@@ -35,7 +35,8 @@ pub use ppfd_protocol as protocol;
 pub use ppfd_protocol::clock::monotonic_now_ns;
 pub use ppfd_protocol::control::{DaemonStats, ModelInfo};
 pub use ppfd_protocol::detect::{
-    checks, DetectCounts, LatencyBreakdown, PoseHint, PoseHypothesis, Status,
+    checks, order, DetectCounts, LatencyBreakdown, PoseHint, PoseHypothesis, PoseRestriction,
+    RegionOfInterest, Requirements, Status,
 };
 pub use ppfd_protocol::frame::{FrameHeader, Intrinsics};
 

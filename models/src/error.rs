@@ -13,6 +13,9 @@ pub enum Error {
         #[source]
         source: std::io::Error,
     },
+    /// A file was refused before it was parsed: not a regular file, or larger than its limit.
+    #[error("{path}: {reason}")]
+    File { path: PathBuf, reason: String },
     /// A PLY file could not be read into a mesh; `reason` says what and where.
     #[error("{path}: malformed PLY: {reason}")]
     Ply { path: PathBuf, reason: String },

@@ -67,7 +67,9 @@
 
 pub mod detect;
 pub mod error;
+pub mod file;
 pub mod geometry;
+pub mod limits;
 pub mod model;
 pub mod synthetic;
 

@@ -234,8 +234,8 @@ fn a_wrong_hint_fails_and_voting_answers() {
     }
 }
 
-/// A hint that is not a pose, or is for an object not looked for, or a minimum score that is
-/// no number, is refused with what is wrong.
+/// A hint that is not a pose, or is for an object not looked for, is refused with what is
+/// wrong.
 #[test]
 fn hints_that_are_not_poses_of_requested_objects_are_refused() {
     let part = Part::LBracket;
@@ -246,10 +246,9 @@ fn hints_that_are_not_poses_of_requested_objects_are_refused() {
     );
     let scene = SyntheticScene::single(&part.mesh(), 1, pose, None, 1).unwrap();
     let detector = Detector::default();
-    let run = |hints: Vec<Hint>, min: f32| {
+    let run = |hints: Vec<Hint>| {
         let opts = RunOptions {
             hints,
-            hint_min_score: min,
             ..Default::default()
         };
         detector.detect(&scene.frame.view(), &[&model], &opts)
@@ -262,37 +261,29 @@ fn hints_that_are_not_poses_of_requested_objects_are_refused() {
         Translation3::new(f32::NAN, 0.0, 700.0),
         UnitQuaternion::identity(),
     );
-    let m = message(run(
-        vec![
-            Hint { object_id: 1, pose },
-            Hint {
-                object_id: 1,
-                pose: nan,
-            },
-        ],
-        0.0,
-    ));
+    let m = message(run(vec![
+        Hint { object_id: 1, pose },
+        Hint {
+            object_id: 1,
+            pose: nan,
+        },
+    ]));
     assert!(m.starts_with("hint 1 for object 1 is not a pose"), "{m}");
     let scaled = Pose::from_parts(
         pose.translation,
         UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(2.0, 0.0, 0.0, 0.0)),
     );
-    let m = message(run(
-        vec![Hint {
-            object_id: 1,
-            pose: scaled,
-        }],
-        0.0,
-    ));
+    let m = message(run(vec![Hint {
+        object_id: 1,
+        pose: scaled,
+    }]));
     assert!(m.contains("not a rotation") && m.contains("norm 2"), "{m}");
-    let m = message(run(vec![Hint { object_id: 9, pose }], 0.0));
+    let m = message(run(vec![Hint { object_id: 9, pose }]));
     assert!(
         m.contains("hint 0 is for object 9") && m.contains("[1]"),
         "{m}"
     );
-    let m = message(run(vec![Hint { object_id: 1, pose }], f32::NAN));
-    assert!(m.contains("hint_min_score"), "{m}");
     // The same hint, a pose: served from the hint alone.
-    let found = run(vec![Hint { object_id: 1, pose }], 0.0).unwrap();
+    let found = run(vec![Hint { object_id: 1, pose }]).unwrap();
     assert!(found.objects[0].hypotheses[0].checks.has(Checks::HINT));
 }

@@ -70,15 +70,76 @@ pub struct DetectRequestHeader {
     pub hypotheses_per_object: u32,
     /// Object ids wanted (the ids of the loaded models); only the first `object_count` count.
     pub object_ids: [u32; MAX_OBJECTS_PER_REQUEST],
+    /// What the hypotheses must satisfy, and their order.
+    pub requirements: Requirements,
     /// Number of valid entries of `hints`, 0 to [`MAX_HINTS_PER_REQUEST`].
     pub hint_count: u32,
-    /// The score (0 to 1) a refined hint needs besides passing both filters; 0 leaves it to
-    /// the filters.
-    pub hint_min_score: f32,
+    /// Zero.
+    pub reserved: u32,
     /// Poses the requested objects are expected near (only the first `hint_count` count). An
-    /// object with hints is first looked for from them alone: ICP from each, re-scoring and
-    /// the filters. Only an object with a hint that fails (or with none) goes through voting.
+    /// object with hints is first looked for from them alone: ICP from each, re-scoring, the
+    /// filters and the `requirements`, as a voted pose goes through. Only an object with a hint
+    /// that fails (or with none) goes through voting.
     pub hints: [PoseHint; MAX_HINTS_PER_REQUEST],
+}
+
+/// Values of [`Requirements::order`].
+pub mod order {
+    /// Best score first.
+    pub const SCORE: u32 = 0;
+    /// Nearest to the camera first (the distance of the model's centre from the camera).
+    pub const DISTANCE: u32 = 1;
+}
+
+/// Largest [`Requirements::instance_distance_fraction`], diameters.
+pub const MAX_INSTANCE_DISTANCE_FRACTION: f32 = 2.0;
+
+/// A pixel rectangle of the frame: columns `x .. x + width`, rows `y .. y + height`, pixels.
+/// A width and height of 0 is the whole frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
+#[type_name("ppfd::RegionOfInterest")]
+#[repr(C)]
+pub struct RegionOfInterest {
+    /// First column, pixels.
+    pub x: u32,
+    /// First row, pixels.
+    pub y: u32,
+    /// Columns, pixels; 0 with `height` 0 for the whole frame.
+    pub width: u32,
+    /// Rows, pixels.
+    pub height: u32,
+}
+
+impl RegionOfInterest {
+    /// Whether this is the whole frame (no region).
+    pub fn is_whole_frame(&self) -> bool {
+        *self == RegionOfInterest::default()
+    }
+}
+
+/// Bin picking's pose restriction: the angle between `model_axis` turned by the pose and
+/// `camera_direction` is at most `max_angle_deg`. 180° allows every pose.
+#[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
+#[type_name("ppfd::PoseRestriction")]
+#[repr(C)]
+pub struct PoseRestriction {
+    /// A direction in model coordinates (any non-zero length), unitless.
+    pub model_axis: [f32; 3],
+    /// A direction in camera coordinates (any non-zero length), unitless; `-z` points from
+    /// the scene towards the camera.
+    pub camera_direction: [f32; 3],
+    /// Largest angle between the two, degrees, 0 to 180.
+    pub max_angle_deg: f32,
+}
+
+impl Default for PoseRestriction {
+    fn default() -> Self {
+        PoseRestriction {
+            model_axis: [0.0, 0.0, 1.0],
+            camera_direction: [0.0, 0.0, -1.0],
+            max_angle_deg: 180.0,
+        }
+    }
 }
 
 /// A pose one requested object is expected near (the previous cycle's answer, or the cell's own
@@ -146,6 +207,94 @@ impl PoseHint {
     }
 }
 
+impl PoseRestriction {
+    /// Whether this allows every pose.
+    pub fn is_unrestricted(&self) -> bool {
+        self.max_angle_deg >= 180.0
+    }
+}
+
+/// What the hypotheses of a detect request must satisfy, and their order. The default asks
+/// for nothing: every pose, the daemon's instance distance, best score first.
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[type_name("ppfd::Requirements")]
+#[repr(C)]
+pub struct Requirements {
+    /// Hypotheses scoring below this are left out, 0 to 1 (HALCON's `MinScore`).
+    pub min_score: f32,
+    /// Two hypotheses whose model centres lie closer than this many diameters are one
+    /// instance, above 0 to [`MAX_INSTANCE_DISTANCE_FRACTION`]; 0 for the daemon's setting
+    /// (HALCON's `max_overlap_dist_rel`).
+    pub instance_distance_fraction: f32,
+    /// An [`order`] value.
+    pub order: u32,
+    /// Reference points are taken only from scene points seen in this rectangle.
+    pub region_of_interest: RegionOfInterest,
+    /// Only poses this allows.
+    pub pose_restriction: PoseRestriction,
+}
+
+impl Requirements {
+    /// Checks each value against its range (a region against the frame is checked where the
+    /// frame is known).
+    pub fn validate(&self) -> Result<(), ProtocolError> {
+        let bad = |field: &'static str, value: String, expected: String| {
+            Err(ProtocolError::Requirement {
+                field,
+                value,
+                expected,
+            })
+        };
+        if !(0.0..=1.0).contains(&self.min_score) {
+            return bad("minimum score", self.min_score.to_string(), "0 to 1".into());
+        }
+        let f = self.instance_distance_fraction;
+        if f != 0.0 && !(f > 0.0 && f <= MAX_INSTANCE_DISTANCE_FRACTION) {
+            return bad(
+                "instance distance",
+                format!("{f} diameters"),
+                format!(
+                    "above 0 and at most {MAX_INSTANCE_DISTANCE_FRACTION} diameters, \
+                     or 0 for the daemon's setting"
+                ),
+            );
+        }
+        if self.order != order::SCORE && self.order != order::DISTANCE {
+            return bad(
+                "order",
+                self.order.to_string(),
+                format!("{} (score) or {} (distance)", order::SCORE, order::DISTANCE),
+            );
+        }
+        let r = &self.region_of_interest;
+        if !r.is_whole_frame() && (r.width == 0 || r.height == 0) {
+            return bad(
+                "region of interest",
+                format!("{}x{} at ({}, {})", r.width, r.height, r.x, r.y),
+                "a width and height of at least 1 pixel, or 0x0 for the whole frame".into(),
+            );
+        }
+        let p = &self.pose_restriction;
+        if !(0.0..=180.0).contains(&p.max_angle_deg) {
+            return bad(
+                "pose restriction angle",
+                format!("{} degrees", p.max_angle_deg),
+                "0 to 180 degrees".into(),
+            );
+        }
+        for (field, v) in [
+            ("pose restriction model axis", p.model_axis),
+            ("pose restriction camera direction", p.camera_direction),
+        ] {
+            let norm = v.iter().map(|c| c * c).sum::<f32>().sqrt();
+            if !(norm.is_finite() && norm > 1e-6) {
+                return bad(field, format!("{v:?}"), "a finite, non-zero vector".into());
+            }
+        }
+        Ok(())
+    }
+}
+
 impl Default for DetectRequestHeader {
     fn default() -> Self {
         DetectRequestHeader {
@@ -161,8 +310,9 @@ impl Default for DetectRequestHeader {
             object_count: 0,
             hypotheses_per_object: 1,
             object_ids: [0; MAX_OBJECTS_PER_REQUEST],
+            requirements: Requirements::default(),
             hint_count: 0,
-            hint_min_score: 0.0,
+            reserved: 0,
             hints: [PoseHint::default(); MAX_HINTS_PER_REQUEST],
         }
     }
@@ -211,9 +361,6 @@ impl DetectRequestHeader {
     }
 
     fn check_hints(&self, hints: &[PoseHint]) -> Result<(), ProtocolError> {
-        if !self.hint_min_score.is_finite() {
-            return Err(ProtocolError::HintMinScore(self.hint_min_score));
-        }
         for (index, h) in hints.iter().enumerate() {
             if !self.objects().contains(&h.object_id) {
                 return Err(ProtocolError::HintForUnrequestedObject {
@@ -250,6 +397,7 @@ impl DetectRequestHeader {
                 self.hypotheses_per_object,
             ));
         }
+        self.requirements.validate()?;
         if self.hint_count as usize > MAX_HINTS_PER_REQUEST {
             return Err(ProtocolError::TooManyHints(self.hint_count as usize));
         }
@@ -291,7 +439,8 @@ fn check_object_list(ids: &[u32]) -> Result<(), ProtocolError> {
 pub struct PoseHypothesis {
     /// Object id of the model.
     pub object_id: u32,
-    /// 0 for the best hypothesis of this object, 1 for the next, ...
+    /// 0 for the first hypothesis of this object in the request's order (the best scored, or
+    /// with [`order::DISTANCE`] the nearest), 1 for the next, ...
     pub instance_rank: u32,
     /// Rotation `R`, row-major (`r[3 * row + col]`), unitless.
     pub rotation: [f32; 9],
@@ -519,10 +668,13 @@ mod tests {
 
     #[test]
     fn layouts_are_fixed() {
-        assert_eq!(size_of::<DetectRequestHeader>(), 3640);
+        assert_eq!(size_of::<DetectRequestHeader>(), 3696);
+        assert_eq!(offset_of!(DetectRequestHeader, requirements), 304);
+        assert_eq!(size_of::<Requirements>(), 56);
+        assert_eq!(offset_of!(DetectRequestHeader, hint_count), 360);
         assert_eq!(offset_of!(DetectRequestHeader, protocol_version), 0);
         assert_eq!(offset_of!(DetectRequestHeader, inline_frame), 80);
-        assert_eq!(offset_of!(DetectRequestHeader, hints), 312);
+        assert_eq!(offset_of!(DetectRequestHeader, hints), 368);
         assert_eq!(size_of::<PoseHint>(), 52);
         assert_eq!(align_of::<PoseHint>(), 4);
         assert_eq!(size_of::<PoseHypothesis>(), 68);
@@ -596,6 +748,58 @@ mod tests {
         let mut r = camera_request(&[1]);
         r.camera_name = [0; CAMERA_NAME_BYTES];
         assert_eq!(r.validate(0).unwrap_err().status(), Status::InvalidRequest);
+    }
+
+    #[test]
+    fn requirements_out_of_range_are_refused_naming_the_range() {
+        assert!(camera_request(&[1]).validate(0).is_ok());
+        let with = |change: fn(&mut Requirements)| {
+            let mut r = camera_request(&[1]);
+            change(&mut r.requirements);
+            let e = r.validate(0).unwrap_err();
+            assert_eq!(e.status(), Status::InvalidRequest);
+            e.to_string()
+        };
+        let m = with(|q| q.min_score = 1.5);
+        assert!(
+            m.contains("minimum score 1.5") && m.contains("0 to 1"),
+            "{m}"
+        );
+        let m = with(|q| q.min_score = f32::NAN);
+        assert!(m.contains("minimum score NaN"), "{m}");
+        let m = with(|q| q.instance_distance_fraction = 3.0);
+        assert!(
+            m.contains("instance distance 3") && m.contains("at most 2"),
+            "{m}"
+        );
+        let m = with(|q| q.instance_distance_fraction = -0.5);
+        assert!(m.contains("instance distance -0.5"), "{m}");
+        let m = with(|q| q.order = 7);
+        assert!(m.contains("order 7"), "{m}");
+        let m = with(|q| q.region_of_interest.width = 20);
+        assert!(m.contains("region of interest 20x0"), "{m}");
+        let m = with(|q| q.pose_restriction.max_angle_deg = 200.0);
+        assert!(m.contains("200 degrees") && m.contains("0 to 180"), "{m}");
+        let m = with(|q| q.pose_restriction.model_axis = [0.0; 3]);
+        assert!(m.contains("model axis"), "{m}");
+
+        let mut r = camera_request(&[1]);
+        r.requirements = Requirements {
+            min_score: 0.3,
+            instance_distance_fraction: 0.5,
+            order: order::DISTANCE,
+            region_of_interest: RegionOfInterest {
+                x: 10,
+                y: 10,
+                width: 100,
+                height: 50,
+            },
+            pose_restriction: PoseRestriction {
+                max_angle_deg: 30.0,
+                ..Default::default()
+            },
+        };
+        assert!(r.validate(0).is_ok());
     }
 
     #[test]
@@ -703,10 +907,6 @@ mod tests {
         let (s, c) = (0.5f32.sin(), 0.5f32.cos());
         rounded.rotation = [c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0].map(|v| (v * 1e3).round() / 1e3);
         assert!(rounded.problem().is_none());
-
-        let mut r = camera_request(&[1]);
-        r.hint_min_score = f32::NAN;
-        assert!(matches!(r.validate(0), Err(ProtocolError::HintMinScore(_))));
     }
 
     #[test]

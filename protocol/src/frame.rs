@@ -127,6 +127,21 @@ impl FrameHeader {
     }
 }
 
+impl FrameHeader {
+    /// Refuses a frame of more than `max_pixels` pixels (the daemon's `max_frame_pixels`): a
+    /// detection's memory grows with the frame.
+    pub fn check_pixels(&self, max_pixels: u64) -> Result<(), ProtocolError> {
+        if self.pixel_count() as u64 > max_pixels {
+            return Err(ProtocolError::FrameTooLarge {
+                width: self.width,
+                height: self.height,
+                max_pixels,
+            });
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -187,6 +202,27 @@ mod tests {
             h.validate(640 * 480),
             Err(ProtocolError::InvalidDepthScale(_))
         ));
+    }
+
+    #[test]
+    fn a_frame_beyond_the_pixel_limit_is_refused_naming_the_limit() {
+        let mut h = vga();
+        h.check_pixels(crate::DEFAULT_MAX_FRAME_PIXELS as u64)
+            .unwrap();
+        h.width = 8000;
+        h.height = 6000;
+        let e = h
+            .check_pixels(crate::DEFAULT_MAX_FRAME_PIXELS as u64)
+            .unwrap_err();
+        assert_eq!(e.status(), crate::detect::Status::InvalidFrame);
+        let m = e.to_string();
+        assert!(
+            m.contains("8000x6000")
+                && m.contains("48000000")
+                && m.contains(&crate::DEFAULT_MAX_FRAME_PIXELS.to_string())
+                && m.contains("--max-frame-pixels"),
+            "{m}"
+        );
     }
 
     #[test]

@@ -53,6 +53,11 @@ pub const MAX_HYPOTHESES_PER_OBJECT: u32 = 16;
 /// 16 objects. The request header holds them in place (52 bytes each); raising it means a
 /// new protocol version.
 pub const MAX_HINTS_PER_REQUEST: usize = 64;
+/// The largest frame a daemon detects in by default, pixels: 4096 × 4096, 32 MiB of depth.
+/// A detection takes about 95 bytes per pixel, so this bounds one at about 1.6 GB; depth
+/// sensors of picking cells give 0.3 to 12 megapixels. The daemon's `max_frame_pixels` sets
+/// its own limit ([`frame::FrameHeader::check_pixels`]).
+pub const DEFAULT_MAX_FRAME_PIXELS: usize = 4096 * 4096;
 
 /// Refuses a header written by another protocol version.
 pub fn check_version(version: u32) -> Result<(), ProtocolError> {
@@ -89,6 +94,12 @@ pub enum ProtocolError {
         height: u32,
         values: usize,
     },
+    /// A frame of more pixels than the daemon's `max_frame_pixels`.
+    FrameTooLarge {
+        width: u32,
+        height: u32,
+        max_pixels: u64,
+    },
     /// Zero, negative or non-finite focal lengths, or a non-finite principal point.
     InvalidIntrinsics(frame::Intrinsics),
     /// Zero, negative or non-finite depth scale.
@@ -115,8 +126,12 @@ pub enum ProtocolError {
         object_id: u32,
         reason: String,
     },
-    /// A minimum hint score that is not a finite number.
-    HintMinScore(f32),
+    /// A value of [`detect::Requirements`] out of its range.
+    Requirement {
+        field: &'static str,
+        value: String,
+        expected: String,
+    },
 }
 
 impl ProtocolError {
@@ -125,9 +140,9 @@ impl ProtocolError {
         use detect::Status;
         match self {
             ProtocolError::Version { .. } => Status::ProtocolVersion,
-            ProtocolError::FrameSize { .. } | ProtocolError::InvalidDepthScale(_) => {
-                Status::InvalidFrame
-            }
+            ProtocolError::FrameSize { .. }
+            | ProtocolError::FrameTooLarge { .. }
+            | ProtocolError::InvalidDepthScale(_) => Status::InvalidFrame,
             ProtocolError::InvalidIntrinsics(_) => Status::InvalidIntrinsics,
             ProtocolError::EmptyObjectList => Status::EmptyObjectList,
             _ => Status::InvalidRequest,
@@ -170,6 +185,17 @@ impl std::fmt::Display for ProtocolError {
                 "depth frame {width}x{height} needs {} values, got {values}",
                 *width as usize * *height as usize
             ),
+            ProtocolError::FrameTooLarge {
+                width,
+                height,
+                max_pixels,
+            } => write!(
+                f,
+                "depth frame {width}x{height} has {} pixels, more than the daemon's limit of \
+                 {max_pixels} (max_frame_pixels; raise it with ppfd --max-frame-pixels, or send \
+                 a smaller frame)",
+                *width as u64 * *height as u64
+            ),
             ProtocolError::InvalidIntrinsics(k) => write!(
                 f,
                 "intrinsics must have finite positive focal lengths and a finite principal point, \
@@ -192,6 +218,11 @@ impl std::fmt::Display for ProtocolError {
                 "hypotheses per object must be 1 to {MAX_HYPOTHESES_PER_OBJECT}, got {n}"
             ),
             ProtocolError::UnknownFlags(bits) => write!(f, "unknown request flags {bits:#x}"),
+            ProtocolError::Requirement {
+                field,
+                value,
+                expected,
+            } => write!(f, "{field} {value} is out of range: expected {expected}"),
             ProtocolError::UnexpectedPayload(n) => write!(
                 f,
                 "a request naming a camera must carry no frame, got {n} depth values \
@@ -211,9 +242,6 @@ impl std::fmt::Display for ProtocolError {
                 object_id,
                 reason,
             } => write!(f, "hint {index} for object {object_id} {reason}"),
-            ProtocolError::HintMinScore(s) => {
-                write!(f, "the minimum hint score must be a finite number, got {s}")
-            }
         }
     }
 }
@@ -258,6 +286,7 @@ mod tests {
                 "ppfd::ControlResponseHeader"
             );
             assert_eq!(control::ModelInfo::type_name(), "ppfd::ModelInfo");
+            assert_eq!(detect::Requirements::type_name(), "ppfd::Requirements");
         }
     }
 }

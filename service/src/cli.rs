@@ -30,26 +30,32 @@ pub struct Args {
     /// iceoryx2's].
     #[arg(long)]
     pub prefix: Option<String>,
-    /// Detection worker threads, 0 to 256 (0: one per core) [default: 0].
+    /// Detection worker threads, 0 to 4 per core (0: one per core) [default: 0].
     #[arg(long)]
     pub workers: Option<usize>,
-    /// Detections running at once, 1 to 256 [default: 1].
+    /// Detections running at once, 1 to 4 per core [default: 1].
     #[arg(long)]
     pub parallel_detections: Option<usize>,
     /// Waiting requests beyond which new ones are refused "busy", 1 to 4096 [default: 64].
     #[arg(long)]
     pub queue_capacity: Option<usize>,
-    /// Camera frames older than this are refused "camera stale", milliseconds [default: 1000].
+    /// Camera frames older than this are refused "camera stale", milliseconds, 1 to 3600000
+    /// [default: 1000].
     #[arg(long)]
     pub max_frame_age_ms: Option<u64>,
-    /// Period of camera discovery and dead-process cleanup, milliseconds [default: 1000].
+    /// Period of camera discovery and dead-process cleanup, milliseconds, 1 to 60000
+    /// [default: 1000].
     #[arg(long)]
     pub housekeeping_ms: Option<u64>,
     /// A camera without a driver this long is forgotten (its subscription and shared memory let
-    /// go; requests naming it are refused "unknown camera" until it is back), milliseconds
-    /// [default: 60000].
+    /// go; requests naming it are refused "unknown camera" until it is back), milliseconds, at
+    /// most 86400000 [default: 60000].
     #[arg(long)]
     pub forget_camera_after_ms: Option<u64>,
+    /// The largest frame detected in, pixels; a larger one is refused "invalid frame"
+    /// (a detection takes about 95 bytes per pixel), 1 to 268435456 [default: 16777216].
+    #[arg(long)]
+    pub max_frame_pixels: Option<u64>,
     /// Set a detector parameter, `stage.field=value` (as `ppf detect --set`, e.g.
     /// `--set voting.reference_step=4`), after the file's `[detector]` table; repeatable.
     #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
@@ -90,6 +96,7 @@ impl Args {
         c.forget_camera_after_ms = self
             .forget_camera_after_ms
             .unwrap_or(c.forget_camera_after_ms);
+        c.max_frame_pixels = self.max_frame_pixels.unwrap_or(c.max_frame_pixels);
         for assignment in &self.set {
             let (key, value) = assignment
                 .split_once('=')
@@ -211,6 +218,7 @@ mod tests {
             ("--max-frame-age-ms", d.max_frame_age_ms),
             ("--housekeeping-ms", d.housekeeping_ms),
             ("--forget-camera-after-ms", d.forget_camera_after_ms),
+            ("--max-frame-pixels", d.max_frame_pixels),
         ] {
             let at = help
                 .find(flag)
@@ -229,18 +237,7 @@ mod tests {
     #[test]
     fn long_logged_values_are_cut() {
         use tracing_subscriber::field::MakeExt;
-        #[derive(Clone, Default)]
-        struct Buffer(Arc<std::sync::Mutex<Vec<u8>>>);
-        impl std::io::Write for Buffer {
-            fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
-                self.0.lock().unwrap().extend_from_slice(b);
-                Ok(b.len())
-            }
-            fn flush(&mut self) -> std::io::Result<()> {
-                Ok(())
-            }
-        }
-        let buffer = Buffer::default();
+        let buffer = crate::test_log::Buffer::default();
         let out = buffer.clone();
         let subscriber = tracing_subscriber::fmt()
             .fmt_fields(tracing_subscriber::fmt::format::debug_fn(write_field).delimited(" "))
@@ -252,7 +249,7 @@ mod tests {
         tracing::subscriber::with_default(subscriber, || {
             tracing::warn!(origin = %origin, camera = "left", "{message}");
         });
-        let line = String::from_utf8(buffer.0.lock().unwrap().clone()).unwrap();
+        let line = buffer.text();
         assert!(line.contains(&message), "{line}");
         assert!(line.contains("camera=\"left\""), "{line}");
         assert!(

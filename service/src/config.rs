@@ -14,6 +14,7 @@
 //! max_frame_age_ms = 1000           # older camera frames are refused "camera stale"
 //! housekeeping_ms = 1000            # period of camera discovery and dead-peer cleanup
 //! forget_camera_after_ms = 60000    # a camera without a driver this long is forgotten
+//! max_frame_pixels = 16777216       # larger frames are refused "invalid frame"
 //!
 //! [detector]                        # detector parameters by name (`ppf detect --set` names)
 //! voting.reference_step = 2         # every 2nd evenly spread candidate votes: about half the voting time
@@ -29,6 +30,31 @@ use crate::error::{Error, Result};
 /// The most worker threads, and detections at once, a configuration may ask for; far more than
 /// cores any one machine has.
 pub const MAX_THREADS: usize = 256;
+
+/// Workers, and detections at once, per core at most: beyond it threads only take turns, and
+/// each running detection holds its scratch memory (with 256 of each on two cores, 32 clients
+/// saw an overhead p99 of 3.4 s).
+pub const MAX_THREADS_PER_CORE: usize = 4;
+
+/// The largest `housekeeping_ms`: a minute. Dead processes and cameras wait this long at most.
+pub const MAX_HOUSEKEEPING_MS: u64 = 60_000;
+
+/// The largest `max_frame_age_ms`: an hour. An older frame is no picture of the cell.
+pub const MAX_FRAME_AGE_MS: u64 = 3_600_000;
+
+/// The largest `forget_camera_after_ms`: a day.
+pub const MAX_FORGET_CAMERA_AFTER_MS: u64 = 86_400_000;
+
+/// The largest `max_frame_pixels`: 16384 × 16384. A detection takes about 95 bytes per pixel,
+/// so a frame this large would take about 25 GB.
+pub const MAX_FRAME_PIXELS_CEILING: u64 = 16384 * 16384;
+
+/// A configuration file: a few hundred bytes in practice.
+pub const CONFIG_FILE: ppfd_models::file::Limit = ppfd_models::file::Limit {
+    what: "configuration file",
+    max_bytes: 1 << 20,
+    raise: "a configuration is a few hundred bytes: is this the right file?",
+};
 
 /// The largest request queue the daemon accepts (each queued request keeps its client's
 /// request memory borrowed).
@@ -70,6 +96,10 @@ pub struct DaemonConfig {
     /// round that cleans up after it); 0 forgets it at that first round. Without it a cell whose camera names change (a driver
     /// that names its stream per run) would pile up one subscription per name for good.
     pub forget_camera_after_ms: u64,
+    /// The largest frame, in pixels, the daemon detects in (a camera's or an inline one); a
+    /// larger one is refused "invalid frame" with this limit named. A detection takes about
+    /// 95 bytes per pixel, so the default (4096 × 4096) bounds one at about 1.6 GB.
+    pub max_frame_pixels: u64,
     /// Detector parameters that differ from the defaults, as `(stage.field, value)`: the file's
     /// `[detector]` table, then `--set stage.field=value` flags. Checked at start; an unknown
     /// name or a bad value stops the daemon before it serves.
@@ -131,6 +161,7 @@ impl Default for DaemonConfig {
             max_frame_age_ms: 1000,
             housekeeping_ms: 1000,
             forget_camera_after_ms: 60_000,
+            max_frame_pixels: ppfd_protocol::DEFAULT_MAX_FRAME_PIXELS as u64,
             detector: Vec::new(),
         }
     }
@@ -150,10 +181,8 @@ impl DaemonConfig {
     /// wherever the daemon happens to be started from: the file and the folders it names move
     /// together.
     pub fn from_toml_file(path: &Path) -> Result<DaemonConfig> {
-        let text = std::fs::read_to_string(path).map_err(|source| Error::ConfigRead {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let text =
+            ppfd_models::file::read_text_bounded(path, &CONFIG_FILE).map_err(Error::ConfigRead)?;
         let mut c =
             toml::from_str::<DaemonConfig>(&text).map_err(|source| Error::ConfigSyntax {
                 path: path.to_path_buf(),
@@ -190,10 +219,14 @@ impl DaemonConfig {
         if self.parallel_detections == 0 {
             return Err(Error::NoParallelDetections);
         }
-        if self.workers > MAX_THREADS || self.parallel_detections > MAX_THREADS {
+        let cores = available_cores();
+        let max = (MAX_THREADS_PER_CORE * cores).min(MAX_THREADS);
+        if self.workers > max || self.parallel_detections > max {
             return Err(Error::TooManyThreads {
                 workers: self.workers,
                 parallel_detections: self.parallel_detections,
+                cores,
+                max,
             });
         }
         if self.queue_capacity == 0 || self.queue_capacity > MAX_QUEUE_CAPACITY {
@@ -204,6 +237,27 @@ impl DaemonConfig {
         }
         if self.max_frame_age_ms == 0 {
             return Err(Error::NoFrameAge);
+        }
+        for (key, value, max) in [
+            ("housekeeping_ms", self.housekeeping_ms, MAX_HOUSEKEEPING_MS),
+            ("max_frame_age_ms", self.max_frame_age_ms, MAX_FRAME_AGE_MS),
+            (
+                "forget_camera_after_ms",
+                self.forget_camera_after_ms,
+                MAX_FORGET_CAMERA_AFTER_MS,
+            ),
+            (
+                "max_frame_pixels",
+                self.max_frame_pixels,
+                MAX_FRAME_PIXELS_CEILING,
+            ),
+        ] {
+            if value > max {
+                return Err(Error::TooLarge { key, value, max });
+            }
+        }
+        if self.max_frame_pixels == 0 {
+            return Err(Error::NoFramePixels);
         }
         if let Some(p) = &self.prefix {
             ppfd_protocol::services::check_prefix(p).map_err(Error::Prefix)?;
@@ -247,11 +301,16 @@ impl DaemonConfig {
         if self.workers > 0 {
             self.workers
         } else {
-            std::thread::available_parallelism()
-                .map(|n| n.get())
-                .unwrap_or(1)
+            available_cores()
         }
     }
+}
+
+/// The cores this process may run on.
+pub fn available_cores() -> usize {
+    std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1)
 }
 
 #[cfg(test)]
@@ -286,6 +345,23 @@ mod tests {
         assert_eq!(c.models.as_deref(), Some(dir.join("models").as_path()));
         assert_eq!(c.model_cache.as_deref(), Some(Path::new("/var/cache/x")));
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A device or FIFO given as the configuration is refused at once, and a file beyond the
+    /// limit is not read whole.
+    #[test]
+    fn a_configuration_that_is_not_a_small_regular_file_is_refused() {
+        for special in ["/dev/null", "/dev/zero"] {
+            let e = DaemonConfig::from_toml_file(Path::new(special))
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("not a regular file"), "{e}");
+        }
+        let file = std::env::temp_dir().join(format!("ppfd-config-big-{}", std::process::id()));
+        std::fs::write(&file, vec![b'#'; CONFIG_FILE.max_bytes as usize + 1]).unwrap();
+        let e = DaemonConfig::from_toml_file(&file).unwrap_err().to_string();
+        std::fs::remove_file(&file).unwrap();
+        assert!(e.contains("largest configuration file"), "{e}");
     }
 
     #[test]
@@ -378,18 +454,24 @@ mod tests {
             ..Default::default()
         };
         assert!(c.validate().is_err());
-        for (workers, parallel_detections) in [(100_000, 1), (0, 1_000_000)] {
+        let max = (MAX_THREADS_PER_CORE * available_cores()).min(MAX_THREADS);
+        for (workers, parallel_detections) in
+            [(100_000, 1), (0, 1_000_000), (max + 1, 1), (0, max + 1)]
+        {
             let c = DaemonConfig {
                 workers,
                 parallel_detections,
                 ..Default::default()
             };
-            assert!(c
-                .validate()
-                .unwrap_err()
-                .to_string()
-                .contains("at most 256"));
+            let m = c.validate().unwrap_err().to_string();
+            assert!(m.contains(&format!("at most {max}")), "{m}");
         }
+        let c = DaemonConfig {
+            workers: max,
+            parallel_detections: max,
+            ..Default::default()
+        };
+        assert!(c.validate().is_ok());
         let c = DaemonConfig {
             max_frame_age_ms: 0,
             ..Default::default()
@@ -399,6 +481,44 @@ mod tests {
             .unwrap_err()
             .to_string()
             .contains("max_frame_age_ms"));
+        for (key, c) in [
+            (
+                "housekeeping_ms",
+                DaemonConfig {
+                    housekeeping_ms: u64::MAX,
+                    ..Default::default()
+                },
+            ),
+            (
+                "max_frame_age_ms",
+                DaemonConfig {
+                    max_frame_age_ms: u64::MAX,
+                    ..Default::default()
+                },
+            ),
+            (
+                "forget_camera_after_ms",
+                DaemonConfig {
+                    forget_camera_after_ms: u64::MAX,
+                    ..Default::default()
+                },
+            ),
+            (
+                "max_frame_pixels",
+                DaemonConfig {
+                    max_frame_pixels: u64::MAX,
+                    ..Default::default()
+                },
+            ),
+        ] {
+            let m = c.validate().unwrap_err().to_string();
+            assert!(m.contains(key) && m.contains("at most"), "{m}");
+        }
+        let c = DaemonConfig {
+            max_frame_pixels: 0,
+            ..Default::default()
+        };
+        assert!(c.validate().is_err());
         for queue_capacity in [0, MAX_QUEUE_CAPACITY + 1] {
             let c = DaemonConfig {
                 queue_capacity,

@@ -9,7 +9,9 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use ppfd_protocol::control::ModelInfo;
-use ppfd_protocol::detect::{DetectCounts, LatencyBreakdown, PoseHint, PoseHypothesis, Status};
+use ppfd_protocol::detect::{
+    DetectCounts, LatencyBreakdown, PoseHint, PoseHypothesis, Requirements, Status,
+};
 use ppfd_protocol::frame::Intrinsics;
 
 /// A depth frame as the engine sees it: borrowed straight from shared memory.
@@ -52,6 +54,9 @@ impl std::fmt::Debug for LoadedModel {
 pub struct EngineOptions {
     /// Best hypotheses wanted per object.
     pub hypotheses_per_object: usize,
+    /// What the hypotheses must satisfy, and their order, as the request gave them (checked
+    /// against their ranges; a region against the frame is the engine's to check).
+    pub requirements: Requirements,
     /// Stop early, with [`Status::DeadlineExceeded`], when this passes.
     pub deadline: Option<Instant>,
     /// Set by the daemon when the request's client is gone: stop early (the answer would go
@@ -59,8 +64,6 @@ pub struct EngineOptions {
     pub cancel: Arc<AtomicBool>,
     /// The request's hints, checked against the contract (each a pose of a requested object).
     pub hints: Vec<PoseHint>,
-    /// The score a refined hint needs besides passing the filters.
-    pub hint_min_score: f32,
 }
 
 /// What one detection found, in wire types.

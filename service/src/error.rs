@@ -3,19 +3,15 @@
 
 use std::path::PathBuf;
 
-use crate::config::{MAX_QUEUE_CAPACITY, MAX_THREADS};
+use crate::config::{MAX_QUEUE_CAPACITY, MAX_THREADS, MAX_THREADS_PER_CORE};
 
 /// Why the daemon cannot start or had to stop. The configuration's variants come before it
 /// serves (the command line exits with code 2); the others while it starts or serves (code 1).
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
-    /// The configuration file cannot be read.
-    #[error("{}: {source}", path.display())]
-    ConfigRead {
-        path: PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
+    /// The configuration file cannot be read: missing, not a regular file, too large, not text.
+    #[error("{0}")]
+    ConfigRead(#[source] ppfd_models::Error),
     /// The configuration file is not TOML, or not the settings' (an unknown key, a value of the
     /// wrong kind).
     #[error("{}: {source}", path.display())]
@@ -37,16 +33,31 @@ pub enum Error {
     /// `parallel_detections` is 0.
     #[error("parallel_detections must be at least 1")]
     NoParallelDetections,
-    /// `workers` or `parallel_detections` above [`MAX_THREADS`].
+    /// `workers` or `parallel_detections` above [`MAX_THREADS_PER_CORE`] per core, or
+    /// [`MAX_THREADS`].
     #[error(
         "workers ({workers}) and parallel_detections ({parallel_detections}) may be at most \
-         {max}: each is a thread or a detection's scratch memory",
-        max = MAX_THREADS
+         {max} on {cores} cores ({per_core} per core, never above {all}): each is a thread or a \
+         detection's scratch memory, and beyond that they only take turns",
+        per_core = MAX_THREADS_PER_CORE,
+        all = MAX_THREADS
     )]
     TooManyThreads {
         workers: usize,
         parallel_detections: usize,
+        cores: usize,
+        max: usize,
     },
+    /// A number above its bound.
+    #[error("{key} may be at most {max} (was {value})")]
+    TooLarge {
+        key: &'static str,
+        value: u64,
+        max: u64,
+    },
+    /// `max_frame_pixels` is 0.
+    #[error("max_frame_pixels must be at least 1")]
+    NoFramePixels,
     /// `queue_capacity` out of 1 to [`MAX_QUEUE_CAPACITY`].
     #[error("queue_capacity must be 1 to {max} (was {0})", max = MAX_QUEUE_CAPACITY)]
     QueueCapacity(usize),
@@ -117,9 +128,20 @@ mod tests {
                 Error::TooManyThreads {
                     workers: 300,
                     parallel_detections: 1,
+                    cores: 2,
+                    max: 8,
                 },
-                "workers (300) and parallel_detections (1) may be at most 256: each is a thread \
-                 or a detection's scratch memory",
+                "workers (300) and parallel_detections (1) may be at most 8 on 2 cores (4 per \
+                 core, never above 256): each is a thread or a detection's scratch memory, and \
+                 beyond that they only take turns",
+            ),
+            (
+                Error::TooLarge {
+                    key: "housekeeping_ms",
+                    value: u64::MAX,
+                    max: 60_000,
+                },
+                "housekeeping_ms may be at most 60000 (was 18446744073709551615)",
             ),
             (
                 Error::QueueCapacity(0),

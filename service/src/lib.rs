@@ -28,6 +28,8 @@ pub mod registry;
 pub mod responder;
 pub mod stats;
 pub mod termination;
+#[cfg(test)]
+mod test_log;
 pub mod wakeup;
 
 pub use config::DaemonConfig;

@@ -134,10 +134,7 @@ pub fn load_or_build(
     let parsed: Mesh;
     let (mesh, name, source_crc): (&Mesh, String, Option<u32>) = match source {
         MeshSource::File(path) => {
-            let bytes = std::fs::read(path).map_err(|e| ppfd_models::Error::Io {
-                path: path.to_path_buf(),
-                source: e,
-            })?;
+            let bytes = ppfd_models::file::read_bounded(path, &ppfd_models::limits::MESH_FILE)?;
             let crc = store::source_crc(&bytes);
             // First without parsing the mesh: a model built from these very bytes.
             for &candidate in &existing {

@@ -4,11 +4,15 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use ppfd_models::detect::detector::{Detector, Hint, RunOptions};
+use ppfd_models::detect::requirements::{Order, PixelRegion, PoseRestriction, Requirements};
 use ppfd_models::geometry::camera::{DepthFrame, Intrinsics};
 use ppfd_models::model::store;
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_protocol::control::ModelInfo;
-use ppfd_protocol::detect::{DetectCounts, LatencyBreakdown, PoseHint, PoseHypothesis, Status};
+use ppfd_protocol::detect::{
+    order, DetectCounts, LatencyBreakdown, PoseHint, PoseHypothesis,
+    Requirements as WireRequirements, Status,
+};
 use ppfd_protocol::text;
 
 use crate::engine::{
@@ -77,9 +81,11 @@ fn model_error(e: ppfd_models::Error) -> EngineError {
         // Only a client that is gone has its detection cancelled: the answer goes nowhere.
         Error::Cancelled { .. } => Status::Internal,
         Error::InvalidParameter(_) => Status::InvalidRequest,
-        Error::Io { .. } | Error::Ply { .. } | Error::InvalidMesh(_) | Error::ModelStore { .. } => {
-            Status::ModelError
-        }
+        Error::Io { .. }
+        | Error::File { .. }
+        | Error::Ply { .. }
+        | Error::InvalidMesh(_)
+        | Error::ModelStore { .. } => Status::ModelError,
         _ => Status::Internal,
     };
     let value = if let Error::UnknownObject(id) = e {
@@ -106,6 +112,37 @@ fn hint_of(h: &PoseHint) -> Hint {
             nalgebra::UnitQuaternion::from_matrix(&r),
         ),
     }
+}
+
+/// The detector's requirements of the wire's, refused as an invalid request where they are
+/// out of range.
+pub fn detector_requirements(wire: &WireRequirements) -> Result<Requirements, EngineError> {
+    let r = &wire.region_of_interest;
+    let p = &wire.pose_restriction;
+    Ok(Requirements {
+        min_score: wire.min_score,
+        instance_distance_fraction: (wire.instance_distance_fraction != 0.0)
+            .then_some(wire.instance_distance_fraction),
+        region: (!r.is_whole_frame()).then_some(PixelRegion {
+            x: r.x,
+            y: r.y,
+            width: r.width,
+            height: r.height,
+        }),
+        pose_restriction: if p.is_unrestricted() {
+            None
+        } else {
+            Some(
+                PoseRestriction::new(p.model_axis, p.camera_direction, p.max_angle_deg)
+                    .map_err(model_error)?,
+            )
+        },
+        order: if wire.order == order::DISTANCE {
+            Order::Distance
+        } else {
+            Order::Score
+        },
+    })
 }
 
 fn info_of(model: &ObjectModel) -> ModelInfo {
@@ -251,10 +288,10 @@ impl DetectionEngine for PpfEngine {
             .collect::<Result<_, _>>()?;
         let opts = RunOptions {
             hypotheses_per_object: options.hypotheses_per_object,
+            requirements: detector_requirements(&options.requirements)?,
             deadline: options.deadline,
             cancel: Some(options.cancel.clone()),
             hints: options.hints.iter().map(hint_of).collect(),
-            hint_min_score: options.hint_min_score,
         };
         let found = self
             .detector
@@ -401,6 +438,41 @@ mod tests {
             by_name.info.diameter_mm
         );
         drop(by_name);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    /// The loader checks the file it opened, not the path again: a mesh path that is a link to
+    /// a device (swapped in after the I/O thread looked at it) is refused, never read.
+    #[test]
+    fn the_loader_refuses_a_special_file_on_the_handle_it_opened() {
+        let root = scratch("special");
+        let e = PpfEngine::default();
+        let ply = root.join("obj_000001.ply");
+        std::os::unix::fs::symlink("/dev/null", &ply).unwrap();
+        let err = e.load(&ply, None, Some(&root.join("cache"))).unwrap_err();
+        assert_eq!(err.status, Status::ModelError);
+        assert!(
+            err.message.contains("not a regular file"),
+            "{}",
+            err.message
+        );
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    /// A mesh in metres, and a model file whose diameter is not what its mesh measures, are
+    /// refused with the reason.
+    #[test]
+    fn a_mesh_in_metres_and_a_model_file_with_a_false_diameter_are_refused() {
+        let root = scratch("units");
+        let e = PpfEngine::default();
+        let ply = root.join("obj_000001.ply");
+        write_box_ply(&ply, [0.06, 0.04, 0.02]);
+        let err = e.load(&ply, None, Some(&root.join("cache"))).unwrap_err();
+        assert!(
+            err.message.contains("metres") && err.message.contains("--scale 1000"),
+            "{}",
+            err.message
+        );
         std::fs::remove_dir_all(&root).unwrap();
     }
 }

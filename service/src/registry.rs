@@ -34,10 +34,15 @@ impl Registry {
             path: dir.to_path_buf(),
             source,
         })?;
-        let mut files: Vec<PathBuf> = entries
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.is_file())
-            .collect();
+        let mut files = Vec::new();
+        for path in entries.filter_map(|e| e.ok().map(|e| e.path())) {
+            if path.is_file() {
+                files.push(path);
+            } else if !path.is_dir() {
+                // A FIFO, socket or device (or a dangling link): never read, and said so.
+                tracing::warn!(path = %path.display(), "not a regular file: skipped");
+            }
+        }
         files.sort();
         Ok(engine.select(files))
     }
@@ -157,5 +162,34 @@ impl Registry {
         let ids: Vec<String> = self.models.keys().take(16).map(|k| k.to_string()).collect();
         let more = if self.models.len() > 16 { ", ..." } else { "" };
         format!("{}{more}", ids.join(", "))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A FIFO in the models folder is never opened, and the log says it was skipped.
+    #[test]
+    fn special_files_in_the_models_folder_are_skipped_with_a_log_line() {
+        let dir = std::env::temp_dir().join(format!("ppfd-registry-fifo-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let fifo = dir.join("obj_000001.ply");
+        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+        // SAFETY: a valid NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        std::fs::write(dir.join("obj_000002.ply"), "ply").unwrap();
+        let engine = crate::ppf_engine::PpfEngine::default();
+        let mut files = Vec::new();
+        let log = crate::test_log::capture(|| {
+            files = Registry::model_files(&engine, &dir).unwrap();
+        });
+        let _ = std::fs::remove_dir_all(&dir);
+        assert_eq!(files, vec![dir.join("obj_000002.ply")]);
+        assert!(
+            log.contains("not a regular file: skipped") && log.contains("obj_000001.ply"),
+            "{log}"
+        );
     }
 }

@@ -2,6 +2,8 @@
 //! models of the pose tests, process handling, and isolation of each test under its own iceoryx2
 //! prefix.
 
+pub mod fuzz;
+
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, ChildStdout, Command, Stdio};

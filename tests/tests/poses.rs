@@ -306,9 +306,12 @@ fn hinted_parts_come_back_from_their_hints_and_a_wrong_hint_from_voting() {
     let d3 = diameters[2];
     let mut off = truth(3);
     off.translation.vector.x += 0.8 * d3;
-    let hints = [hint(1, truth(1)), hint(2, truth(2)), hint(3, off)];
+    let hinted = ppfd_client::DetectOptions {
+        hints: vec![hint(1, truth(1)), hint(2, truth(2)), hint(3, off)],
+        ..options.clone()
+    };
     let found = loop {
-        match client.detect_with_hints("parts", &[1, 2, 3], &hints, &options) {
+        match client.detect("parts", &[1, 2, 3], &hinted) {
             Err(ppfd_client::Error::Refused {
                 status: ppfd_client::Status::NoFrame | ppfd_client::Status::UnknownCamera,
                 ..
@@ -625,4 +628,122 @@ fn models_built_from_meshes_are_cached_outside_the_models_folder() {
         "the second start rebuilt the model"
     );
     assert_eq!(list(&models), [mesh_file]);
+}
+
+/// What a request asks of the answer, end to end with the real engine: each value out of its
+/// range is refused with a message naming it and its range (sent raw, past the client's own
+/// check, which refuses them before sending), a region outside the camera's frame is refused
+/// by the engine, the daemon keeps serving, and a request for the parts nearest first above a
+/// minimum score gets them so.
+#[test]
+fn request_requirements_are_checked_by_the_daemon_and_served() {
+    use ppfd_client::protocol::detect::DetectRequestHeader;
+    use ppfd_client::protocol::text;
+    use ppfd_client::{order, DetectOptions, Requirements, Status};
+    let test = "requirements";
+    let prefix = Prefix::new(test);
+    let work = WorkDir::new(test);
+    write_part_models(&work.join("models"));
+    let _daemon = start_daemon(&prefix, &work.join("models"), &work.join("cache"), &[]);
+    let mut cam = parts_camera(&prefix, SEED, true);
+    cam.wait_line("camera ready", STARTUP);
+    let client = ppfd_client::Client::connect_with(&ppfd_client::ClientOptions {
+        prefix: Some(prefix.0.clone()),
+        ..Default::default()
+    })
+    .unwrap();
+    let part = Part::ALL[0];
+    let mut good = DetectRequestHeader {
+        camera_name: text::encode_name("camera", "parts").unwrap(),
+        ..Default::default()
+    };
+    good.set_objects(&[part.object_id()]).unwrap();
+    let refused = |change: &dyn Fn(&mut Requirements)| {
+        let mut header = good;
+        change(&mut header.requirements);
+        let mut options = DetectOptions {
+            timeout: DETECTION,
+            ..Default::default()
+        };
+        change(&mut options.requirements);
+        // The client library refuses it before sending…
+        match client.detect("parts", &[part.object_id()], &options) {
+            Err(ppfd_client::Error::Protocol(_)) => {}
+            other => panic!("the client sent a bad request: {other:?}"),
+        }
+        // …and the daemon, sent raw.
+        match client.send_raw(&header, &[], DETECTION) {
+            Err(ppfd_client::Error::Refused {
+                status, message, ..
+            }) => {
+                assert_eq!(status, Status::InvalidRequest, "{message}");
+                message
+            }
+            other => panic!("expected a refusal, got {other:?}"),
+        }
+    };
+    let m = refused(&|r| r.min_score = 1.5);
+    assert!(
+        m.contains("minimum score 1.5") && m.contains("0 to 1"),
+        "{m}"
+    );
+    let m = refused(&|r| r.instance_distance_fraction = 3.0);
+    assert!(
+        m.contains("instance distance 3") && m.contains("at most 2"),
+        "{m}"
+    );
+    let m = refused(&|r| r.order = 9);
+    assert!(m.contains("order 9"), "{m}");
+    let m = refused(&|r| r.region_of_interest.width = 50);
+    assert!(m.contains("region of interest 50x0"), "{m}");
+    let m = refused(&|r| r.pose_restriction.max_angle_deg = 270.0);
+    assert!(m.contains("270 degrees") && m.contains("0 to 180"), "{m}");
+    let m = refused(&|r| {
+        r.pose_restriction.max_angle_deg = 30.0;
+        r.pose_restriction.camera_direction = [0.0, f32::NAN, 0.0];
+    });
+    assert!(m.contains("camera direction"), "{m}");
+
+    // In range, but outside the camera's 640 × 480 frame: only the frame tells.
+    let mut outside = good;
+    outside.requirements.region_of_interest = ppfd_client::RegionOfInterest {
+        x: 600,
+        y: 0,
+        width: 100,
+        height: 10,
+    };
+    match client.send_raw(&outside, &[], DETECTION) {
+        Err(ppfd_client::Error::Refused {
+            status, message, ..
+        }) => {
+            assert_eq!(status, Status::InvalidRequest, "{message}");
+            assert!(message.contains("outside the 640x480 frame"), "{message}");
+        }
+        other => panic!("expected a refusal, got {other:?}"),
+    }
+
+    let options = DetectOptions {
+        hypotheses_per_object: 4,
+        timeout: DETECTION,
+        requirements: Requirements {
+            min_score: 0.05,
+            order: order::DISTANCE,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    let ids: Vec<u32> = Part::ALL.iter().map(|p| p.object_id()).collect();
+    let found = client.detect("parts", &ids, &options).expect("served");
+    assert!(!found.hypotheses.is_empty());
+    for id in ids {
+        let distances: Vec<f32> = found
+            .of(id)
+            .map(|h| {
+                assert!(h.score >= 0.05, "{h:?}");
+                let t = h.translation_mm;
+                (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt()
+            })
+            .collect();
+        eprintln!("object {id}: distances {distances:.0?}");
+    }
 }

@@ -864,3 +864,46 @@ fn models_are_listed_loaded_and_dropped_at_run_time() {
     assert_eq!(stats.models_loaded, 2);
     assert!(stats.cameras >= 1 && stats.frames_received > 0, "{stats:?}");
 }
+
+/// A 48-megapixel camera frame (8000 × 6000) is refused before any detection starts, with the
+/// limit named; so is an inline frame above the daemon's own limit. The daemon serves on.
+#[test]
+fn frames_beyond_the_pixel_limit_are_refused_naming_the_limit() {
+    use ppfd_client::{DetectOptions, FrameHeader, Intrinsics, Status};
+    let prefix = Prefix::new("bigframe");
+    let models = fake_model_dir("bigframe", &[1]);
+    let mut d = daemon(&prefix, &models, &[], "0");
+    let _huge = camera(&prefix, "huge", &["--fps", "2", "--size", "8000x6000"]);
+    let _vga = camera(&prefix, "vga", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(500));
+    let client = connect(&prefix);
+    let opts = DetectOptions::default();
+    let (status, _, message) = refusal(client.detect("huge", &[1], &opts));
+    assert_eq!(status, Status::InvalidFrame, "{message}");
+    assert!(
+        message.contains("8000x6000")
+            && message.contains(&ppfd_client::protocol::DEFAULT_MAX_FRAME_PIXELS.to_string())
+            && message.contains("--max-frame-pixels"),
+        "{message}"
+    );
+    client
+        .detect("vga", &[1], &opts)
+        .expect("a VGA frame is served");
+    d.signal(libc::SIGTERM);
+    d.wait_exit(Duration::from_secs(10));
+
+    // The limit is the daemon's setting: below VGA, a VGA inline frame is refused.
+    let prefix = Prefix::new("smallframes");
+    let _d = daemon(&prefix, &models, &["--max-frame-pixels", "300000"], "0");
+    let client = connect(&prefix);
+    let frame = FrameHeader {
+        width: 640,
+        height: 480,
+        intrinsics: Intrinsics::LMO,
+        ..Default::default()
+    };
+    let depth = vec![800u16; 640 * 480];
+    let (status, _, message) = refusal(client.detect_inline(&frame, &depth, &[1], &opts));
+    assert_eq!(status, Status::InvalidFrame, "{message}");
+    assert!(message.contains("limit of 300000"), "{message}");
+}

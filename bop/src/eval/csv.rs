@@ -37,12 +37,19 @@ pub struct EstimateRow {
 /// Reads a results file; see [`parse_results`].
 pub fn read_results(path: impl AsRef<Path>) -> Result<Vec<EstimateRow>> {
     let path = path.as_ref();
-    let file = std::fs::File::open(path).map_err(|source| Error::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    parse_results(std::io::BufReader::new(file), path)
+    let (file, len) = ppfd_models::file::open_regular(path)?;
+    RESULTS_FILE.check(path, len)?;
+    // Bounded also when the file grows while it is read.
+    let reader = std::io::Read::take(file, RESULTS_FILE.max_bytes);
+    parse_results(std::io::BufReader::new(reader), path)
 }
+
+/// The largest results file read: about 7 million estimates, far beyond any BOP dataset's.
+pub const RESULTS_FILE: ppfd_models::file::Limit = ppfd_models::file::Limit {
+    what: "results file",
+    max_bytes: 1 << 30,
+    raise: "split the file by scene, or raise ppfd_bop::eval::csv::RESULTS_FILE and rebuild",
+};
 
 /// Parses a results file from `reader`; `name_for_errors` is the path named in errors.
 ///

@@ -1,4 +1,4 @@
-//! What the command-line tests share: scratch folders. The real data is found with
+//! What the command-line tests share: scratch folders, and showing what a command printed. The real data is found with
 //! `ppfd_bop::shared_test_data`.
 
 use std::path::PathBuf;
@@ -25,4 +25,15 @@ impl Drop for Scratch {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.0);
     }
+}
+
+/// Prints what `command` gave, for a failing test to show.
+#[allow(dead_code)]
+pub fn show(command: &std::process::Command, out: &std::process::Output) {
+    eprintln!(
+        "{command:?}: {:?}\nstdout:\n{}\nstderr:\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
 }

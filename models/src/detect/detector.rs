@@ -13,13 +13,14 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
-use crate::geometry::camera::DepthFrame;
+use crate::geometry::camera::{DepthFrame, Intrinsics};
 use rayon::prelude::*;
 
 use crate::detect::clustering::{cluster_poses, ClusteringParams};
 use crate::detect::filters::{is_consistent, FilterParams};
 use crate::detect::icp::{refine, IcpParams};
 use crate::detect::plane::{PlaneParams, SupportingPlane};
+use crate::detect::requirements::{Order, Requirements};
 use crate::detect::rescoring::{prescreen, score_poses, Outline, RescoringParams};
 use crate::detect::scene::{prepare, prepare_within, PreparedScene, SceneImage, SceneParams};
 use crate::detect::silhouette::{silhouette_fraction, EdgeMap};
@@ -119,11 +120,14 @@ impl DetectParams {
     }
 }
 
-/// Per-call options of [`Detector::detect`]: how many hypotheses to return, and when to give up.
+/// Per-call options of [`Detector::detect`]: how many hypotheses to return, what they must
+/// satisfy, and when to give up.
 #[derive(Clone, Debug)]
 pub struct RunOptions {
-    /// How many hypotheses to return per object, best first.
+    /// How many hypotheses to return per object, in [`Requirements::order`].
     pub hypotheses_per_object: usize,
+    /// What the hypotheses must satisfy, and their order.
+    pub requirements: Requirements,
     /// Give up (with [`Error::DeadlineExceeded`]) once this instant has passed.
     pub deadline: Option<Instant>,
     /// Give up (with [`Error::Cancelled`]) once this is set: another thread's way to stop a
@@ -132,23 +136,23 @@ pub struct RunOptions {
     pub cancel: Option<Arc<AtomicBool>>,
     /// Poses the requested objects are expected near, any number per object (one per
     /// instance). An object with hints is first looked for from them alone: each is refined by
-    /// ICP, re-scored and filtered as a voted pose is, and kept when it passes both filters
-    /// with a score of at least [`RunOptions::hint_min_score`]. Only an object with a hint that
-    /// is not kept (or with none) goes through voting, and then its kept hints come first.
-    /// Two hints of one instance count as one kept and one not.
+    /// ICP, re-scored and filtered as a voted pose is, and kept when it passes both filters and
+    /// the [`requirements`](RunOptions::requirements) (minimum score, pose restriction, some
+    /// of its surface in the region of interest). Only an object with a hint that is not kept
+    /// (or with none) goes through voting, and then its kept hints lead its voted hypotheses
+    /// (in score order; in distance order all are sorted together). Two hints of one instance
+    /// count as one kept and one not.
     pub hints: Vec<Hint>,
-    /// The score a refined hint needs besides passing both filters; 0 leaves it to the filters.
-    pub hint_min_score: f32,
 }
 
 impl Default for RunOptions {
     fn default() -> Self {
         Self {
             hypotheses_per_object: 5,
+            requirements: Requirements::default(),
             deadline: None,
             cancel: None,
             hints: Vec::new(),
-            hint_min_score: 0.0,
         }
     }
 }
@@ -276,14 +280,8 @@ fn overlaps(list: &[Hypothesis], pose: &Pose, centre: &Point3<f32>, nms_mm: f32)
     list.iter().any(|h| (h.pose * centre - at).norm() < nms_mm)
 }
 
-/// Refuses hints that are not poses of requested objects, and a minimum score that is no number.
+/// Refuses hints that are not poses of requested objects.
 fn check_hints(models: &[&ObjectModel], opts: &RunOptions) -> Result<()> {
-    if !opts.hint_min_score.is_finite() {
-        return Err(Error::InvalidParameter(format!(
-            "hint_min_score must be a finite score, got {}",
-            opts.hint_min_score
-        )));
-    }
     for (i, h) in opts.hints.iter().enumerate() {
         let id = h.object_id;
         if !models.iter().any(|m| m.object_id() == id) {
@@ -378,6 +376,8 @@ impl Detector {
                 "hypotheses_per_object must be at least 1".into(),
             ));
         }
+        frame.validate()?;
+        opts.requirements.check(frame.width, frame.height)?;
         check_hints(models, opts)?;
         let check_stop = |start: Instant| {
             if opts
@@ -427,7 +427,7 @@ impl Detector {
                 }
                 check_stop(start)?;
                 let timings = &mut out.per_object_timings[i];
-                let kept = self.from_hints(model, &hints, &image, &edges, opts, timings);
+                let kept = self.refine_hints(model, &hints, &image, &edges, opts, timings);
                 if kept.len() >= hints.len().min(opts.hypotheses_per_object) {
                     objects[i] = Some(ObjectDetections {
                         object_id: model.object_id(),
@@ -465,8 +465,18 @@ impl Detector {
                 let scene = &clouds[cloud_of[j]];
                 let timings = &mut out.per_object_timings[i];
                 let t = Instant::now();
-                let selection =
-                    Selection::new(scene, &self.params.voting, &planes, model.diameter_mm());
+                let region = opts
+                    .requirements
+                    .region
+                    .as_ref()
+                    .map(|r| (r, &frame.intrinsics));
+                let selection = Selection::within(
+                    scene,
+                    &self.params.voting,
+                    &planes,
+                    model.diameter_mm(),
+                    region,
+                );
                 let (raw, counts) = vote_from(model, scene, &selection, &self.params.voting);
                 timings.voting += t.elapsed();
                 let t = Instant::now();
@@ -535,9 +545,9 @@ impl Detector {
         )
     }
 
-    /// The hints of one object that pass ICP, re-scoring and the filters with at least
-    /// [`RunOptions::hint_min_score`], best first, one per instance, marked [`Checks::HINT`].
-    fn from_hints(
+    /// The hints of one object that pass ICP, re-scoring, the filters and the requirements, in
+    /// the order asked for, one per instance, marked [`Checks::HINT`].
+    fn refine_hints(
         &self,
         model: &ObjectModel,
         hints: &[(Pose, u32)],
@@ -547,15 +557,10 @@ impl Detector {
         timings: &mut StageTimings,
     ) -> Vec<Hypothesis> {
         let v = self.verification(model, scene, edges, timings);
-        let (mut kept, _) = self.refine_and_filter(
-            &v,
-            hints,
-            Vec::new(),
-            opts.hint_min_score,
-            scene,
-            opts,
-            timings,
-        );
+        let (kept, _) = self.refine_and_filter(&v, hints, Vec::new(), scene, opts, timings);
+        let t = Instant::now();
+        let mut kept = self.answer(kept, Vec::new(), &v, opts);
+        timings.filters += t.elapsed();
         for h in &mut kept {
             h.checks.0 |= Checks::HINT;
         }
@@ -610,6 +615,20 @@ impl Detector {
             ..v.outline(p.filters.max_outline_px)
         };
         let t = Instant::now();
+        let wanted = &opts.requirements;
+        // Poses a gripper cannot take leave before re-scoring, so that its budget goes to
+        // those it can; ICP moves a pose a little, so the final ones are checked again below.
+        let allowed: Vec<(Pose, u32)>;
+        let clusters = if wanted.pose_restriction.is_some() {
+            allowed = clusters
+                .iter()
+                .filter(|(pose, _)| wanted.allows(pose))
+                .copied()
+                .collect();
+            &allowed[..]
+        } else {
+            clusters
+        };
         let top = &clusters[..clusters.len().min(p.rescoring.top_clusters)];
         let top = prescreen(
             top,
@@ -635,41 +654,69 @@ impl Detector {
             .iter()
             .map(|s| (s.pose, s.votes))
             .collect();
-        let (passed, mut failed) =
-            self.refine_and_filter(&v, &candidates, leading, 0.0, scene, opts, timings);
-
-        // Poses that failed a filter still fill the list, after those that passed, with their
-        // checks saying so: those that passed one filter before those that passed none, each
-        // group by score (the sort is stable).
+        let (passed, failed) =
+            self.refine_and_filter(&v, &candidates, leading, scene, opts, timings);
         let t = Instant::now();
+        let out = self.answer(passed, failed, &v, opts);
+        timings.filters += t.elapsed();
+        out
+    }
+
+    /// Two hypotheses of an object of `diameter_mm` whose centres lie closer than this are one
+    /// instance: the request's instance distance, or [`DetectParams::nms_distance_fraction`].
+    fn instance_distance_mm(&self, opts: &RunOptions, diameter_mm: f32) -> f32 {
+        opts.requirements
+            .instance_distance_fraction
+            .unwrap_or(self.params.nms_distance_fraction)
+            * diameter_mm
+    }
+
+    /// One object's answer from the hypotheses that passed both filters and those that did
+    /// not, in the order asked for, at most [`RunOptions::hypotheses_per_object`]. Poses that
+    /// failed a filter still fill the list, after those that passed, with their checks saying
+    /// so: those that passed one filter before those that passed none, each group in the order
+    /// asked for (the sorts are stable).
+    fn answer(
+        &self,
+        mut passed: Vec<Hypothesis>,
+        mut failed: Vec<Hypothesis>,
+        v: &Verification,
+        opts: &RunOptions,
+    ) -> Vec<Hypothesis> {
+        let n = opts.hypotheses_per_object;
+        if opts.requirements.order == Order::Distance {
+            let distance = |h: &Hypothesis| (h.pose * v.sphere.0).coords.norm();
+            passed.sort_by(|a, b| distance(a).total_cmp(&distance(b)));
+            failed.sort_by(|a, b| distance(a).total_cmp(&distance(b)));
+        }
+        passed.truncate(n);
         let all = Checks::CONSISTENT | Checks::SILHOUETTE;
         failed.sort_by_key(|h| std::cmp::Reverse((h.checks.0 & all).count_ones()));
-        let nms = p.nms_distance_fraction * d;
+        let nms = self.instance_distance_mm(opts, v.diameter_mm);
         let mut out = passed;
         for h in failed {
-            if out.len() == opts.hypotheses_per_object {
+            if out.len() == n {
                 break;
             }
             if !overlaps(&out, &h.pose, &v.sphere.0, nms) {
                 out.push(h);
             }
         }
-        timings.filters += t.elapsed();
         out
     }
 
     /// ICP from each of `poses` (with their votes), re-scoring, and the filters in score order
-    /// with non-maximum suppression after `passed` (hypotheses already kept): the hypotheses
-    /// that pass both filters with at least `min_score`, appended to `passed` up to
-    /// [`RunOptions::hypotheses_per_object`], and those that do not. The stages a voted pose
+    /// with non-maximum suppression after `passed` (hypotheses already kept), leaving out poses
+    /// the requirements refuse (below the minimum score, outside the pose restriction, or with
+    /// none of the model's surface in the region of interest): the hypotheses that pass both
+    /// filters, appended to `passed` (in score order up to
+    /// [`RunOptions::hypotheses_per_object`]), and those that do not. The stages a voted pose
     /// goes through after its first re-scoring, and all a hint goes through.
-    #[allow(clippy::too_many_arguments)]
     fn refine_and_filter(
         &self,
         v: &Verification,
         poses: &[(Pose, u32)],
         mut passed: Vec<Hypothesis>,
-        min_score: f32,
         scene: &SceneImage,
         opts: &RunOptions,
         timings: &mut StageTimings,
@@ -699,14 +746,20 @@ impl Detector {
 
         let t = Instant::now();
         let mut renderer = Renderer::new();
-        let nms = p.nms_distance_fraction * d;
+        let wanted = &opts.requirements;
+        let nms = self.instance_distance_mm(opts, d);
         let mut failed: Vec<Hypothesis> = Vec::new();
         let all = Checks::CONSISTENT | Checks::SILHOUETTE;
         for s in rescored.iter().take(p.filters.max_candidates) {
-            if passed.len() >= opts.hypotheses_per_object {
+            // Nearest first needs every instance that passes, not the first `n`.
+            if passed.len() >= opts.hypotheses_per_object && wanted.order == Order::Score {
                 break;
             }
-            if overlaps(&passed, &s.pose, &v.sphere.0, nms) {
+            if s.score < wanted.min_score
+                || !wanted.allows(&s.pose)
+                || !v.reaches_region(wanted, &scene.intrinsics, &s.pose)
+                || overlaps(&passed, &s.pose, &v.sphere.0, nms)
+            {
                 continue;
             }
             let mut checks = Checks(Checks::RESCORED | Checks::REFINED);
@@ -734,7 +787,7 @@ impl Detector {
                 votes: s.votes,
                 checks,
             };
-            if checks.0 & all == all && s.score >= min_score {
+            if checks.0 & all == all {
                 passed.push(h);
             } else {
                 failed.push(h);
@@ -756,6 +809,18 @@ struct Verification<'a> {
 }
 
 impl Verification<'_> {
+    /// Whether `pose` puts some of the model's surface into the requirements' region of
+    /// interest (any pose without one): what a voted pose has from its reference point, which
+    /// lies in the region, and a hint must show after ICP.
+    fn reaches_region(&self, wanted: &Requirements, intrinsics: &Intrinsics, pose: &Pose) -> bool {
+        wanted.region.as_ref().is_none_or(|r| {
+            self.surface
+                .positions
+                .iter()
+                .any(|p| r.holds(intrinsics, &(pose * p)))
+        })
+    }
+
     fn outline(&self, max_outline_px: u32) -> Outline<'_> {
         Outline {
             mesh: self.mesh.as_ref(),

@@ -282,14 +282,28 @@ pub fn prescreen(
     if keep == 0 || poses.len() <= keep || params.prescore_stride <= 1 {
         return poses.to_vec();
     }
-    let stride = params.prescore_stride;
+    let mut ranked = sparse_ranking(poses, surface, scene, tolerance, conflict_mm, params);
+    ranked.truncate(keep);
+    ranked
+}
+
+/// All of `poses`, best first by [`rescore`] on every `prescore_stride`-th surface point: the
+/// order [`prescreen`] cuts.
+pub fn sparse_ranking(
+    poses: &[(Pose, u32)],
+    surface: &OrientedPoints,
+    scene: &SceneImage,
+    tolerance: f32,
+    conflict_mm: f32,
+    params: &RescoringParams,
+) -> Vec<(Pose, u32)> {
+    let stride = params.prescore_stride.max(1);
     let sparse = OrientedPoints {
         positions: surface.positions.iter().step_by(stride).copied().collect(),
         normals: surface.normals.iter().step_by(stride).copied().collect(),
     };
     rescore(poses, &sparse, scene, tolerance, conflict_mm, params)
         .into_iter()
-        .take(keep)
         .map(|s| (s.pose, s.votes))
         .collect()
 }

@@ -366,7 +366,7 @@ pub fn prepare(frame: &DepthFrame, params: &SceneParams) -> Result<SceneImage> {
     if !normals.iter().any(|n| n.x.is_finite()) {
         let valid = points.iter().filter(|p| p.z.is_finite()).count();
         return Err(Error::InvalidFrame(if valid == 0 {
-            no_valid_depth(frame, params)
+            no_depth_in_range(frame, params)
         } else {
             format!(
                 "no surface normal could be estimated in the {}x{} frame: its {valid} pixels of \
@@ -392,16 +392,59 @@ pub fn prepare_within(
     frame.validate()?;
     let (points, normals) = plane_fit(frame, params, Some(rois));
     if !points.iter().any(|p| p.z.is_finite()) {
-        return Err(Error::InvalidFrame(no_valid_depth(frame, params)));
+        return Err(Error::InvalidFrame(no_depth_in_range(frame, params)));
     }
     Ok(SceneImage::of(frame, points, normals))
 }
 
-fn no_valid_depth(frame: &DepthFrame, params: &SceneParams) -> String {
-    format!(
-        "no valid depth in the {}x{} frame (all values zero or out of {}..{} mm)",
-        frame.width, frame.height, params.min_depth_mm, params.max_depth_mm
-    )
+/// Why a frame has no depth in the working range, in words that point at the likely cause: a
+/// frame whose values all lie below the range (or above it) by a power of ten is in another unit
+/// than its `depth_scale_mm` says (metres as whole numbers, or tenths of a millimetre read as
+/// millimetres), and the message names the scale that would bring it into range.
+fn no_depth_in_range(frame: &DepthFrame, params: &SceneParams) -> String {
+    let (w, h) = (frame.width, frame.height);
+    let range = format!("{}..{} mm", params.min_depth_mm, params.max_depth_mm);
+    let mut measured: Vec<u16> = frame.depth.iter().copied().filter(|&d| d != 0).collect();
+    if measured.is_empty() {
+        return format!(
+            "no valid depth in the {w}x{h} frame: every value is 0 (no measurement); the \
+             working range is {range}"
+        );
+    }
+    let n = measured.len();
+    let median = *measured.select_nth_unstable(n / 2).1 as f32;
+    let (lo, hi) = (
+        *measured.iter().min().unwrap() as f32,
+        *measured.iter().max().unwrap() as f32,
+    );
+    let scale = frame.depth_scale_mm;
+    let mut text = format!(
+        "no valid depth in the {w}x{h} frame: its {n} measured values run {lo}..{hi} (median \
+         {median}), times depth_scale_mm {scale} that is {}..{} mm, all outside the working \
+         range {range}",
+        lo * scale,
+        hi * scale
+    );
+    // The power of ten that puts the median in the range, the usual units of depth cameras
+    // first (metres, tenths of a millimetre, centimetres).
+    let fitting = [1000.0, 0.1, 10.0, 0.01, 100.0, 0.001, 10_000.0]
+        .into_iter()
+        .map(|k: f32| scale * k)
+        .find(|s| (params.min_depth_mm..=params.max_depth_mm).contains(&(median * s)));
+    if let Some(s) = fitting {
+        let unit = match s {
+            s if (s - 1000.0).abs() < 1e-3 => " (the values are metres)",
+            s if (s - 10.0).abs() < 1e-5 => " (the values are centimetres)",
+            s if (s - 0.1).abs() < 1e-7 => " (the values are tenths of a millimetre)",
+            _ => "",
+        };
+        text.push_str(&format!(
+            "; with depth_scale_mm {s} the median would be {} mm{unit}: is the frame's \
+             depth_scale_mm right?",
+            median * s
+        ));
+    }
+    text
 }
 
 #[cfg(test)]
@@ -627,6 +670,109 @@ mod tests {
             Err(e) => assert!(e.to_string().contains("no valid depth"), "{e}"),
             Ok(_) => panic!("a frame without depth was prepared"),
         }
+    }
+
+    /// A frame whose values are in another unit than its scale says is refused with the range
+    /// it holds and the scale that fits; a frame without a single measurement says so.
+    #[test]
+    fn depth_in_another_unit_is_refused_with_the_scale_that_fits() {
+        let params = SceneParams::default();
+        let refusal = |depth: &[u16], scale: f32| {
+            let frame = DepthFrame {
+                width: 640,
+                height: 480,
+                intrinsics: Intrinsics::LMO,
+                depth_scale_mm: scale,
+                depth,
+            };
+            match prepare(&frame, &params) {
+                Err(Error::InvalidFrame(m)) => m,
+                other => panic!("not refused: {:?}", other.map(|_| ())),
+            }
+        };
+        // Metres as whole numbers: a wall 2 m away reads 2.
+        let m = refusal(&vec![2u16; 640 * 480], 1.0);
+        assert!(
+            m.contains("2..2 mm") && m.contains("depth_scale_mm 1000") && m.contains("metres"),
+            "{m}"
+        );
+        // Tenths of a millimetre read as millimetres: 8 m, beyond the range.
+        let m = refusal(&vec![8000u16; 640 * 480], 1.0);
+        assert!(
+            m.contains("depth_scale_mm 0.1") && m.contains("tenths of a millimetre"),
+            "{m}"
+        );
+        let m = refusal(&vec![0u16; 640 * 480], 1.0);
+        assert!(m.contains("every value is 0"), "{m}");
+    }
+
+    /// The depth scale is applied before anything else: a scene in tenths of a millimetre gives
+    /// the points and normals of the same scene in millimetres.
+    #[test]
+    fn a_scene_in_tenths_of_a_millimetre_gives_the_points_of_the_same_scene_in_millimetres() {
+        let (mm, _) = plane_frame(|u, v| 700.0 + 0.4 * u + 0.2 * v);
+        let tenths: Vec<u16> = mm.iter().map(|&d| d * 10).collect();
+        fn frame(depth: &[u16], scale: f32) -> DepthFrame<'_> {
+            DepthFrame {
+                width: 640,
+                height: 480,
+                intrinsics: Intrinsics::LMO,
+                depth_scale_mm: scale,
+                depth,
+            }
+        }
+        let a = prepare(&frame(&mm, 1.0), &SceneParams::default()).unwrap();
+        let b = prepare(&frame(&tenths, 0.1), &SceneParams::default()).unwrap();
+        let (mut points, mut worst_p, mut worst_n) = (0, 0f32, 0f32);
+        for i in 0..a.points.len() {
+            if a.normals[i].x.is_finite() {
+                points += 1;
+                worst_p = worst_p.max((a.points[i] - b.points[i]).norm());
+                worst_n = worst_n.max((a.normals[i] - b.normals[i]).norm());
+            } else {
+                assert!(!b.normals[i].x.is_finite());
+            }
+        }
+        assert!(points > 300_000, "{points}");
+        assert!(worst_p < 1e-3 && worst_n < 1e-4, "{worst_p} mm, {worst_n}");
+    }
+
+    /// Pixels without depth (0) or outside the working range give no point and are no one's
+    /// neighbour; the surface around them keeps its normals.
+    #[test]
+    fn missing_and_out_of_range_depth_is_left_out() {
+        let params = SceneParams::default();
+        let (mut depth, k) = plane_frame(|_, _| 900.0);
+        // A hole, a patch beyond the range and one before it, each 40 × 40 pixels.
+        for (u0, value) in [(100, 0u16), (300, 6000), (500, 50)] {
+            for v in 200..240 {
+                for u in u0..u0 + 40 {
+                    depth[v * 640 + u] = value;
+                }
+            }
+        }
+        let frame = DepthFrame {
+            width: 640,
+            height: 480,
+            intrinsics: k,
+            depth_scale_mm: 1.0,
+            depth: &depth,
+        };
+        let image = prepare(&frame, &params).unwrap();
+        for u0 in [100i64, 300, 500] {
+            for (u, v) in [(u0, 200i64), (u0 + 20, 220), (u0 + 39, 239)] {
+                assert!(
+                    image.depth(u, v).is_none() && image.at(u, v).is_none(),
+                    "({u}, {v})"
+                );
+            }
+            // Right beside the patch: the plane's point and normal, undisturbed.
+            let (p, n) = image.at(u0 - 1, 220).expect("a normal beside the patch");
+            assert!((p.z - 900.0).abs() < 1e-3, "{p}");
+            assert!((n - Vector3::new(0.0, 0.0, -1.0)).norm() < 1e-3, "{n}");
+        }
+        let with_points = image.normals.iter().filter(|n| n.x.is_finite()).count();
+        assert_eq!(with_points, 640 * 480 - 3 * 40 * 40);
     }
 
     #[test]

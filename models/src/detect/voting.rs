@@ -10,7 +10,9 @@
 use rayon::prelude::*;
 
 use crate::detect::plane::SupportingPlane;
+use crate::detect::requirements::PixelRegion;
 use crate::detect::scene::PreparedScene;
+use crate::geometry::camera::Intrinsics;
 use crate::geometry::grid::{cell_of, CellMap};
 use crate::model::feature::{
     alpha_of_bin, pose_from_alignment, LocalFrame, PointPairFeature, MAX_KEYS,
@@ -360,6 +362,19 @@ impl Selection {
         planes: &[SupportingPlane],
         diameter_mm: f32,
     ) -> Selection {
+        Self::within(scene, params, planes, diameter_mm, None)
+    }
+
+    /// [`Selection::new`] with reference points only among the scene points that project into
+    /// `region` (seen through `intrinsics`); every admitted point stays a partner, so an object
+    /// the region cuts keeps the votes of its points outside it.
+    pub fn within(
+        scene: &PreparedScene,
+        params: &VotingParams,
+        planes: &[SupportingPlane],
+        diameter_mm: f32,
+        region: Option<(&PixelRegion, &Intrinsics)>,
+    ) -> Selection {
         let points = &scene.points;
         let planes: Vec<&SupportingPlane> = planes
             .iter()
@@ -373,7 +388,9 @@ impl Selection {
                 })
             })
             .collect();
-        let admitted = (0..points.len()).filter(|&i| !excluded[i]);
+        let admitted = (0..points.len()).filter(|&i| {
+            !excluded[i] && region.is_none_or(|(r, k)| r.holds(k, &points.positions[i]))
+        });
         let step = params.reference_step.max(1);
         let spacing = params.reference_spacing_fraction * diameter_mm;
         let references = if spacing > 0.0 {
@@ -643,7 +660,9 @@ mod tests {
 
     /// Each row's largest cell, as [`Accumulator::merge`] leaves them for [`peaks`].
     fn row_maxima(acc: &[u16]) -> Vec<u16> {
-        acc.chunks(ROW).map(|r| r.iter().copied().max().unwrap_or(0)).collect()
+        acc.chunks(ROW)
+            .map(|r| r.iter().copied().max().unwrap_or(0))
+            .collect()
     }
 
     /// Counts past a byte carry exactly, whichever copy takes the votes, and saturate at
@@ -886,7 +905,9 @@ mod tests {
             ..Default::default()
         };
         let mut got = Vec::new();
-        peaks(&acc, &row_maxima(&acc), 12, &params, |c, v| got.push((c, v)));
+        peaks(&acc, &row_maxima(&acc), 12, &params, |c, v| {
+            got.push((c, v))
+        });
         assert_eq!(got, vec![(4, 10), (2, 9), (7, 8)]);
         let params = VotingParams {
             peaks_per_reference: 3,
@@ -894,7 +915,9 @@ mod tests {
             ..Default::default()
         };
         got.clear();
-        peaks(&acc, &row_maxima(&acc), 12, &params, |c, v| got.push((c, v)));
+        peaks(&acc, &row_maxima(&acc), 12, &params, |c, v| {
+            got.push((c, v))
+        });
         assert_eq!(got, vec![(4, 10)]);
         got.clear();
         peaks(&[0, 0, 0], &[0], 3, &params, |c, v| got.push((c, v)));
@@ -911,7 +934,9 @@ mod tests {
             ..Default::default()
         };
         got.clear();
-        peaks(&acc, &row_maxima(&acc), 30, &params, |c, v| got.push((c, v)));
+        peaks(&acc, &row_maxima(&acc), 30, &params, |c, v| {
+            got.push((c, v))
+        });
         assert_eq!(got, vec![(2 * ROW + 7, 50), (3 * ROW + 31, 45)]);
     }
 
@@ -932,7 +957,9 @@ mod tests {
         acc[ROW + 9] = 48; // flank of the peak
         acc[ROW + 20] = 30; // a second peak of the same model point
         let mut got = Vec::new();
-        peaks(&acc, &row_maxima(&acc), nb, &params, |c, v| got.push((c, v)));
+        peaks(&acc, &row_maxima(&acc), nb, &params, |c, v| {
+            got.push((c, v))
+        });
         assert_eq!(got, vec![(ROW + 10, 50), (ROW + 20, 30)]);
 
         // Across the wrap: bin 0 and bin 29 are neighbours.
@@ -941,7 +968,9 @@ mod tests {
         acc[2 * ROW + nb - 1] = 39;
         acc[ROW + nb - 1] = 35; // the same bin in another model point's row
         got.clear();
-        peaks(&acc, &row_maxima(&acc), nb, &params, |c, v| got.push((c, v)));
+        peaks(&acc, &row_maxima(&acc), nb, &params, |c, v| {
+            got.push((c, v))
+        });
         assert_eq!(got, vec![(2 * ROW, 40), (ROW + nb - 1, 35)]);
     }
 }

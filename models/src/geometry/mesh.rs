@@ -62,16 +62,14 @@ impl Mesh {
     /// [`Mesh::from_triangles`] does (split at creases); a vertex whose normal in the file has
     /// zero length gets the area-weighted normal of its faces.
     ///
-    /// Errors: [`Error::Io`] when the file cannot be opened, [`Error::Ply`] naming what is wrong
+    /// Errors: [`Error::Io`] when the file cannot be opened, [`Error::File`] for a special file
+    /// or one beyond [`crate::limits::MESH_FILE`], [`Error::Ply`] naming what is wrong
     /// and where for anything malformed (truncated data, a missing coordinate, a non-finite
     /// value, a face index out of range, no vertices, a vertex that can get no normal).
     pub fn from_ply_file(path: impl AsRef<Path>) -> Result<Mesh> {
         let path = path.as_ref();
-        let file = std::fs::File::open(path).map_err(|source| Error::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        ply::read_mesh(file, path)
+        let bytes = crate::file::read_bounded(path, &crate::limits::MESH_FILE)?;
+        ply::read_mesh(&bytes[..], path)
     }
 
     /// Reads a PLY mesh from any reader, exactly as [`Mesh::from_ply_file`] does; errors name
@@ -119,6 +117,26 @@ impl Mesh {
                 "vertex {i} lies on no triangle of non-zero area, so it has no normal"
             ))
         })
+    }
+
+    /// Turns every normal around and reverses every face's winding, so that both point the
+    /// other way: for a mesh whose normals point inward
+    /// ([`crate::model::sanity::MeshReport::inward_normals`]).
+    pub fn flip_normals(&mut self) {
+        for n in &mut self.normals {
+            *n = -*n;
+        }
+        for f in &mut self.faces {
+            f.swap(1, 2);
+        }
+    }
+
+    /// Scales every position by `factor` (normals keep their direction): a mesh in another unit
+    /// brought into millimetres.
+    pub fn scale(&mut self, factor: f32) {
+        for p in &mut self.positions {
+            p.coords *= factor;
+        }
     }
 
     /// Checks the invariants the rest of the crate relies on: at least one vertex, one normal

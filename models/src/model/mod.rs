@@ -7,6 +7,7 @@
 
 pub mod feature;
 pub mod sampling;
+pub mod sanity;
 pub mod store;
 pub mod subsample;
 pub mod table;
@@ -20,7 +21,7 @@ use rkyv::util::AlignedVec;
 
 use crate::geometry::mesh::Mesh;
 use crate::model::feature::{key_count, LocalFrame, PointPairFeature, Quantizer};
-use crate::model::sampling::{diameter, sample_surface};
+use crate::model::sampling::sample_surface;
 use crate::model::subsample::{subsample, OrientedPoints, SubsampleParams};
 use crate::model::table::{pack_entry, LookupTable};
 use crate::{Error, Result};
@@ -209,7 +210,28 @@ impl ObjectModel {
     /// Builds the model of `mesh` (METHOD.md §1): dense area-uniform samples, the diameter,
     /// voxel subsampling with normal clustering and neighbour filtering, and the lookup table
     /// of every ordered pair of the subsampled points.
+    ///
+    /// A mesh that makes no sense in millimetres is refused ([`sanity::check_mesh`]); a closed
+    /// mesh whose normals point inward is built with them flipped, and a warning is logged.
     pub fn build(mesh: &Mesh, object_id: u32, name: &str, params: &ModelParams) -> Result<Self> {
+        let (model, report) = Self::build_with_report(mesh, object_id, name, params)?;
+        if report.inward_normals {
+            tracing::warn!(
+                name,
+                "the normals of this closed mesh point inward: flipped to point outward"
+            );
+        }
+        Ok(model)
+    }
+
+    /// [`ObjectModel::build`], and what [`sanity::check_mesh`] found in the mesh (its
+    /// diameter, size, and whether its normals were flipped), for a caller that reports it.
+    pub fn build_with_report(
+        mesh: &Mesh,
+        object_id: u32,
+        name: &str,
+        params: &ModelParams,
+    ) -> Result<(Self, sanity::MeshReport)> {
         params.validate()?;
         if mesh.positions.is_empty() || mesh.faces.is_empty() {
             return Err(Error::InvalidMesh(format!(
@@ -218,12 +240,21 @@ impl ObjectModel {
                 mesh.faces.len()
             )));
         }
-        let diameter_mm = diameter(&mesh.positions);
-        if !(diameter_mm > 0.0 && diameter_mm.is_finite()) {
-            return Err(Error::InvalidMesh(format!(
-                "{name}: diameter is {diameter_mm} mm"
-            )));
-        }
+        let report = sanity::check_mesh(mesh).map_err(|e| match e {
+            Error::InvalidMesh(reason) => Error::InvalidMesh(format!("{name}: {reason}")),
+            other => other,
+        })?;
+        let fingerprint = mesh.fingerprint();
+        let flipped;
+        let mesh = if report.inward_normals {
+            let mut copy = mesh.clone();
+            copy.flip_normals();
+            flipped = copy;
+            &flipped
+        } else {
+            mesh
+        };
+        let diameter_mm = report.diameter_mm;
         let area: f32 = mesh
             .faces
             .iter()
@@ -257,7 +288,7 @@ impl ObjectModel {
             name: name.to_string(),
             diameter_mm,
             params: *params,
-            mesh_fingerprint: mesh.fingerprint(),
+            mesh_fingerprint: fingerprint,
             source_crc: 0,
             points: points.positions.iter().map(|p| [p.x, p.y, p.z]).collect(),
             normals: points.normals.iter().map(|n| [n.x, n.y, n.z]).collect(),
@@ -270,10 +301,11 @@ impl ObjectModel {
         };
         let bytes = rkyv::to_bytes::<rkyv::rancor::Error>(&data)
             .map_err(|e| Error::InvalidParameter(format!("{name}: cannot archive model: {e}")))?;
-        Ok(Self {
+        let model = Self {
             backing: Backing::Owned(bytes),
             silhouette: Mutex::new(None),
-        })
+        };
+        Ok((model, report))
     }
 
     /// A model over an already validated archive in a private memory map (see [`crate::model::store`]).

@@ -15,7 +15,6 @@
 //! [`load_expecting`] (the same parameters and the same mesh, [`crate::geometry::mesh::Mesh::fingerprint`],
 //! whatever the file looks like).
 
-use std::fs::File;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -154,17 +153,10 @@ fn remove_dead_writers_files(path: &Path) {
 /// refuses a file too short to hold the header.
 fn read_private(path: &Path) -> Result<Mmap> {
     use std::io::Read;
-    // Looked at before opening: opening a FIFO would wait for a writer.
-    let meta = std::fs::metadata(path).map_err(|e| io(path, e))?;
-    if meta.is_dir() {
-        return Err(refuse(path, "is a folder, not a model file"));
-    }
-    if !meta.is_file() {
-        return Err(refuse(path, "is not a regular file"));
-    }
-    let mut file = File::open(path).map_err(|e| io(path, e))?;
-    let len = usize::try_from(meta.len())
-        .map_err(|_| refuse(path, format!("{} bytes is too large", meta.len())))?;
+    // Checked on the open handle: the path is not looked at again.
+    let (mut file, len) = crate::file::open_regular(path)?;
+    crate::limits::MODEL_FILE.check(path, len)?;
+    let len = len as usize;
     if len < HEADER_LEN {
         return Err(refuse(
             path,
@@ -290,9 +282,22 @@ fn check_consistency(d: &ArchivedModelData) -> std::result::Result<(), String> {
     let params = rkyv::deserialize::<ModelParams, rkyv::rancor::Error>(&d.params)
         .map_err(|e| format!("parameters: {e}"))?;
     params.validate().map_err(|e| e.to_string())?;
+    // What the file claims is checked against what it holds: a diameter read as millimetres
+    // scales every distance of the method.
     let diameter = d.diameter_mm.to_native();
-    if !(diameter.is_finite() && diameter > 0.0) {
-        return Err(format!("diameter {diameter} mm"));
+    if let Some(reason) = crate::limits::diameter_out_of_range(diameter) {
+        return Err(reason);
+    }
+    let mesh: Vec<nalgebra::Point3<f32>> = d
+        .mesh_positions
+        .iter()
+        .map(|p| nalgebra::Point3::new(p[0].to_native(), p[1].to_native(), p[2].to_native()))
+        .collect();
+    let measured = crate::model::sampling::diameter(&mesh);
+    if (measured - diameter).abs() > 1e-3 * diameter {
+        return Err(format!(
+            "the file claims a diameter of {diameter} mm, its mesh measures {measured} mm"
+        ));
     }
     let n = d.points.len();
     if d.normals.len() != n {
@@ -381,6 +386,43 @@ mod tests {
             &ModelParams::default(),
         )
         .unwrap()
+    }
+
+    /// A model file with a valid CRC whose diameter is not millimetres, or not what its own
+    /// mesh measures, is refused: every distance of the method scales with it.
+    #[test]
+    fn a_model_file_whose_diameter_is_false_is_refused() {
+        let dir = temp_dir("diameter");
+        let model = built();
+        let true_diameter = model.diameter_mm();
+        for (claimed, said) in [
+            (1e30, "micrometres"),
+            (1e-6, "metres"),
+            (2.0 * true_diameter, "its mesh measures"),
+        ] {
+            let mut data =
+                rkyv::deserialize::<crate::model::ModelData, rkyv::rancor::Error>(model.data())
+                    .unwrap();
+            data.diameter_mm = claimed;
+            let forged = ObjectModel {
+                backing: crate::model::Backing::Owned(
+                    rkyv::to_bytes::<rkyv::rancor::Error>(&data).unwrap(),
+                ),
+                silhouette: std::sync::Mutex::new(None),
+            };
+            let path = dir.join("forged.ppfm");
+            save(&forged, &path).unwrap();
+            match load(&path) {
+                Err(Error::ModelStore { reason, .. }) => {
+                    assert!(reason.contains(said), "{claimed}: {reason}")
+                }
+                r => panic!("{claimed}: {r:?}"),
+            }
+        }
+        let path = dir.join("true.ppfm");
+        save(&model, &path).unwrap();
+        assert_eq!(load(&path).unwrap().diameter_mm(), true_diameter);
+        std::fs::remove_dir_all(dir).unwrap();
     }
 
     /// Meshes of one name in two folders get two cache files; one mesh named two ways, one.
@@ -521,14 +563,14 @@ mod tests {
     fn a_folder_or_a_fifo_is_not_a_model_file() {
         let dir = temp_dir("notfile");
         match load(&dir) {
-            Err(Error::ModelStore { reason, .. }) => assert!(reason.contains("folder"), "{reason}"),
+            Err(Error::File { reason, .. }) => assert!(reason.contains("folder"), "{reason}"),
             r => panic!("{r:?}"),
         }
         let fifo = dir.join("pipe.ppfm");
         let made = std::process::Command::new("mkfifo").arg(&fifo).status();
         if made.is_ok_and(|s| s.success()) {
             match load(&fifo) {
-                Err(Error::ModelStore { reason, .. }) => {
+                Err(Error::File { reason, .. }) => {
                     assert!(reason.contains("not a regular file"), "{reason}")
                 }
                 r => panic!("{r:?}"),

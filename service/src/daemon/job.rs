@@ -99,7 +99,10 @@ impl Daemon {
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 };
                 let fh = *sample.user_header();
-                if let Err(e) = fh.validate(sample.payload().len()) {
+                let checked = fh
+                    .validate(sample.payload().len())
+                    .and_then(|()| fh.check_pixels(self.config.max_frame_pixels));
+                if let Err(e) = checked {
                     let e = EngineError::new(
                         e.status(),
                         format!("camera {name:?} published a bad frame: {e}"),
@@ -145,10 +148,10 @@ impl Daemon {
         let cancel = Arc::new(AtomicBool::new(false));
         let options = EngineOptions {
             hypotheses_per_object: q.header.hypotheses_per_object as usize,
+            requirements: q.header.requirements,
             deadline: (q.header.deadline_ns != 0).then(|| instant_of(q.header.deadline_ns)),
             cancel: cancel.clone(),
             hints: q.header.hints().to_vec(),
-            hint_min_score: q.header.hint_min_score,
         };
         let done = self.done_tx.clone();
         let signaller = self.signaller;

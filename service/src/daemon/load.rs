@@ -1,6 +1,8 @@
 //! A model loaded or built at run time (`LoadModel`): the path checked on the I/O thread, the
 //! loading on a thread of its own (building from a large mesh takes seconds), the model put in
-//! the registry when it reports.
+//! the registry when it reports. One model loads at a time and the rest wait their turn, up to
+//! [`MAX_WAITING_LOADS`]: a build takes memory in proportion to its mesh, and builds at once
+//! would add up.
 
 use std::path::PathBuf;
 
@@ -13,6 +15,17 @@ use crate::responder::ControlActive;
 use crate::termination::block_termination_signals;
 
 use super::Daemon;
+
+/// Loads waiting for the one that runs; one more is refused "busy".
+pub const MAX_WAITING_LOADS: usize = 16;
+
+/// A load waiting for its turn: its job (its control request is in `control_pending`), the
+/// path and the object id asked for.
+pub(super) struct WaitingLoad {
+    job: u64,
+    path: PathBuf,
+    object_id: Option<u32>,
+}
 
 /// A loading thread's report.
 pub(super) struct ModelLoaded {
@@ -57,10 +70,39 @@ impl Daemon {
             );
             return self.control_answer(active, Status::ModelError, &m, &[]);
         }
+        if self.waiting_loads.len() >= MAX_WAITING_LOADS {
+            let m = format!(
+                "{} model loads are already waiting (one loads at a time, at most \
+                 {MAX_WAITING_LOADS} wait); retry later",
+                self.waiting_loads.len()
+            );
+            return self.control_answer(active, Status::Busy, &m, &[]);
+        }
         let object_id = (request.object_id != 0).then_some(request.object_id);
         let job = self.next_job;
         self.next_job += 1;
         self.control_pending.insert(job, active);
+        self.waiting_loads.push_back(WaitingLoad {
+            job,
+            path,
+            object_id,
+        });
+        self.start_next_load();
+    }
+
+    /// Starts the next waiting load on a thread of its own, unless one is running.
+    fn start_next_load(&mut self) {
+        if self.loading.is_some() {
+            return;
+        }
+        let Some(WaitingLoad {
+            job,
+            path,
+            object_id,
+        }) = self.waiting_loads.pop_front()
+        else {
+            return;
+        };
         let engine = self.engine.clone();
         let cache = Some(self.config.model_cache_dir());
         let tx = self.loaded_tx.clone();
@@ -83,19 +125,29 @@ impl Daemon {
                 let _ = tx.send(ModelLoaded { job, result });
                 signaller.signal();
             });
-        if let Err(e) = spawned {
-            if let Some(active) = self.control_pending.remove(&job) {
-                self.control_answer(
-                    active,
-                    Status::Internal,
-                    &format!("cannot start loading: {e}"),
-                    &[],
-                );
+        match spawned {
+            Ok(_) => self.loading = Some(job),
+            Err(e) => {
+                if let Some(active) = self.control_pending.remove(&job) {
+                    self.control_answer(
+                        active,
+                        Status::Internal,
+                        &format!("cannot start loading: {e}"),
+                        &[],
+                    );
+                }
+                self.start_next_load();
             }
         }
     }
 
     pub(super) fn finish_load(&mut self, m: ModelLoaded) {
+        if self.loading == Some(m.job) {
+            self.loading = None;
+            if !self.shutting_down {
+                self.start_next_load();
+            }
+        }
         let Some(active) = self.control_pending.remove(&m.job) else {
             return;
         };

@@ -67,7 +67,7 @@ mod startup;
 
 use cameras::Camera;
 use job::{Completion, InFlight};
-use load::ModelLoaded;
+use load::{ModelLoaded, WaitingLoad};
 use queue::Queued;
 use startup::StartupLoad;
 
@@ -85,6 +85,25 @@ fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::Config> {
             .map_err(resource(&format!("iceoryx2 prefix {prefix:?}")))?;
     }
     Ok(config)
+}
+
+/// The daemon's iceoryx2 node. iceoryx2 reports a folder it cannot write only as
+/// "InternalError", so the refusal says where it keeps its files and what to check.
+fn create_node(iox: &iceoryx2::config::Config) -> Result<Node<Ipc>> {
+    NodeBuilder::new()
+        .name(&NodeName::new(services::DAEMON_NODE).map_err(resource("node name"))?)
+        .config(iox)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<Ipc>()
+        .map_err(|e| Error::Resource {
+            what: "cannot create the iceoryx2 node".into(),
+            detail: format!(
+                "{e:?}: iceoryx2 keeps its files in {} and /dev/shm; can this user write both? \
+                 (files another user's daemon left there belong to that user: remove them, or \
+                 give this daemon a --prefix of its own)",
+                iox.global.root_path()
+            ),
+        })
 }
 
 /// How many connections of dead clients the daemon's servers keep while the daemon still holds
@@ -113,6 +132,9 @@ pub(crate) struct Daemon {
     in_flight: HashMap<u64, InFlight>,
     queue: VecDeque<Queued>,
     control_pending: HashMap<u64, ControlActive>,
+    /// Model loads waiting for their turn, and the job of the one running (one at a time).
+    waiting_loads: VecDeque<WaitingLoad>,
+    loading: Option<u64>,
     cameras: HashMap<String, Camera>,
     detect_server: DetectServer,
     control_server: ControlServer,
@@ -157,12 +179,7 @@ pub fn run(
     iox.defaults
         .request_response
         .server_expired_connection_buffer = expired_connection_buffer(&config);
-    let node = NodeBuilder::new()
-        .name(&NodeName::new(services::DAEMON_NODE).map_err(resource("node name"))?)
-        .config(&iox)
-        .signal_handling_mode(SignalHandlingMode::Disabled)
-        .create::<Ipc>()
-        .map_err(resource("cannot create the iceoryx2 node"))?;
+    let node = create_node(&iox)?;
     let sweep = crate::housekeeper::DeadNodes::default().sweep(node.config());
     if sweep.cleaned + sweep.failed + sweep.leftovers > 0 {
         tracing::info!(
@@ -346,6 +363,8 @@ impl Daemon {
             in_flight: HashMap::new(),
             queue: VecDeque::new(),
             control_pending: HashMap::new(),
+            waiting_loads: VecDeque::new(),
+            loading: None,
             cameras: HashMap::new(),
             detect_server,
             control_server,
@@ -392,5 +411,31 @@ impl Daemon {
             // Clients died faster than housekeeping comes round.
             self.release_abandoned();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A folder iceoryx2 cannot write is named, with what to check, not left as "InternalError".
+    #[test]
+    fn a_node_that_cannot_be_created_says_where_iceoryx2_keeps_its_files() {
+        // Below a regular file: no user, root included, can make a folder there.
+        let file = std::env::temp_dir().join(format!("ppfd-node-root-{}", std::process::id()));
+        std::fs::write(&file, "a file").unwrap();
+        let root = file.join("iceoryx2");
+        let mut iox = iceoryx_config(Some("ppfdnoderoot")).unwrap();
+        let root_text = format!("{}/", root.display());
+        iox.global
+            .set_root_path(&iceoryx2::prelude::Path::new(root_text.as_bytes()).unwrap());
+        let e = create_node(&iox).map(|_| ()).unwrap_err().to_string();
+        std::fs::remove_file(&file).unwrap();
+        assert!(
+            e.contains(&root.display().to_string())
+                && e.contains("/dev/shm")
+                && e.contains("can this user write"),
+            "{e}"
+        );
     }
 }

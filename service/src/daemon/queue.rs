@@ -50,7 +50,14 @@ impl Daemon {
             let e = EngineError::new(Status::ShuttingDown, "the daemon is shutting down");
             return self.refuse(active, &header, received_ns, e);
         }
-        let source = match header.validate(payload_len) {
+        let max_pixels = self.config.max_frame_pixels;
+        let checked = header.validate(payload_len).and_then(|source| {
+            if source == FrameSource::Inline {
+                header.inline_frame.check_pixels(max_pixels)?;
+            }
+            Ok(source)
+        });
+        let source = match checked {
             Ok(source) => source,
             Err(e) => {
                 let value = match e {

@@ -22,6 +22,8 @@ impl Daemon {
             let e = EngineError::new(Status::ShuttingDown, "the daemon is shutting down");
             self.refuse(q.active, &q.header, q.received_ns, e);
         }
+        // Loads not started are answered below with the other pending control requests.
+        self.waiting_loads.clear();
         self.join_in_flight();
         let pending: Vec<ControlActive> = self.control_pending.drain().map(|(_, a)| a).collect();
         for active in pending {

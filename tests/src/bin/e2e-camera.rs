@@ -1,4 +1,5 @@
-//! A camera driver for the end-to-end tests: publishes VGA frames of a flat wall, one frame of a
+//! A camera driver for the end-to-end tests: publishes VGA frames of a flat wall (`--size WxH`
+//! for another size), one frame of a
 //! BOP dataset (`--bop <root> --scene <id> --image <id>`), or the generated scene of the generated
 //! parts (`--parts-seed <seed>`, Kinect-like noise unless `--noise none`), at `--fps`, `--frames`
 //! times (0: until killed), then stays alive without publishing (a camera that stopped; a
@@ -31,6 +32,7 @@ const FLAGS: &[&str] = &[
     "--scene",
     "--image",
     "--stamp-ahead-s",
+    "--size",
 ];
 
 /// Stops with a usage line at an unknown flag (a typo would otherwise publish on the default
@@ -95,13 +97,16 @@ fn main() {
             };
             (f.width, f.height, k, f.depth_scale_mm, f.depth)
         }
-        None => (
-            640u32,
-            480u32,
-            Intrinsics::LMO,
-            1.0f32,
-            vec![800u16; 640 * 480],
-        ),
+        None => {
+            let (w, h) = arg(&args, "--size")
+                .and_then(|s| {
+                    let (w, h) = s.split_once('x')?;
+                    Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?))
+                })
+                .unwrap_or((640, 480));
+            let wall = vec![800u16; w as usize * h as usize];
+            (w, h, Intrinsics::LMO, 1.0f32, wall)
+        }
     };
     // A driver whose clock is not the daemon's (wall-clock time, say): its frames are stamped
     // this far ahead.

@@ -11,6 +11,8 @@ use ply_rs_bw::ply::{
     ScalarType,
 };
 
+use crate::limits::{MAX_MESH_FACES, MAX_MESH_VERTICES, MESH_RAISE};
+
 use super::{is_degenerate, unit_f32, vertex_normals_from_faces, with_normals_from_faces, Mesh};
 use crate::{Error, Result};
 
@@ -119,6 +121,18 @@ impl Layout {
         })?;
         if vertex.count == 0 {
             return Err("the mesh is empty: the header declares 0 vertices".into());
+        }
+        let faces = header.elements.get("face").map_or(0, |f| f.count);
+        for (count, max, noun) in [
+            (vertex.count, MAX_MESH_VERTICES, "vertices"),
+            (faces, MAX_MESH_FACES, "faces"),
+        ] {
+            if count > max {
+                return Err(format!(
+                    "the header declares {count} {noun}, more than the {max} a mesh may have \
+                     ({MESH_RAISE})"
+                ));
+            }
         }
         let is_number = |name: &str| -> std::result::Result<bool, String> {
             match vertex.properties.get(name).map(|p| &p.data_type) {

@@ -1,0 +1,522 @@
+//! Where a detection loses an object: the stages of [`crate::detect::detector::Detector`] run
+//! one by one for one object, and after each the best candidate near a target pose (the ground
+//! truth, or a pose the user believes in) is looked for: its rank, how far it is from the target,
+//! and how it compares with the stage's leader. The first stage after which no candidate near
+//! the target survives is where the object was lost.
+//!
+//! The stages are those of the detector with its parameters: the reference points of
+//! [`Selection`], voting, clustering, the sparse fit that picks clusters for the full re-scoring,
+//! re-scoring with coarse outlines, ICP and re-scoring with full outlines, and the two filters.
+//! Every candidate is kept (the detector keeps the best few), so that the ranks beyond the cut
+//! are known too.
+
+use crate::detect::clustering::cluster_poses;
+use crate::detect::detector::DetectParams;
+use crate::detect::filters::is_consistent;
+use crate::detect::icp::refine;
+use crate::detect::plane::SupportingPlane;
+use crate::detect::rescoring::{score_poses, sparse_ranking, Outline, Scored};
+use crate::detect::scene::{PreparedScene, SceneImage};
+use crate::detect::silhouette::{silhouette_fraction, EdgeMap};
+use crate::detect::voting::{vote_from, Selection};
+use crate::geometry::render::{bounding_sphere, Renderer};
+use crate::model::ObjectModel;
+use crate::Pose;
+use rayon::prelude::*;
+
+/// A pose counts as near the target within this fraction of the diameter and these degrees.
+pub const NEAR_TRANSLATION_FRACTION: f32 = 0.1;
+pub const NEAR_ROTATION_DEG: f32 = 15.0;
+
+/// One stage's finding.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StageReport {
+    /// The stage's name, as the latency breakdown names it.
+    pub stage: &'static str,
+    /// Whether a candidate near the target is still among those the stage passes on.
+    pub kept: bool,
+    /// One line for a person: what the stage did with the target.
+    pub line: String,
+}
+
+/// The stages' findings for one object.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Diagnosis {
+    pub object_id: u32,
+    pub stages: Vec<StageReport>,
+}
+
+impl Diagnosis {
+    /// The first stage after which no candidate near the target is left; `None` when the
+    /// detection returns it first.
+    pub fn lost_at(&self) -> Option<&'static str> {
+        self.stages.iter().find(|s| !s.kept).map(|s| s.stage)
+    }
+
+    /// A heading and one line per stage, up to the one that lost the target.
+    pub fn lines(&self) -> Vec<String> {
+        let mut out = vec![match self.lost_at() {
+            Some(stage) => format!("object {}: lost at {stage}", self.object_id),
+            None => format!("object {}: found", self.object_id),
+        }];
+        for s in &self.stages {
+            out.push(format!("  {:<12} {}", s.stage, s.line));
+            if !s.kept {
+                break;
+            }
+        }
+        out
+    }
+}
+
+/// What a stage's ranked candidates say about the target: the first near it (rank from 1),
+/// with its errors.
+fn first_near(
+    poses: impl Iterator<Item = Pose>,
+    errors: &dyn Fn(&Pose) -> (f32, f32),
+    diameter: f32,
+) -> Option<(usize, f32, f32)> {
+    poses.enumerate().find_map(|(i, p)| {
+        let (dt, dr) = errors(&p);
+        (dt <= NEAR_TRANSLATION_FRACTION * diameter && dr <= NEAR_ROTATION_DEG).then_some((
+            i + 1,
+            dt,
+            dr,
+        ))
+    })
+}
+
+/// The scene as the detector prepares it for one frame, shared by the objects diagnosed in it.
+pub struct PreparedFrame<'a> {
+    pub image: &'a SceneImage,
+    pub planes: &'a [SupportingPlane],
+    pub edges: &'a EdgeMap,
+}
+
+/// Runs the detector's stages on `cloud` (the object's subsampled scene) for `model`, and says
+/// after each where the best candidate near the target stands. `errors(pose)` is a pose's
+/// translation (mm) and rotation (degrees) error against the target (the smallest over the
+/// object's symmetries, if it has any); `hypotheses` is how many the detection returns.
+pub fn diagnose(
+    params: &DetectParams,
+    frame: &PreparedFrame,
+    cloud: &PreparedScene,
+    model: &ObjectModel,
+    errors: &dyn Fn(&Pose) -> (f32, f32),
+    hypotheses: usize,
+) -> Diagnosis {
+    let p = params;
+    let d = model.diameter_mm();
+    let near = |pose: &Pose| {
+        let (dt, dr) = errors(pose);
+        dt <= NEAR_TRANSLATION_FRACTION * d && dr <= NEAR_ROTATION_DEG
+    };
+    let mut trace = Diagnosis {
+        object_id: model.object_id(),
+        stages: Vec::new(),
+    };
+
+    // Voting: how many reference points propose the target, against the best proposal.
+    let selection = Selection::new(cloud, &p.voting, frame.planes, d);
+    let (raw, _) = vote_from(model, cloud, &selection, &p.voting);
+    let most = raw.iter().map(|h| h.votes).max().unwrap_or(0);
+    let proposing: std::collections::BTreeSet<u32> = raw
+        .iter()
+        .filter(|h| near(&h.pose))
+        .map(|h| h.scene_point)
+        .collect();
+    let best_near = raw.iter().filter(|h| near(&h.pose)).map(|h| h.votes).max();
+    let line = match best_near {
+        Some(v) => format!(
+            "{} of {} reference points propose a pose near the target (best {v} votes; the most any got {most})",
+            proposing.len(),
+            selection.references.len()
+        ),
+        None => format!(
+            "none of {} reference points proposes a pose near the target ({} hypotheses; the most votes {most})",
+            selection.references.len(),
+            raw.len()
+        ),
+    };
+    if !trace.report("voting", best_near.is_some(), line) {
+        return trace;
+    }
+
+    // Clustering, and the cut to the clusters re-scored.
+    let clusters = cluster_poses(&raw, d, &p.clustering);
+    let cut = p.rescoring.top_clusters;
+    let first_votes = clusters.first().map_or(0, |c| c.votes);
+    let found = first_near(clusters.iter().map(|c| c.pose), errors, d);
+    let (kept, line) = match found {
+        Some((rank, dt, dr)) => (
+            rank <= cut,
+            format!(
+                "the nearest cluster ranks {rank} of {} by votes ({} votes, the first {first_votes}; {dt:.1} mm, {dr:.1}°); re-scoring takes the first {cut}",
+                clusters.len(),
+                clusters[rank - 1].votes
+            ),
+        ),
+        None => (
+            false,
+            format!(
+                "no cluster near the target among {} (the proposals near it were merged into others)",
+                clusters.len()
+            ),
+        ),
+    };
+    if !trace.report("clustering", kept, line) {
+        return trace;
+    }
+
+    let surface = model.surface_points();
+    let mesh = model.silhouette_mesh(p.rescoring.silhouette_mesh_cell_fraction * d);
+    let sphere = bounding_sphere(&mesh);
+    let outline = Outline {
+        mesh: mesh.as_ref(),
+        sphere: &sphere,
+        edges: frame.edges,
+        max_outline_px: p.filters.max_outline_px,
+    };
+    let coarse_outline = Outline {
+        max_outline_px: p.rescoring.coarse_outline(p.filters.max_outline_px),
+        ..outline
+    };
+    let conflict = p.rescoring.conflict_mm(d);
+    let top: Vec<(Pose, u32)> = clusters
+        .iter()
+        .take(cut)
+        .map(|c| (c.pose, c.votes))
+        .collect();
+
+    // The sparse fit that picks the clusters for the full re-scoring, when it cuts any.
+    let keep = p.rescoring.prescore_keep;
+    let chosen: Vec<(Pose, u32)> = if keep > 0
+        && top.len() > keep
+        && p.rescoring.prescore_stride > 1
+    {
+        let sparse = sparse_ranking(
+            &top,
+            &surface,
+            frame.image,
+            p.rescoring.tolerance_mm(d),
+            conflict,
+            &p.rescoring,
+        );
+        let found = first_near(sparse.iter().map(|(pose, _)| *pose), errors, d);
+        let (kept, line) = match found {
+                Some((rank, ..)) => (
+                    rank <= keep,
+                    format!(
+                        "ranks {rank} of {} by the fit of every {}th surface point; the full re-scoring takes the first {keep}",
+                        sparse.len(),
+                        p.rescoring.prescore_stride
+                    ),
+                ),
+                None => (false, "no candidate near the target left".into()),
+            };
+        if !trace.report("sparse fit", kept, line) {
+            return trace;
+        }
+        sparse.into_iter().take(keep).collect()
+    } else {
+        top
+    };
+
+    // Re-scoring with coarse outlines, and the cut to ICP.
+    let scored = score_poses(
+        &chosen,
+        &surface,
+        frame.image,
+        p.rescoring.tolerance_mm(d),
+        conflict,
+        &p.rescoring,
+        &coarse_outline,
+        chosen.len(),
+    );
+    let icp_cut = p.icp.top_poses;
+    let line_of = |s: &[Scored], rank: usize, what: &str| {
+        format!(
+            "ranks {rank} of {} (score {:.3}, the first {:.3}){what}",
+            s.len(),
+            s[rank - 1].score,
+            s[0].score
+        )
+    };
+    let found = first_near(scored.iter().map(|s| s.pose), errors, d);
+    let (kept, line) = match found {
+        Some((rank, ..)) => (
+            rank <= icp_cut,
+            line_of(&scored, rank, &format!("; ICP takes the first {icp_cut}")),
+        ),
+        None => (false, "no candidate near the target left".into()),
+    };
+    if !trace.report("re-scoring", kept, line) {
+        return trace;
+    }
+
+    // ICP on the best, re-scored with full outlines.
+    let refined: Vec<(Pose, u32)> = scored
+        .par_iter()
+        .take(icp_cut)
+        .map(|s| {
+            (
+                refine(&surface, &s.pose, frame.image, d, &p.icp).pose,
+                s.votes,
+            )
+        })
+        .collect();
+    let rescored = score_poses(
+        &refined,
+        &surface,
+        frame.image,
+        p.rescoring.refined_tolerance_mm(d),
+        conflict,
+        &p.rescoring,
+        &outline,
+        refined.len(),
+    );
+    let found = first_near(rescored.iter().map(|s| s.pose), errors, d);
+    let (kept, line) = match found {
+        Some((rank, dt, dr)) => (
+            true,
+            line_of(
+                &rescored,
+                rank,
+                &format!("; {dt:.1} mm, {dr:.1}° from the target"),
+            ),
+        ),
+        None => (
+            false,
+            format!(
+                "ICP moved every candidate near the target away from it ({} refined)",
+                refined.len()
+            ),
+        ),
+    };
+    if !trace.report("ICP", kept, line) {
+        return trace;
+    }
+    let (rank, ..) = found.expect("kept");
+    let s = &rescored[rank - 1];
+
+    // The filters, on the candidate near the target.
+    let consistent = is_consistent(&s.fit, &p.filters);
+    let silhouette = s.silhouette.or_else(|| {
+        silhouette_fraction(
+            &mut Renderer::new(),
+            &mesh,
+            &sphere,
+            &s.pose,
+            frame.image,
+            frame.edges,
+            conflict,
+            p.rescoring.min_visible_outline,
+        )
+    });
+    let outline_ok = silhouette.is_some_and(|f| f >= p.filters.min_silhouette_fraction);
+    let silhouette_text = match silhouette {
+        Some(f) => format!("{f:.2}"),
+        None => "not measurable (too little outline in view)".into(),
+    };
+    let passed = consistent && outline_ok;
+    let line = format!(
+        "{} (fit {}consistent; silhouette {silhouette_text}, at least {:.2} needed)",
+        if passed { "passed" } else { "rejected" },
+        if consistent { "" } else { "not " },
+        p.filters.min_silhouette_fraction
+    );
+    if !trace.report("filters", passed, line) {
+        return trace;
+    }
+
+    // What is returned: the poses that pass come first, in score order, one per instance (a
+    // pose whose centre is near a better one's is the same instance).
+    let nms = p.nms_distance_fraction * d;
+    let mut renderer = Renderer::new();
+    let mut passed_ahead: Vec<Pose> = Vec::new();
+    for o in rescored[..rank - 1].iter().take(p.filters.max_candidates) {
+        let centre = o.pose * sphere.0;
+        if passed_ahead
+            .iter()
+            .any(|q| (q * sphere.0 - centre).norm() < nms)
+        {
+            continue;
+        }
+        let f = o.silhouette.or_else(|| {
+            silhouette_fraction(
+                &mut renderer,
+                &mesh,
+                &sphere,
+                &o.pose,
+                frame.image,
+                frame.edges,
+                conflict,
+                p.rescoring.min_visible_outline,
+            )
+        });
+        if is_consistent(&o.fit, &p.filters)
+            && f.is_some_and(|f| f >= p.filters.min_silhouette_fraction)
+        {
+            passed_ahead.push(o.pose);
+        }
+    }
+    let centre = s.pose * sphere.0;
+    let (kept, line) = if let Some(q) = passed_ahead
+        .iter()
+        .position(|q| (q * sphere.0 - centre).norm() < nms)
+    {
+        let (dt, dr) = errors(&passed_ahead[q]);
+        (
+            q < hypotheses,
+            format!(
+                "a better pose of the same instance comes first: hypothesis {} ({dt:.1} mm, {dr:.1}° from the target)",
+                q + 1
+            ),
+        )
+    } else if passed_ahead.len() < hypotheses {
+        (
+            true,
+            format!(
+                "returned as hypothesis {} of {hypotheses}",
+                passed_ahead.len() + 1
+            ),
+        )
+    } else {
+        (
+            false,
+            format!(
+                "{} poses elsewhere score higher and pass the filters; the request returns {hypotheses}",
+                passed_ahead.len()
+            ),
+        )
+    };
+    trace.report("result", kept, line);
+    trace
+}
+
+impl Diagnosis {
+    /// Records a stage's finding; returns whether the target is still in the running.
+    fn report(&mut self, stage: &'static str, kept: bool, line: String) -> bool {
+        self.stages.push(StageReport { stage, kept, line });
+        kept
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::detect::detector::{Detector, RunOptions};
+    use crate::detect::scene::prepare;
+    use crate::model::{ModelParams, ObjectModel};
+    use crate::synthetic::parts::Part;
+    use crate::synthetic::scene::{NoiseModel, SceneSpec};
+
+    fn errors_to(target: Pose) -> impl Fn(&Pose) -> (f32, f32) {
+        move |p: &Pose| {
+            (
+                (p.translation.vector - target.translation.vector).norm(),
+                p.rotation.angle_to(&target.rotation).to_degrees(),
+            )
+        }
+    }
+
+    /// On a generated scene the diagnosis agrees with the detector: the part the detector finds
+    /// is found through every stage, with the ground truth as the target; a target where no
+    /// part lies is lost at the first stage, and the lines stop there.
+    #[test]
+    fn the_diagnosis_follows_the_detector_and_says_where_a_target_is_lost() {
+        let parts = [Part::LBracket, Part::FlangedCylinder];
+        let meshes: Vec<_> = parts.iter().map(Part::mesh).collect();
+        let mut spec = SceneSpec::new(4).noise(Some(NoiseModel::kinect()));
+        for (part, mesh) in parts.iter().zip(&meshes) {
+            spec = spec.object(part.object_id(), mesh);
+        }
+        let scene = spec.build().unwrap();
+        let part = parts[0];
+        let model = ObjectModel::build(
+            &part.mesh(),
+            part.object_id(),
+            part.name(),
+            &ModelParams::default(),
+        )
+        .unwrap();
+        let truth = scene
+            .ground_truth
+            .iter()
+            .find(|(id, _)| *id == part.object_id())
+            .unwrap()
+            .1;
+        let params = DetectParams::default();
+        let detections = Detector::new(params.clone())
+            .detect(
+                &scene.frame.view(),
+                &[&model],
+                &RunOptions {
+                    hypotheses_per_object: 1,
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+        let best = detections.objects[0].hypotheses[0].pose;
+        let (dt, dr) = errors_to(truth)(&best);
+        assert!(
+            dt < 0.1 * model.diameter_mm() && dr < 15.0,
+            "the detector finds the part: {dt} mm, {dr}°"
+        );
+
+        let image = prepare(&scene.frame.view(), &params.scene).unwrap();
+        let points = image.oriented_points();
+        let planes = SupportingPlane::find_all(&points, &params.plane);
+        let edges = EdgeMap::new(&image, &params.filters);
+        let frame = PreparedFrame {
+            image: &image,
+            planes: &planes,
+            edges: &edges,
+        };
+        let (groups, _) = params.scene_clouds(&[&model]);
+        let cloud = &params.prepare_clouds(&points, &groups).unwrap()[0];
+
+        let found = diagnose(&params, &frame, cloud, &model, &errors_to(truth), 1);
+        assert_eq!(found.lost_at(), None, "{:#?}", found.lines());
+        let stages: Vec<&str> = found.stages.iter().map(|s| s.stage).collect();
+        // Two parts give fewer clusters than the sparse fit keeps: it cuts nothing and has no
+        // line.
+        assert_eq!(
+            stages,
+            [
+                "voting",
+                "clustering",
+                "re-scoring",
+                "ICP",
+                "filters",
+                "result"
+            ]
+        );
+        assert_eq!(
+            found.lines()[0],
+            format!("object {}: found", part.object_id())
+        );
+        assert!(
+            found.stages[5].line.contains("hypothesis 1 of 1"),
+            "{:?}",
+            found.stages[5]
+        );
+
+        // Half a metre beside the part: nothing there proposes it.
+        let elsewhere = Pose::from_parts(
+            nalgebra::Translation3::from(
+                truth.translation.vector + nalgebra::Vector3::new(500.0, 0.0, 0.0),
+            ),
+            truth.rotation,
+        );
+        let lost = diagnose(&params, &frame, cloud, &model, &errors_to(elsewhere), 1);
+        assert_eq!(lost.lost_at(), Some("voting"));
+        let lines = lost.lines();
+        assert_eq!(lines.len(), 2, "{lines:?}");
+        assert_eq!(
+            lines[0],
+            format!("object {}: lost at voting", part.object_id())
+        );
+        assert!(lines[1].contains("none of"), "{lines:?}");
+    }
+}

@@ -1,0 +1,85 @@
+//! What one mesh or one model may cost, and the sizes that make sense in millimetres. These are
+//! decisions, not accidents: each default is far above what a picking cell needs (the LM-O and
+//! YCB-Video meshes have at most a few hundred thousand faces, and their models are at most a
+//! few megabytes), and far below what would exhaust a host. The daemon's own limits (frames,
+//! loads) are beside its configuration; the port limits are in `ppfd-protocol`.
+
+use crate::file::Limit;
+
+/// Faces of one mesh. Building takes about 230 bytes per face, so this bounds one build at
+/// about half a gigabyte.
+pub const MAX_MESH_FACES: usize = 2_000_000;
+/// Vertices of one mesh (a closed mesh has about half as many vertices as faces).
+pub const MAX_MESH_VERTICES: usize = 2_000_000;
+/// How a caller gets past [`MAX_MESH_FACES`] or [`MAX_MESH_VERTICES`].
+pub const MESH_RAISE: &str =
+    "decimate the mesh, or raise ppfd_models::limits::MAX_MESH_FACES / MAX_MESH_VERTICES and rebuild ppfd";
+
+/// One mesh file: an ASCII PLY of [`MAX_MESH_FACES`] faces is about 150 MB.
+pub const MESH_FILE: Limit = Limit {
+    what: "mesh file",
+    max_bytes: 512 << 20,
+    raise: "decimate the mesh, or raise ppfd_models::limits::MESH_FILE and rebuild ppfd",
+};
+
+/// One model file: a model of the largest mesh is about 40 MB; the usual ones are under 16 MB.
+pub const MODEL_FILE: Limit = Limit {
+    what: "model file",
+    max_bytes: 64 << 20,
+    raise: "rebuild the model from a decimated mesh, or raise ppfd_models::limits::MODEL_FILE and rebuild ppfd",
+};
+
+/// The smallest object diameter taken as millimetres: a mesh in metres has a diameter of a few
+/// tenths at most (a 100 mm part is 0.1).
+pub const MIN_DIAMETER_MM: f32 = 2.0;
+/// The largest object diameter taken as millimetres (10 m): beyond it the mesh is in
+/// micrometres or another unit.
+pub const MAX_DIAMETER_MM: f32 = 10_000.0;
+
+/// The refusal of a diameter outside [`MIN_DIAMETER_MM`]..=[`MAX_DIAMETER_MM`], with the scale
+/// that would bring it into millimetres; `None` for a sane one.
+pub fn diameter_out_of_range(diameter: f32) -> Option<String> {
+    if (MIN_DIAMETER_MM..=MAX_DIAMETER_MM).contains(&diameter) {
+        return None;
+    }
+    let unit = if !diameter.is_finite() || diameter <= 0.0 {
+        return Some(format!(
+            "the diameter is {diameter} mm: the mesh has no extent"
+        ));
+    } else if diameter < MIN_DIAMETER_MM {
+        // The unit whose factor brings it nearest a 100 mm part.
+        [(1000.0, "metres"), (10.0, "centimetres")]
+            .into_iter()
+            .find(|(f, _)| diameter * f >= MIN_DIAMETER_MM)
+            .unwrap_or((1000.0, "metres"))
+    } else {
+        [(0.001, "micrometres"), (0.1, "tenths of a millimetre")]
+            .into_iter()
+            .find(|(f, _)| diameter * f <= MAX_DIAMETER_MM)
+            .unwrap_or((0.001, "micrometres"))
+    };
+    let (factor, name) = unit;
+    Some(format!(
+        "the diameter is {diameter} mm, outside {MIN_DIAMETER_MM}..{MAX_DIAMETER_MM} mm: the \
+         mesh looks like it is in {name}; scale it to millimetres (ppf model build --scale {factor})"
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_diameter_in_metres_is_named_with_its_scale() {
+        assert_eq!(diameter_out_of_range(100.0), None);
+        let m = diameter_out_of_range(0.1).unwrap();
+        assert!(m.contains("metres") && m.contains("--scale 1000"), "{m}");
+        let m = diameter_out_of_range(1e30).unwrap();
+        assert!(
+            m.contains("micrometres") && m.contains("--scale 0.001"),
+            "{m}"
+        );
+        assert!(diameter_out_of_range(f32::NAN).is_some());
+        assert!(diameter_out_of_range(0.0).is_some());
+    }
+}

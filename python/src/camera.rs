@@ -1,0 +1,150 @@
+//! `ppfd.CameraPublisher`: a camera driver in Python, over `ppfd_client::CameraPublisher`.
+
+use numpy::{PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
+use ppfd_client::{monotonic_now_ns, Intrinsics};
+use pyo3::prelude::*;
+
+use crate::errors::{protocol_error, to_py};
+use crate::thread::ThreadBound;
+
+/// Publishes the depth frames of one camera into shared memory. Used by the thread that made
+/// it. Between frames, wait with `idle` rather than `time.sleep`, so that a daemon that
+/// subscribes meanwhile gets the newest frame.
+#[pyclass(module = "ppfd")]
+pub struct CameraPublisher {
+    inner: ThreadBound<ppfd_client::CameraPublisher>,
+    width: u32,
+    height: u32,
+}
+
+#[pymethods]
+impl CameraPublisher {
+    /// Creates the camera `name` (1 to 31 ASCII letters, digits, `_`, `-`) of `width` ×
+    /// `height` pixels with pinhole intrinsics in pixels; `depth_scale` is millimetres per raw
+    /// depth unit (1.0 for a sensor that reports mm). `prefix` as `ppfd.Client`'s.
+    #[new]
+    #[pyo3(signature = (name, width, height, fx, fy, cx, cy, depth_scale=1.0, *, prefix=None, camera_id=0))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        name: &str,
+        width: u32,
+        height: u32,
+        fx: f32,
+        fy: f32,
+        cx: f32,
+        cy: f32,
+        depth_scale: f32,
+        prefix: Option<String>,
+        camera_id: u32,
+    ) -> PyResult<Self> {
+        let prefix = prefix.or_else(ppfd_client::prefix_from_env);
+        let intrinsics = Intrinsics { fx, fy, cx, cy };
+        let publisher = ppfd_client::CameraPublisher::new(
+            prefix.as_deref(),
+            name,
+            camera_id,
+            width,
+            height,
+            intrinsics,
+            depth_scale,
+        )
+        .map_err(|e| to_py(py, e))?;
+        Ok(CameraPublisher {
+            inner: ThreadBound::new("ppfd.CameraPublisher", publisher),
+            width,
+            height,
+        })
+    }
+
+    /// Copies `depth`, a uint16 array of shape (height, width), into a loaned shared-memory
+    /// frame and publishes it: the one copy from the array, none after. `capture_time_ns` is
+    /// when the sensor captured it on `CLOCK_MONOTONIC` (`ppfd.monotonic_now_ns()`; None: now).
+    /// Returns the frame's sequence number.
+    #[pyo3(signature = (depth, capture_time_ns=None))]
+    fn publish(
+        &mut self,
+        py: Python<'_>,
+        depth: &Bound<'_, PyAny>,
+        capture_time_ns: Option<u64>,
+    ) -> PyResult<u64> {
+        let expected = format!("uint16 array of shape ({}, {})", self.height, self.width);
+        let array = depth.cast::<PyArrayDyn<u16>>().map_err(|_| {
+            protocol_error(
+                py,
+                format!("depth must be a {expected}, got {}", describe(depth)),
+            )
+        })?;
+        if array.shape() != [self.height as usize, self.width as usize] {
+            return Err(protocol_error(
+                py,
+                format!("depth must be a {expected}, got {}", describe(depth)),
+            ));
+        }
+        let view = array.try_readonly()?;
+        let publisher = self.inner.get_mut()?;
+        let loan = publisher.loan().map_err(|e| to_py(py, e))?;
+        // `as_slice` also takes a Fortran-ordered array, in its memory order: only a
+        // C-ordered one is copied in one piece.
+        let frame = match view.as_slice() {
+            Ok(values) if array.is_c_contiguous() => {
+                loan.write_from_slice(values).map_err(|e| to_py(py, e))?
+            }
+            // Strided (a crop, a transposed or Fortran-ordered array): one pass in row order.
+            _ => {
+                let a = view.as_array();
+                let mut values = a.iter();
+                loan.write_from_fn(|_| values.next().copied().unwrap_or(0))
+            }
+        };
+        frame
+            .send(capture_time_ns.unwrap_or_else(monotonic_now_ns))
+            .map_err(|e| to_py(py, e))
+    }
+
+    /// Waits `seconds` without publishing, handing the newest frame every 20 ms to a daemon
+    /// that subscribes meanwhile. The GIL is released while it waits.
+    fn idle(&self, py: Python<'_>, seconds: f64) -> PyResult<()> {
+        let duration = crate::client::seconds(py, "seconds", seconds)?;
+        let publisher = &self.inner;
+        py.detach(|| publisher.get().map(|p| p.idle(duration)))?
+            .map_err(|e| to_py(py, e))
+    }
+
+    /// Image width, pixels.
+    #[getter]
+    fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Image height, pixels.
+    #[getter]
+    fn height(&self) -> u32 {
+        self.height
+    }
+}
+
+/// What an argument given as depth is: `float32 array of shape (480, 640)`, or its type.
+fn describe(value: &Bound<'_, PyAny>) -> String {
+    match value.cast::<numpy::PyUntypedArray>() {
+        Ok(array) => {
+            let dtype = array
+                .dtype()
+                .str()
+                .map(|s| s.to_string())
+                .unwrap_or_else(|_| "unknown dtype".into());
+            let shape: Vec<String> = array.shape().iter().map(|n| n.to_string()).collect();
+            let shape = if shape.len() == 1 {
+                format!("({},)", shape[0])
+            } else {
+                format!("({})", shape.join(", "))
+            };
+            format!("{dtype} array of shape {shape}")
+        }
+        Err(_) => value
+            .get_type()
+            .name()
+            .map(|n| format!("a {n}, not a numpy array"))
+            .unwrap_or_else(|_| "something that is not a numpy array".into()),
+    }
+}

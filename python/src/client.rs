@@ -1,0 +1,422 @@
+//! `ppfd.Client`: detect requests and control requests, over `ppfd_client::Client`.
+
+use std::time::Duration;
+
+use numpy::PyArray2;
+use ppfd_client::protocol::control::{DaemonStats, LatencySummary, ModelInfo};
+use ppfd_client::{checks, ClientOptions, DetectOptions, Detections as Found, PoseHypothesis};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::errors::{protocol_error, to_py};
+use crate::requirements::RequirementArgs;
+use crate::thread::ThreadBound;
+
+/// A duration from seconds given in Python; `what` names the argument in the error.
+pub fn seconds(py: Python<'_>, what: &str, value: f64) -> PyResult<Duration> {
+    Duration::try_from_secs_f64(value).map_err(|_| {
+        protocol_error(
+            py,
+            format!("{what} must be a finite number of seconds, 0 or more; got {value}"),
+        )
+    })
+}
+
+/// One pose hypothesis: `pose` maps model to camera coordinates, millimetres.
+#[pyclass(module = "ppfd", frozen)]
+pub struct Detection {
+    hypothesis: PoseHypothesis,
+}
+
+#[pymethods]
+impl Detection {
+    /// Object id of the model.
+    #[getter]
+    fn object_id(&self) -> u32 {
+        self.hypothesis.object_id
+    }
+
+    /// 0 for the best hypothesis of this object, 1 for the next, ...
+    #[getter]
+    fn rank(&self) -> u32 {
+        self.hypothesis.instance_rank
+    }
+
+    /// Score after the last stage the hypothesis passed, 0 to 1.
+    #[getter]
+    fn score(&self) -> f32 {
+        self.hypothesis.score
+    }
+
+    /// Votes of the pose cluster the hypothesis came from.
+    #[getter]
+    fn votes(&self) -> u32 {
+        self.hypothesis.votes
+    }
+
+    /// The verification stages passed, as bits of `ppfd.Checks`.
+    #[getter]
+    fn checks(&self) -> u32 {
+        self.hypothesis.checks
+    }
+
+    /// The pose as a new 4×4 float64 array `[[R, t], [0, 0, 0, 1]]`: `p_cam = R p_model + t`,
+    /// millimetres.
+    #[getter]
+    fn pose<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let (r, t) = (&self.hypothesis.rotation, &self.hypothesis.translation_mm);
+        let mut m = [[0.0f64; 4]; 4];
+        for (row, out) in m.iter_mut().take(3).enumerate() {
+            for col in 0..3 {
+                out[col] = f64::from(r[3 * row + col]);
+            }
+            out[3] = f64::from(t[row]);
+        }
+        m[3][3] = 1.0;
+        PyArray2::from_owned_array(py, numpy::ndarray::Array2::from(m.to_vec()))
+    }
+
+    fn __repr__(&self) -> String {
+        let h = &self.hypothesis;
+        format!(
+            "Detection(object_id={}, rank={}, score={:.3}, t=({:.1}, {:.1}, {:.1}) mm, checks={})",
+            h.object_id,
+            h.instance_rank,
+            h.score,
+            h.translation_mm[0],
+            h.translation_mm[1],
+            h.translation_mm[2],
+            h.checks
+        )
+    }
+}
+
+/// Bits of `Detection.checks`: the verification stages a hypothesis passed.
+#[pyclass(module = "ppfd", frozen)]
+pub struct Checks;
+
+#[pymethods]
+impl Checks {
+    /// Re-scored against the scene from the camera's view.
+    #[classattr]
+    const RESCORED: u32 = checks::RESCORED;
+    /// Refined by ICP.
+    #[classattr]
+    const REFINED: u32 = checks::REFINED;
+    /// Passed the geometric consistency filter.
+    #[classattr]
+    const CONSISTENT: u32 = checks::CONSISTENT;
+    /// Passed the silhouette filter.
+    #[classattr]
+    const SILHOUETTE: u32 = checks::SILHOUETTE;
+}
+
+/// The answer to a detect request: a sequence of `Detection`, grouped by object in request
+/// order and best first within an object, with the latency breakdown and the work's sizes.
+#[pyclass(module = "ppfd", frozen, sequence)]
+pub struct Detections {
+    detections: Vec<Py<Detection>>,
+    /// Where the time went, nanoseconds (see `ppfd.pyi` for the keys).
+    #[pyo3(get)]
+    latency: Py<PyDict>,
+    /// Sizes of the work: scene points, reference points, pairs, hypotheses, returned.
+    #[pyo3(get)]
+    counts: Py<PyDict>,
+    /// Sequence number of the camera frame used.
+    #[pyo3(get)]
+    frame_sequence: u64,
+    /// Age of that frame when the detection started, nanoseconds.
+    #[pyo3(get)]
+    frame_age_ns: u64,
+    /// The request's id.
+    #[pyo3(get)]
+    request_id: u64,
+}
+
+#[pymethods]
+impl Detections {
+    fn __len__(&self) -> usize {
+        self.detections.len()
+    }
+
+    fn __getitem__(&self, py: Python<'_>, index: isize) -> PyResult<Py<Detection>> {
+        let n = self.detections.len() as isize;
+        let i = if index < 0 { index + n } else { index };
+        if !(0..n).contains(&i) {
+            return Err(pyo3::exceptions::PyIndexError::new_err(format!(
+                "detection index {index} out of range for {n} detections"
+            )));
+        }
+        Ok(self.detections[i as usize].clone_ref(py))
+    }
+
+    /// The detections of one object, best first.
+    fn of(&self, py: Python<'_>, object_id: u32) -> Vec<Py<Detection>> {
+        self.detections
+            .iter()
+            .filter(|d| d.get().hypothesis.object_id == object_id)
+            .map(|d| d.clone_ref(py))
+            .collect()
+    }
+
+    /// The best-scored detection of one object, or None.
+    fn best(&self, py: Python<'_>, object_id: u32) -> Option<Py<Detection>> {
+        self.detections
+            .iter()
+            .filter(|d| d.get().hypothesis.object_id == object_id)
+            .max_by(|a, b| {
+                a.get()
+                    .hypothesis
+                    .score
+                    .total_cmp(&b.get().hypothesis.score)
+            })
+            .map(|d| d.clone_ref(py))
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Detections({} poses, frame {})",
+            self.detections.len(),
+            self.frame_sequence
+        )
+    }
+}
+
+fn latency_dict<'py>(py: Python<'py>, found: &Found) -> PyResult<Bound<'py, PyDict>> {
+    let l = &found.latency;
+    let d = &l.daemon;
+    let dict = PyDict::new(py);
+    for (key, ns) in [
+        ("transport_ns", d.transport_ns),
+        ("queue_wait_ns", d.queue_wait_ns),
+        ("scene_preparation_ns", d.scene_preparation_ns),
+        ("kd_tree_ns", d.kd_tree_ns),
+        ("voting_ns", d.voting_ns),
+        ("clustering_ns", d.clustering_ns),
+        ("rescoring_ns", d.rescoring_ns),
+        ("icp_ns", d.icp_ns),
+        ("filters_ns", d.filters_ns),
+        ("detection_ns", d.detection_ns),
+        ("total_ns", d.total_ns),
+        ("hand_back_ns", l.hand_back_ns()),
+        ("response_transport_ns", l.response_transport_ns),
+        ("end_to_end_ns", l.end_to_end_ns),
+        ("overhead_ns", l.overhead_ns()),
+    ] {
+        dict.set_item(key, ns)?;
+    }
+    Ok(dict)
+}
+
+fn detections(py: Python<'_>, found: Found) -> PyResult<Detections> {
+    let c = &found.counts;
+    let counts = PyDict::new(py);
+    counts.set_item("scene_points", c.scene_points)?;
+    counts.set_item("reference_points", c.reference_points)?;
+    counts.set_item("pairs", c.pairs)?;
+    counts.set_item("hypotheses", c.hypotheses)?;
+    counts.set_item("returned", c.returned)?;
+    Ok(Detections {
+        latency: latency_dict(py, &found)?.unbind(),
+        counts: counts.unbind(),
+        detections: found
+            .hypotheses
+            .iter()
+            .map(|&hypothesis| Py::new(py, Detection { hypothesis }))
+            .collect::<PyResult<_>>()?,
+        frame_sequence: found.frame_sequence,
+        frame_age_ns: found.frame_age_ns,
+        request_id: found.request_id,
+    })
+}
+
+fn model_dict<'py>(py: Python<'py>, m: &ModelInfo) -> PyResult<Bound<'py, PyDict>> {
+    let dict = PyDict::new(py);
+    dict.set_item("object_id", m.object_id)?;
+    dict.set_item("name", m.name())?;
+    dict.set_item("diameter_mm", m.diameter_mm)?;
+    dict.set_item("point_count", m.point_count)?;
+    dict.set_item("table_entries", m.table_entries)?;
+    dict.set_item("byte_size", m.byte_size)?;
+    Ok(dict)
+}
+
+fn summary_dict<'py>(py: Python<'py>, s: &LatencySummary) -> PyResult<Bound<'py, PyDict>> {
+    let dict = PyDict::new(py);
+    dict.set_item("count", s.count)?;
+    dict.set_item("p50_ns", s.p50_ns)?;
+    dict.set_item("p90_ns", s.p90_ns)?;
+    dict.set_item("p99_ns", s.p99_ns)?;
+    dict.set_item("max_ns", s.max_ns)?;
+    Ok(dict)
+}
+
+fn stats_dict<'py>(
+    py: Python<'py>,
+    s: &DaemonStats,
+    message: &str,
+) -> PyResult<Bound<'py, PyDict>> {
+    let dict = PyDict::new(py);
+    for (key, value) in [
+        ("uptime_ns", s.uptime_ns),
+        ("requests_received", s.requests_received),
+        ("requests_served", s.requests_served),
+        ("requests_refused", s.requests_refused),
+        ("requests_expired", s.requests_expired),
+        ("requests_abandoned", s.requests_abandoned),
+        ("frames_received", s.frames_received),
+        ("cameras", s.cameras),
+        ("models_loaded", s.models_loaded),
+        ("model_bytes", s.model_bytes),
+        ("resident_bytes", s.resident_bytes),
+        ("in_flight", s.in_flight),
+        ("queued", s.queued),
+    ] {
+        dict.set_item(key, value)?;
+    }
+    dict.set_item("total", summary_dict(py, &s.total)?)?;
+    dict.set_item("overhead", summary_dict(py, &s.overhead)?)?;
+    dict.set_item("detection", summary_dict(py, &s.detection)?)?;
+    dict.set_item("message", message)?;
+    Ok(dict)
+}
+
+/// A connection to the daemon. Used by the thread that made it; make one per thread.
+#[pyclass(module = "ppfd")]
+pub struct Client {
+    inner: ThreadBound<ppfd_client::Client>,
+}
+
+#[pymethods]
+impl Client {
+    /// Connects under the iceoryx2 `prefix` (None: `PPFD_PREFIX`, else iceoryx2's default).
+    /// Works before the daemon starts: requests then raise `NoDaemon` until one serves.
+    #[new]
+    #[pyo3(signature = (prefix=None, *, control_timeout=5.0))]
+    fn new(py: Python<'_>, prefix: Option<String>, control_timeout: f64) -> PyResult<Self> {
+        let mut options = ClientOptions {
+            control_timeout: seconds(py, "control_timeout", control_timeout)?,
+            ..ClientOptions::default()
+        };
+        if prefix.is_some() {
+            options.prefix = prefix;
+        }
+        let client = ppfd_client::Client::connect_with(&options).map_err(|e| to_py(py, e))?;
+        Ok(Client {
+            inner: ThreadBound::new("ppfd.Client", client),
+        })
+    }
+
+    /// Detects `object_ids` in the newest frame of `camera`; the GIL is released while the
+    /// daemon works. `hypotheses` per object (1 to 16); `timeout` in seconds (None: the
+    /// client library's, 3 s); `max_frame_age` in seconds, the oldest frame accepted (None:
+    /// the daemon's limit).
+    ///
+    /// What the poses must satisfy (the defaults ask for nothing): `min_score`, 0 to 1;
+    /// `instance_distance` in diameters, above 0 to 2 (None: the daemon's); `roi`, a pixel
+    /// rectangle `(x, y, width, height)` reference points are taken from (None: the whole
+    /// frame); `max_tilt_deg`, 0 to 180, the largest angle between the model axis `tilt_axis`
+    /// (None: `(0, 0, 1)`) turned by the pose and the camera direction `tilt_direction` (None:
+    /// `(0, 0, -1)`, towards the camera) (None: any pose); `order`, `"score"` (best first) or
+    /// `"distance"` (nearest first). A value out of its range raises `ProtocolError` before
+    /// the request is sent.
+    #[pyo3(signature = (
+        camera, object_ids, hypotheses=1, timeout=None, *, max_frame_age=None, min_score=0.0,
+        instance_distance=None, roi=None, max_tilt_deg=None, tilt_axis=None,
+        tilt_direction=None, order="score"
+    ))]
+    #[allow(clippy::too_many_arguments)]
+    fn detect(
+        &self,
+        py: Python<'_>,
+        camera: &str,
+        object_ids: Vec<u32>,
+        hypotheses: u32,
+        timeout: Option<f64>,
+        max_frame_age: Option<f64>,
+        min_score: f32,
+        instance_distance: Option<f32>,
+        roi: Option<&Bound<'_, PyAny>>,
+        max_tilt_deg: Option<f32>,
+        tilt_axis: Option<&Bound<'_, PyAny>>,
+        tilt_direction: Option<&Bound<'_, PyAny>>,
+        order: &str,
+    ) -> PyResult<Detections> {
+        let requirements = RequirementArgs {
+            min_score,
+            instance_distance,
+            roi,
+            max_tilt_deg,
+            tilt_axis,
+            tilt_direction,
+            order,
+        }
+        .wire(py)?;
+        let options = DetectOptions {
+            hypotheses_per_object: hypotheses,
+            timeout: match timeout {
+                Some(t) => seconds(py, "timeout", t)?,
+                None => DetectOptions::default().timeout,
+            },
+            max_frame_age: max_frame_age
+                .map(|a| seconds(py, "max_frame_age", a))
+                .transpose()?,
+            requirements,
+            hints: Vec::new(),
+        };
+        let client = &self.inner;
+        let found = py
+            .detach(|| {
+                client
+                    .get()
+                    .map(|c| c.detect(camera, &object_ids, &options))
+            })?
+            .map_err(|e| to_py(py, e))?;
+        detections(py, found)
+    }
+
+    /// The loaded models, by object id (at most 256, the lowest ids), each a dict.
+    fn models<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        let client = &self.inner;
+        let models = py
+            .detach(|| client.get().map(|c| c.models()))?
+            .map_err(|e| to_py(py, e))?;
+        models.iter().map(|m| model_dict(py, m)).collect()
+    }
+
+    /// The daemon's statistics as a dict; `message` holds the detector parameters it runs
+    /// with, and how far its start-up loading has got while it loads.
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let client = &self.inner;
+        let (stats, message) = py
+            .detach(|| client.get().map(|c| c.statistics()))?
+            .map_err(|e| to_py(py, e))?;
+        stats_dict(py, &stats, &message)
+    }
+
+    /// Loads a model file (`.ppfm`), or builds one from a PLY mesh, in the daemon; `path` as
+    /// the daemon sees it; `object_id` 0 takes the id from the file. Returns the model's dict.
+    #[pyo3(signature = (path, object_id=0))]
+    fn load_model<'py>(
+        &self,
+        py: Python<'py>,
+        path: std::path::PathBuf,
+        object_id: u32,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let path = path
+            .to_str()
+            .ok_or_else(|| protocol_error(py, format!("model path {path:?} is not valid UTF-8")))?;
+        let client = &self.inner;
+        let model = py
+            .detach(|| client.get().map(|c| c.load_model(path, object_id)))?
+            .map_err(|e| to_py(py, e))?;
+        model_dict(py, &model)
+    }
+
+    /// Drops a model from the daemon.
+    fn drop_model(&self, py: Python<'_>, object_id: u32) -> PyResult<()> {
+        let client = &self.inner;
+        py.detach(|| client.get().map(|c| c.drop_model(object_id)))?
+            .map_err(|e| to_py(py, e))
+    }
+}

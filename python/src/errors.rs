@@ -1,0 +1,200 @@
+//! The exception hierarchy: one Python class per kind of `ppfd_client::Error`, and one per
+//! refusal status under `Refused`. Each exception's message is the Rust error's.
+//!
+//! ```text
+//! ppfd.Error
+//! ├── Refused (.status, .value)     UnknownObject, UnknownCamera, NoFrame, CameraStale, ...
+//! ├── Timeout                       also TimeoutError
+//! ├── Dropped, DaemonGone, NoDaemon, CameraTaken, TransportError
+//! └── ProtocolError                 also ValueError: malformed before it was sent
+//! ```
+
+use ppfd_client::{Error, Status};
+use pyo3::exceptions::{PyException, PyTimeoutError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::sync::PyOnceLock;
+use pyo3::types::{PyDict, PyTuple, PyType};
+
+/// The classes, made once per interpreter when the module is first imported.
+struct Classes {
+    error: Py<PyType>,
+    refused: Py<PyType>,
+    /// One subclass of `refused` per status but `Ok`, with its status.
+    by_status: Vec<(Status, Py<PyType>)>,
+    timeout: Py<PyType>,
+    dropped: Py<PyType>,
+    daemon_gone: Py<PyType>,
+    no_daemon: Py<PyType>,
+    camera_taken: Py<PyType>,
+    protocol: Py<PyType>,
+    transport: Py<PyType>,
+}
+
+static CLASSES: PyOnceLock<Classes> = PyOnceLock::new();
+
+/// Every status a response can carry but `Ok`, in wire-code order.
+fn refusal_statuses() -> impl Iterator<Item = Status> {
+    (1..).map_while(Status::from_code)
+}
+
+/// The class name of a refusal status: its Rust name (`CameraStale`).
+fn class_name(status: Status) -> String {
+    format!("{status:?}")
+}
+
+/// `type(name, bases, {"__doc__": doc, "__module__": "ppfd"})`: a class with several bases
+/// (`Timeout` is a `ppfd.Error` and a `TimeoutError`).
+fn new_class<'py>(
+    py: Python<'py>,
+    name: &str,
+    bases: &[&Bound<'py, PyType>],
+    doc: &str,
+) -> PyResult<Py<PyType>> {
+    let namespace = PyDict::new(py);
+    namespace.set_item("__doc__", doc)?;
+    namespace.set_item("__module__", "ppfd")?;
+    let class = py
+        .get_type::<PyType>()
+        .call1((name, PyTuple::new(py, bases)?, namespace))?;
+    Ok(class.cast_into::<PyType>()?.unbind())
+}
+
+fn classes(py: Python<'_>) -> PyResult<&Classes> {
+    CLASSES.get_or_try_init(py, || {
+        let exception = py.get_type::<PyException>();
+        let error = new_class(
+            py,
+            "Error",
+            &[&exception],
+            "Anything that went wrong talking to the ppfd daemon.",
+        )?;
+        let e = error.bind(py);
+        let refused = new_class(
+            py,
+            "Refused",
+            &[e],
+            "The daemon answered with a refusal: `status` names it (\"camera stale\"), and \
+             `value` is what it refers to (the unknown object id, the stale frame's age in ns), \
+             0 otherwise. Each status has a subclass of its own.",
+        )?;
+        let by_status = refusal_statuses()
+            .map(|status| {
+                let doc = format!("The daemon refused the request: {}.", status.name());
+                new_class(py, &class_name(status), &[refused.bind(py)], &doc)
+                    .map(|class| (status, class))
+            })
+            .collect::<PyResult<_>>()?;
+        Ok(Classes {
+            timeout: new_class(
+                py,
+                "Timeout",
+                &[e, &py.get_type::<PyTimeoutError>()],
+                "No answer within the timeout.",
+            )?,
+            dropped: new_class(
+                py,
+                "Dropped",
+                &[e],
+                "The daemon let go of the request without an answer; sending it again is safe.",
+            )?,
+            daemon_gone: new_class(
+                py,
+                "DaemonGone",
+                &[e],
+                "The daemon's process ended while the request waited for its answer.",
+            )?,
+            no_daemon: new_class(
+                py,
+                "NoDaemon",
+                &[e],
+                "No daemon serves under this client's iceoryx2 prefix.",
+            )?,
+            camera_taken: new_class(
+                py,
+                "CameraTaken",
+                &[e],
+                "Another driver already publishes under this camera name.",
+            )?,
+            protocol: new_class(
+                py,
+                "ProtocolError",
+                &[e, &py.get_type::<PyValueError>()],
+                "The request or frame was malformed, found before it was sent.",
+            )?,
+            transport: new_class(
+                py,
+                "TransportError",
+                &[e],
+                "An iceoryx2 operation failed (shared memory, ports, the client limit).",
+            )?,
+            error,
+            refused,
+            by_status,
+        })
+    })
+}
+
+/// Adds the classes to the module.
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    let py = m.py();
+    let c = classes(py)?;
+    for class in [
+        &c.error,
+        &c.refused,
+        &c.timeout,
+        &c.dropped,
+        &c.daemon_gone,
+        &c.no_daemon,
+        &c.camera_taken,
+        &c.protocol,
+        &c.transport,
+    ]
+    .into_iter()
+    .chain(c.by_status.iter().map(|(_, class)| class))
+    {
+        let class = class.bind(py);
+        m.add(class.name()?, class)?;
+    }
+    Ok(())
+}
+
+/// The Python exception of a client error, with the Rust message.
+pub fn to_py(py: Python<'_>, error: Error) -> PyErr {
+    match raise(py, &error) {
+        Ok(e) | Err(e) => e,
+    }
+}
+
+fn raise(py: Python<'_>, error: &Error) -> PyResult<PyErr> {
+    let c = classes(py)?;
+    let message = error.to_string();
+    let class = match error {
+        Error::Refused { status, value, .. } => {
+            let class = c
+                .by_status
+                .iter()
+                .find(|(s, _)| s == status)
+                .map_or(&c.refused, |(_, class)| class);
+            let exception = class.bind(py).call1((message,))?;
+            exception.setattr("status", status.name())?;
+            exception.setattr("value", *value)?;
+            return Ok(PyErr::from_value(exception));
+        }
+        Error::Timeout(_) => &c.timeout,
+        Error::Dropped => &c.dropped,
+        Error::DaemonGone => &c.daemon_gone,
+        Error::NoDaemon { .. } => &c.no_daemon,
+        Error::CameraTaken { .. } => &c.camera_taken,
+        Error::Protocol(_) => &c.protocol,
+        Error::Transport(_) => &c.transport,
+    };
+    Ok(PyErr::from_value(class.bind(py).call1((message,))?))
+}
+
+/// A `ProtocolError` with `message`: bad input found in this package before anything is sent.
+pub fn protocol_error(py: Python<'_>, message: String) -> PyErr {
+    match classes(py).and_then(|c| c.protocol.bind(py).call1((message,))) {
+        Ok(e) => PyErr::from_value(e),
+        Err(e) => e,
+    }
+}

@@ -1,0 +1,196 @@
+"""The package without a daemon: bad input, no daemon, the exception hierarchy, and the type
+hints against what the module has."""
+
+import numpy as np
+import pytest
+
+import ppfd
+from conftest import fresh_prefix, stub_names
+
+
+@pytest.fixture
+def prefix():
+    p = fresh_prefix("nodaemon")
+    yield p
+    ppfd.remove_prefix_leftovers(p)
+
+
+def test_no_daemon_raises_no_daemon_naming_the_prefix(prefix):
+    client = ppfd.Client(prefix=prefix)
+    with pytest.raises(ppfd.NoDaemon) as e:
+        client.detect("parts", [1])
+    assert prefix in str(e.value) and "start one" in str(e.value)
+    with pytest.raises(ppfd.NoDaemon):
+        client.models()
+    with pytest.raises(ppfd.NoDaemon):
+        client.stats()
+    del client
+
+
+@pytest.mark.parametrize(
+    "args, options, says",
+    [
+        (("parts", [1, 1]), {}, "object id 1 is asked for twice"),
+        (("parts", []), {}, "no object"),
+        (("parts", list(range(1, 34))), {}, "33"),
+        (("parts", [1]), {"hypotheses": 0}, "0"),
+        (("parts", [1]), {"hypotheses": 17}, "17"),
+        (("bad name", [1]), {}, "bad name"),
+        (("parts", [1]), {"timeout": -1.0}, "timeout must be a finite number of seconds"),
+        (("parts", [1]), {"timeout": float("nan")}, "timeout must be a finite number"),
+        (("parts", [1]), {"max_frame_age": -0.5}, "max_frame_age must be"),
+    ],
+)
+def test_a_malformed_request_is_a_value_error_before_it_is_sent(prefix, args, options, says):
+    client = ppfd.Client(prefix=prefix)
+    with pytest.raises(ppfd.ProtocolError) as e:
+        client.detect(*args, **options)
+    assert isinstance(e.value, ValueError) and isinstance(e.value, ppfd.Error)
+    assert says in str(e.value)
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({"min_score": 1.5}, "minimum score 1.5 is out of range: expected 0 to 1"),
+        (
+            {"instance_distance": 3.0},
+            "instance distance 3 diameters is out of range: expected above 0 and at most 2 "
+            "diameters, or 0 for the daemon's setting",
+        ),
+        (
+            {"roi": (10, 20, 50, 0)},
+            "region of interest 50x0 at (10, 20) is out of range: expected a width and height "
+            "of at least 1 pixel, or 0x0 for the whole frame",
+        ),
+        (
+            {"max_tilt_deg": 270.0},
+            "pose restriction angle 270 degrees is out of range: expected 0 to 180 degrees",
+        ),
+        (
+            {"max_tilt_deg": 30.0, "tilt_direction": (0.0, float("nan"), 0.0)},
+            "pose restriction camera direction [0.0, NaN, 0.0] is out of range: expected a "
+            "finite, non-zero vector",
+        ),
+        (
+            {"max_tilt_deg": 30.0, "tilt_axis": [0, 0, 0]},
+            "pose restriction model axis [0.0, 0.0, 0.0] is out of range: expected a finite, "
+            "non-zero vector",
+        ),
+        # The forms Python gives them in.
+        ({"order": "nearest"}, 'order must be "score" or "distance", got "nearest"'),
+        ({"roi": (1, 2, 3)}, "roi must be 4 pixel counts (x, y, width, height), got (1, 2, 3)"),
+        (
+            {"roi": (-1, 0, 10, 10)},
+            "roi must be 4 pixel counts (x, y, width, height), got (-1, 0, 10, 10)",
+        ),
+        (
+            {"max_tilt_deg": 30.0, "tilt_axis": "up"},
+            "tilt_axis must be 3 numbers (x, y, z), got 'up'",
+        ),
+        (
+            {"tilt_axis": (1.0, 0.0, 0.0)},
+            "tilt_axis applies only with max_tilt_deg: give max_tilt_deg too",
+        ),
+    ],
+)
+def test_a_requirement_out_of_range_raises_the_rust_message_before_sending(
+    prefix, options, message
+):
+    # No daemon serves this prefix: a request that got as far as sending would raise NoDaemon.
+    client = ppfd.Client(prefix=prefix)
+    with pytest.raises(ppfd.ProtocolError) as e:
+        client.detect("parts", [1], **options)
+    assert isinstance(e.value, ValueError)
+    assert str(e.value) == message
+
+
+def test_requirements_in_range_are_sent(prefix):
+    client = ppfd.Client(prefix=prefix)
+    with pytest.raises(ppfd.NoDaemon):
+        client.detect(
+            "parts",
+            [1],
+            min_score=0.5,
+            instance_distance=0.5,
+            roi=[0, 0, 64, 48],
+            max_tilt_deg=30.0,
+            tilt_axis=np.array([1.0, 0.0, 0.0]),
+            tilt_direction=(0, 0, -1),
+            order="distance",
+        )
+
+
+@pytest.fixture
+def publisher(prefix):
+    p = ppfd.CameraPublisher("pycam", 64, 48, 60.0, 60.0, 32.0, 24.0, 1.0, prefix=prefix)
+    yield p
+    del p
+
+
+@pytest.mark.parametrize(
+    "depth, got",
+    [
+        (np.zeros((48, 64), np.float32), "float32 array of shape (48, 64)"),
+        (np.zeros((48, 64), np.int16), "int16 array of shape (48, 64)"),
+        (np.zeros((64, 48), np.uint16), "uint16 array of shape (64, 48)"),
+        (np.zeros(48 * 64, np.uint16), "uint16 array of shape (3072,)"),
+        (np.zeros((48, 64, 1), np.uint16), "uint16 array of shape (48, 64, 1)"),
+        ([[0] * 64] * 48, "a list, not a numpy array"),
+    ],
+)
+def test_publish_names_the_expected_and_the_given_array(publisher, depth, got):
+    with pytest.raises(ValueError) as e:
+        publisher.publish(depth)
+    assert str(e.value) == f"depth must be a uint16 array of shape (48, 64), got {got}"
+
+
+def test_publish_numbers_the_frames(publisher):
+    depth = np.full((48, 64), 800, np.uint16)
+    assert publisher.publish(depth) == 1
+    assert publisher.publish(depth[::-1]) == 2
+    assert (publisher.width, publisher.height) == (64, 48)
+
+
+def test_bad_camera_settings_raise_protocol_error(prefix):
+    with pytest.raises(ppfd.ProtocolError, match="intrinsics"):
+        ppfd.CameraPublisher("pycam", 64, 48, 0.0, 60.0, 32.0, 24.0, prefix=prefix)
+    with pytest.raises(ppfd.ProtocolError, match="camera"):
+        ppfd.CameraPublisher("no spaces", 64, 48, 60.0, 60.0, 32.0, 24.0, prefix=prefix)
+
+
+def test_a_second_driver_is_allowed_and_a_third_refused(prefix):
+    args = ("pycam", 64, 48, 60.0, 60.0, 32.0, 24.0)
+    first = ppfd.CameraPublisher(*args, prefix=prefix)
+    second = ppfd.CameraPublisher(*args, prefix=prefix)
+    with pytest.raises(ppfd.CameraTaken, match="another driver already publishes"):
+        ppfd.CameraPublisher(*args, prefix=prefix)
+    del first, second
+
+
+def test_the_exceptions_are_one_hierarchy():
+    refusals = [
+        "ProtocolVersion", "InvalidRequest", "EmptyObjectList", "UnknownObject",
+        "InvalidFrame", "InvalidIntrinsics", "UnknownCamera", "NoFrame", "CameraStale",
+        "DeadlineExceeded", "Busy", "Internal", "ShuttingDown", "ModelError",
+    ]
+    for name in refusals:
+        assert issubclass(getattr(ppfd, name), ppfd.Refused), name
+    for name in ["Refused", "Timeout", "Dropped", "DaemonGone", "NoDaemon", "CameraTaken",
+                 "ProtocolError", "TransportError"]:
+        assert issubclass(getattr(ppfd, name), ppfd.Error), name
+    assert issubclass(ppfd.Error, Exception)
+    assert issubclass(ppfd.Timeout, TimeoutError)
+    assert issubclass(ppfd.ProtocolError, ValueError)
+    assert ppfd.UnknownObject.__module__ == "ppfd"
+
+
+def test_the_type_hints_list_what_the_module_has():
+    names, members, typed_dicts = stub_names()
+    module = {n for n in dir(ppfd) if not n.startswith("_") and n != "ppfd"} | {"__version__"}
+    assert names - typed_dicts == module
+    for name in ["Client", "CameraPublisher", "Detection", "Detections", "Checks"]:
+        cls = getattr(ppfd, name)
+        public = {m for m in vars(cls) if not m.startswith("_") or m in members[name]}
+        stubbed = {m for m in members[name] if not m.startswith("__") or m in vars(cls)}
+        assert public - {"__init__"} == stubbed - {"__init__"}, name

@@ -1,0 +1,110 @@
+//! The service with several clients at once: two clients asking back to back for different
+//! objects are served in turn, neither waiting behind a run of the other's requests, with one
+//! detection at a time and with two.
+
+use std::path::Path;
+use std::sync::{Arc, Barrier};
+use std::time::{Duration, Instant};
+
+use ppfd_client::{Client, ClientOptions, DetectOptions};
+use ppfd_tests::{fake_model_dir, Prefix, Proc};
+
+const DAEMON: &str = env!("CARGO_BIN_EXE_e2e-daemon");
+const CAMERA: &str = env!("CARGO_BIN_EXE_e2e-camera");
+const STARTUP: Duration = Duration::from_secs(20);
+/// How long the stand-in engine takes per detection.
+const DETECTION: Duration = Duration::from_millis(30);
+const REQUESTS: usize = 20;
+
+/// Per request of one client: when its answer came (since the start) and its queue wait.
+type Served = Vec<(Duration, Duration)>;
+
+fn two_clients(parallel_detections: &str) -> (Served, Served) {
+    let prefix = Prefix::new("load");
+    let models = fake_model_dir("load", &[1, 2]);
+    let delay = DETECTION.as_millis().to_string();
+    let mut daemon = Proc::spawn(
+        Path::new(DAEMON),
+        &[
+            "--prefix",
+            &prefix.0,
+            "--models",
+            models.to_str().unwrap(),
+            "--parallel-detections",
+            parallel_detections,
+            "--workers",
+            "2",
+        ],
+        &[("PPFD_TEST_ENGINE", "fake"), ("PPFD_FAKE_DELAY_MS", &delay)],
+    );
+    daemon.wait_line("ppfd ready", STARTUP);
+    let mut cam = Proc::spawn(
+        Path::new(CAMERA),
+        &["--prefix", &prefix.0, "--camera", "cam0", "--fps", "50"],
+        &[],
+    );
+    cam.wait_line("camera ready", STARTUP);
+    std::thread::sleep(Duration::from_millis(300));
+
+    let start = Arc::new(Barrier::new(2));
+    let t0 = Instant::now();
+    let run = |object: u32| {
+        let (prefix, start) = (prefix.0.clone(), start.clone());
+        std::thread::spawn(move || -> Served {
+            let client = Client::connect_with(&ClientOptions {
+                prefix: Some(prefix),
+                ..Default::default()
+            })
+            .expect("connected");
+            let opts = DetectOptions::default();
+            client.detect("cam0", &[object], &opts).expect("warm-up");
+            start.wait();
+            (0..REQUESTS)
+                .map(|_| {
+                    let d = client.detect("cam0", &[object], &opts).expect("served");
+                    assert!(d.hypotheses.iter().all(|h| h.object_id == object));
+                    (
+                        t0.elapsed(),
+                        Duration::from_nanos(d.latency.daemon.queue_wait_ns),
+                    )
+                })
+                .collect()
+        })
+    };
+    let (a, b) = (run(1), run(2));
+    (a.join().unwrap(), b.join().unwrap())
+}
+
+/// Neither client's requests wait behind more than one detection of the other's, and each
+/// client's answers are spread over the whole run, not bunched after the other's.
+fn assert_served_in_turn(a: &Served, b: &Served, parallel: &str) {
+    assert_eq!((a.len(), b.len()), (REQUESTS, REQUESTS));
+    for (name, own) in [("a", a), ("b", b)] {
+        let worst = own.iter().map(|s| s.1).max().unwrap();
+        assert!(
+            worst < 3 * DETECTION,
+            "client {name} waited {worst:?} in the queue (parallel detections {parallel}); one detection is {DETECTION:?}"
+        );
+    }
+    // When either client has its last answer, the other has most of its own.
+    for (first, other) in [(a, b), (b, a)] {
+        let done = first.last().unwrap().0;
+        let other_done = other.iter().filter(|s| s.0 <= done).count();
+        assert!(
+            other_done >= REQUESTS - 3,
+            "when one client had all {REQUESTS} answers the other had {other_done} (parallel detections {parallel})"
+        );
+    }
+}
+
+#[test]
+fn two_clients_are_served_in_turn_one_detection_at_a_time() {
+    let (a, b) = two_clients("1");
+    assert_served_in_turn(&a, &b, "1");
+}
+
+#[test]
+fn two_clients_are_served_in_turn_two_detections_at_a_time() {
+    let (a, b) = two_clients("2");
+    assert_served_in_turn(&a, &b, "2");
+}
