@@ -259,9 +259,9 @@ fn generated_scene_poses_through_the_whole_path_match_the_ground_truth() {
 
 /// Hints through the daemon: of the generated scene's parts 1, 2 and 3, the first two hinted at
 /// their true poses come back from their hints (check bit `HINT`) without voting for them, and
-/// part 3, hinted 0.8 of its diameter off, fails its hint and is found by voting. A hint with a
-/// NaN, or one for an object not asked for, is refused with what is wrong, and the daemon serves
-/// on.
+/// part 3, hinted 0.8 of its diameter off, fails its hint and is found by voting. Hints below
+/// the request's minimum score fail. A hint with a NaN, or one for an object not asked for, is
+/// refused with what is wrong, and the daemon serves on.
 #[test]
 fn hinted_parts_come_back_from_their_hints_and_a_wrong_hint_from_voting() {
     use ppfd_client::{checks, PoseHint};
@@ -345,6 +345,38 @@ fn hinted_parts_come_back_from_their_hints_and_a_wrong_hint_from_voting() {
         found.counts,
         voted.counts
     );
+    // The request's minimum score holds for hints too: above what parts 1 and 2 scored from
+    // their hints, their hints fail, and voting returns nothing below it either.
+    let best_hinted = [1, 2]
+        .map(|id| found.best(id).unwrap().score)
+        .into_iter()
+        .fold(0f32, f32::max);
+    let min_score = (best_hinted + 0.01).min(1.0);
+    let demanding = ppfd_client::DetectOptions {
+        requirements: ppfd_client::Requirements {
+            min_score,
+            ..Default::default()
+        },
+        hints: hinted.hints[..2].to_vec(),
+        ..options.clone()
+    };
+    let strict = client.detect("parts", &[1, 2], &demanding).unwrap();
+    report += &format!(
+        "at least {min_score}: {:?}\n",
+        strict
+            .hypotheses
+            .iter()
+            .map(|h| (h.object_id, h.checks, h.score))
+            .collect::<Vec<_>>()
+    );
+    assert!(
+        strict
+            .hypotheses
+            .iter()
+            .all(|h| h.checks & checks::HINT == 0 && h.score >= min_score),
+        "{report}"
+    );
+    assert!(strict.counts.reference_points > 0, "{report}");
     eprintln!("{report}");
 
     let refusal = |header: &ppfd_client::protocol::detect::DetectRequestHeader| match client
