@@ -362,6 +362,7 @@ impl Client {
                 .map(|a| seconds(py, "max_frame_age", a))
                 .transpose()?,
             requirements,
+            hints: Vec::new(),
         };
         let client = &self.inner;
         let found = py
