@@ -128,7 +128,9 @@ pub fn hints<'py>(py: Python<'py>, value: &Bound<'py, PyAny>) -> PyResult<Vec<Po
                 .map_or_else(|_| "an unprintable value".into(), |r| r.to_string());
             protocol_error(
                 py,
-                format!("hints[{index}] must be a Detection or (object_id, 4×4 pose){what}; got {got}"),
+                format!(
+                    "hints[{index}] must be a Detection or (object_id, 4×4 pose){what}; got {got}"
+                ),
             )
         };
         let (object_id, pose) = item
