@@ -205,124 +205,325 @@ fn plane_fit(
     params: &SceneParams,
     within: Option<&[Roi]>,
 ) -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
-    let (w, h) = (frame.width as i64, frame.height as i64);
-    let k = frame.intrinsics;
-    // Depth in mm, NaN where there is none or it is out of range: one load per window sample.
-    let depth: Vec<f32> = frame
-        .depth
-        .par_iter()
-        .map(|&raw| {
-            let z = raw as f32 * frame.depth_scale_mm;
-            if raw != 0 && z >= params.min_depth_mm && z <= params.max_depth_mm {
-                z
-            } else {
-                f32::NAN
+    let (w, h) = (frame.width as usize, frame.height as usize);
+    let r_max = if params.normal_radius_px > 0 {
+        params.normal_radius_px as usize
+    } else {
+        8
+    };
+    // Depth in mm, NaN where there is none, it is out of range or it lies outside the frame:
+    // a border of `r_max` NaN on every side lets a window read its samples without clipping.
+    let pw = w + 2 * r_max;
+    let mut depth = vec![f32::NAN; pw * (h + 2 * r_max)];
+    depth[r_max * pw..(r_max + h) * pw]
+        .par_chunks_mut(pw)
+        .zip(frame.depth.par_chunks(w))
+        .for_each(|(row, raw_row)| {
+            for (z_out, &raw) in row[r_max..r_max + w].iter_mut().zip(raw_row) {
+                let z = raw as f32 * frame.depth_scale_mm;
+                if raw != 0 && z >= params.min_depth_mm && z <= params.max_depth_mm {
+                    *z_out = z;
+                }
             }
+        });
+    let fit = PlaneFit {
+        depth: &depth,
+        pw,
+        pad: r_max,
+        k: frame.intrinsics,
+        params,
+        within,
+        tan_slope: params.max_slope_deg.to_radians().tan(),
+        max_samples: params.plane_samples_per_axis.max(3) as i64,
+    };
+    let mut points = vec![Point3::new(f32::NAN, f32::NAN, f32::NAN); w * h];
+    let mut normals = vec![Vector3::new(f32::NAN, f32::NAN, f32::NAN); w * h];
+    points
+        .par_chunks_mut(w)
+        .zip(normals.par_chunks_mut(w))
+        .enumerate()
+        .for_each_init(
+            || RowScratch {
+                layouts: (0..=r_max).map(|_| None).collect(),
+                zn: Vec::new(),
+                fitted: Vec::new(),
+            },
+            |scratch, (v, (points, normals))| fit.row(scratch, v, points, normals),
+        );
+    (points, normals)
+}
+
+/// What fitting one row of the frame reads.
+struct PlaneFit<'a> {
+    /// Depth in mm with a NaN border `pad` wide, `pw` per row.
+    depth: &'a [f32],
+    pw: usize,
+    pad: usize,
+    k: Intrinsics,
+    params: &'a SceneParams,
+    within: Option<&'a [Roi]>,
+    tan_slope: f32,
+    max_samples: i64,
+}
+
+/// A pixel of the row being fitted: where it is, its measured depth, its window's half-size,
+/// the sums of the fit under way and the plane of the last one.
+struct Fitted {
+    u: usize,
+    z: f32,
+    r: usize,
+    sums: Sums,
+    plane: Option<(f32, f32, f32)>,
+}
+
+/// One worker's buffers, reused from row to row.
+struct RowScratch {
+    /// The window of each half-size met so far, by half-size.
+    layouts: Vec<Option<Layout>>,
+    /// The depths of one window's samples.
+    zn: Vec<f32>,
+    fitted: Vec<Fitted>,
+}
+
+impl PlaneFit<'_> {
+    /// The window of half-size `r` (strided to at most `max_samples` per axis).
+    fn layout<'s>(&self, layouts: &'s mut [Option<Layout>], r: usize) -> &'s Layout {
+        layouts[r].get_or_insert_with(|| {
+            let r = r as i64;
+            let stride = ((2 * r + 1) + self.max_samples - 1) / self.max_samples;
+            Layout::new(r, stride, self.pw)
         })
-        .collect();
-    let depth = &depth;
-    let tan_slope = params.max_slope_deg.to_radians().tan();
-    let nan_p = Point3::new(f32::NAN, f32::NAN, f32::NAN);
-    let nan_n = Vector3::new(f32::NAN, f32::NAN, f32::NAN);
-    let max_samples = params.plane_samples_per_axis.max(3) as i64;
-    let out: Vec<(Point3<f32>, Vector3<f32>)> = (0..h)
-        .into_par_iter()
-        .flat_map_iter(|v| {
-            // The samples of one pixel's window, reused along the row.
-            let mut window: Vec<(f32, f32, f32)> = Vec::new();
-            (0..w).map(move |u| {
-                let z = depth[(v * w + u) as usize];
-                if z.is_nan() {
-                    return (nan_p, nan_n);
-                }
-                let raw_point = k.backproject(u as f32, v as f32, z);
-                if within.is_some_and(|rois| !rois.iter().any(|r| r.contains(u as u32, v as u32))) {
-                    return (raw_point, nan_n);
-                }
-                let r = params.normal_window_px(k.fx, z);
-                let stride = ((2 * r + 1) + max_samples - 1) / max_samples;
-                let per_pixel = params.jump_with_slope_mm(z, 1.0, k.fx, tan_slope);
+    }
+
+    /// Points and normals of row `v`. The row goes through each step of the fit in turn (first
+    /// sums, first solve, second sums, second solve, normal) rather than one pixel through all
+    /// of them: a pixel's steps wait on each other's divisions and square roots, those of
+    /// different pixels do not and overlap.
+    fn row(
+        &self,
+        scratch: &mut RowScratch,
+        v: usize,
+        points: &mut [Point3<f32>],
+        normals: &mut [Vector3<f32>],
+    ) {
+        let RowScratch {
+            layouts,
+            zn,
+            fitted,
+        } = scratch;
+        let (params, k) = (self.params, &self.k);
+        let centre_row = (v + self.pad) * self.pw + self.pad;
+        let vf = v as f32;
+        fitted.clear();
+        // First fit's sums: the neighbours within the jump of the centre.
+        for (u, point) in points.iter_mut().enumerate() {
+            let z = self.depth[centre_row + u];
+            if z.is_nan() {
+                continue;
+            }
+            *point = k.backproject(u as f32, vf, z);
+            if self
+                .within
+                .is_some_and(|rois| !rois.iter().any(|r| r.contains(u as u32, v as u32)))
+            {
+                continue;
+            }
+            let r = params.normal_window_px(k.fx, z) as usize;
+            let layout = self.layout(layouts, r);
+            layout.gather(self.depth, centre_row + u, zn);
+            let per_pixel = params.jump_with_slope_mm(z, 1.0, k.fx, self.tan_slope);
+            let min_jump = params.min_depth_jump_mm;
+            let sums = layout.sums(zn, z, |zn, _du, _dv, d| {
+                (zn - z).abs() <= (per_pixel * d).max(min_jump)
+            });
+            fitted.push(Fitted {
+                u,
+                z,
+                r,
+                sums,
+                plane: None,
+            });
+        }
+        for f in fitted.iter_mut() {
+            f.plane = f.sums.plane(f.z);
+        }
+        // Second fit: the neighbours near the first plane.
+        if params.plane_residual_mm > 0.0 {
+            for f in fitted.iter_mut() {
+                let Some((a, b, c)) = f.plane else {
+                    continue;
+                };
+                let z = f.z;
                 let residual = params
                     .plane_residual_mm
                     .max(params.plane_residual_fraction * z);
-                // The window's samples with depth, gathered once for both fits.
-                window.clear();
-                let (x0, x1) = ((u - r).max(0), (u + r).min(w - 1));
-                let x_start = x0 + (u - r - x0).rem_euclid(stride); // on the stride grid from u − r
-                let mut dv = -r;
-                while dv <= r {
-                    let y = v + dv;
-                    if y >= 0 && y < h {
-                        let row = &depth[(y * w) as usize..((y + 1) * w) as usize];
-                        let mut x = x_start;
-                        while x <= x1 {
-                            let zn = row[x as usize];
-                            if !zn.is_nan() {
-                                window.push(((x - u) as f32, dv as f32, zn));
-                            }
-                            x += stride;
-                        }
-                    }
-                    dv += stride;
+                let layout = self.layout(layouts, f.r);
+                layout.gather(self.depth, centre_row + f.u, zn);
+                f.sums = layout.sums(zn, z, |zn, du, dv, _d| {
+                    (zn - (a * du + b * dv + c)).abs() <= residual
+                });
+            }
+            for f in fitted.iter_mut() {
+                if f.plane.is_some() {
+                    f.plane = f.sums.plane(f.z);
                 }
-                // Two fits: neighbours within the jump of the centre, then those near the plane.
-                let jump = |du: f32, dv: f32, zn: f32| {
-                    let d = du.abs().max(dv.abs());
-                    (zn - z).abs() <= (per_pixel * d).max(params.min_depth_jump_mm)
-                };
-                let Some(first) = fit_window(&window, z, jump) else {
-                    return (raw_point, nan_n);
-                };
-                let mut plane = first;
-                if params.plane_residual_mm > 0.0 {
-                    let (a, bb, c) = first;
-                    let near =
-                        |du: f32, dv: f32, zn: f32| (zn - (a * du + bb * dv + c)).abs() <= residual;
-                    let Some(second) = fit_window(&window, z, near) else {
-                        return (raw_point, nan_n);
-                    };
-                    plane = second;
-                }
-                let (zu, zv, zc) = plane;
-                normal_of_plane(&k, u as f32, v as f32, zu, zv, zc).unwrap_or((raw_point, nan_n))
-            })
-        })
-        .collect();
-    out.into_iter().unzip()
-}
-
-/// The least-squares plane `z = a·du + b·dv + c` through the window samples `(du, dv, z)` that
-/// `keep` accepts, depths taken relative to the centre's `z` (and `c` returned absolute);
-/// `None` with fewer than four samples or a degenerate layout.
-#[inline]
-fn fit_window(
-    window: &[(f32, f32, f32)],
-    z: f32,
-    keep: impl Fn(f32, f32, f32) -> bool,
-) -> Option<(f32, f32, f32)> {
-    // Σdu², Σdu·dv, Σdu, Σdv², Σdv, n; Σdu·z, Σdv·z, Σz, as locals so that they stay in
-    // registers.
-    let (mut uu, mut uv, mut su, mut vv, mut sv, mut n) = (0f64, 0f64, 0f64, 0f64, 0f64, 0f64);
-    let (mut uz, mut vz, mut sz) = (0f64, 0f64, 0f64);
-    for &(du, dv, zn) in window {
-        if keep(du, dv, zn) {
-            let (fu, fv, fz) = (du as f64, dv as f64, (zn - z) as f64);
-            uu += fu * fu;
-            uv += fu * fv;
-            su += fu;
-            vv += fv * fv;
-            sv += fv;
-            n += 1.0;
-            uz += fu * fz;
-            vz += fv * fz;
-            sz += fz;
+            }
+        }
+        for f in fitted.iter() {
+            let Some((zu, zv, zc)) = f.plane else {
+                continue;
+            };
+            if let Some((p, n)) = normal_of_plane(k, f.u as f32, vf, zu, zv, zc) {
+                (points[f.u], normals[f.u]) = (p, n);
+            }
         }
     }
-    if n < 4.0 {
-        return None;
+}
+
+/// Samples summed side by side in the plane fit.
+const LANES: usize = 4;
+
+/// [`LANES`] samples of a window: their positions in the forms the fit uses.
+#[derive(Clone, Copy, Default)]
+struct Lanes {
+    /// `du`, `dv` and `max(|du|, |dv|)` as f32, for the fits' tests.
+    du: [f32; LANES],
+    dv: [f32; LANES],
+    d: [f32; LANES],
+    /// `du`, `dv` and their products as integers, for the sums that only depend on which
+    /// samples a fit takes.
+    idu: [i32; LANES],
+    idv: [i32; LANES],
+    iuu: [i32; LANES],
+    iuv: [i32; LANES],
+    ivv: [i32; LANES],
+    /// `du`, `dv` as f64, for the sums with depth.
+    du64: [f64; LANES],
+    dv64: [f64; LANES],
+}
+
+/// A window of the plane fit: its samples in row-major order, as offsets in the padded depth
+/// image and in groups of [`LANES`]. The samples past the last one, up to whole lanes, are given
+/// a NaN depth, which no fit takes.
+struct Layout {
+    offset: Vec<isize>,
+    lanes: Vec<Lanes>,
+}
+
+impl Layout {
+    /// The window of half-size `r` sampled every `stride` pixels from its corner, in a depth
+    /// image `pw` wide.
+    fn new(r: i64, stride: i64, pw: usize) -> Self {
+        let axis: Vec<i64> = (-r..=r).step_by(stride as usize).collect();
+        let positions: Vec<(i64, i64)> = axis
+            .iter()
+            .flat_map(|&dv| axis.iter().map(move |&du| (du, dv)))
+            .collect();
+        let offset = positions
+            .iter()
+            .map(|&(du, dv)| dv as isize * pw as isize + du as isize)
+            .collect();
+        let mut lanes = vec![Lanes::default(); positions.len().div_ceil(LANES)];
+        for (i, &(du, dv)) in positions.iter().enumerate() {
+            let (l, j) = (&mut lanes[i / LANES], i % LANES);
+            let (fu, fv) = (du as f32, dv as f32);
+            l.du[j] = fu;
+            l.dv[j] = fv;
+            l.d[j] = fu.abs().max(fv.abs());
+            let (iu, iv) = (du as i32, dv as i32);
+            l.idu[j] = iu;
+            l.idv[j] = iv;
+            l.iuu[j] = iu * iu;
+            l.iuv[j] = iu * iv;
+            l.ivv[j] = iv * iv;
+            l.du64[j] = du as f64;
+            l.dv64[j] = dv as f64;
+        }
+        Layout { offset, lanes }
     }
-    let x = solve_symmetric_3x3([uu, uv, su, vv, sv, n], [uz, vz, sz])?;
-    Some((x[0] as f32, x[1] as f32, x[2] as f32 + z))
+
+    /// Reads into `zn` the depths of the samples of the window around `centre` in the padded
+    /// `depth`, NaN past the last one.
+    #[inline(always)]
+    fn gather(&self, depth: &[f32], centre: usize, zn: &mut Vec<f32>) {
+        zn.clear();
+        zn.extend(
+            self.offset
+                .iter()
+                .map(|&off| depth[centre.wrapping_add_signed(off)]),
+        );
+        zn.resize(self.lanes.len() * LANES, f32::NAN);
+    }
+
+    /// The sums of the least-squares plane `z = a·du + b·dv + c` through the samples of depth
+    /// `zn` that `keep(zn, du, dv, max(|du|, |dv|))` accepts, depths taken relative to the
+    /// centre's `z`.
+    ///
+    /// The sums are accumulated lane by lane and then across lanes, and come out the same as
+    /// one sample after another, to the bit. Those of `du`, `dv` and their products are
+    /// integers. Every term with depth is `du`, `dv` or 1 times `zn − z` in f32, a multiple of
+    /// the f32 spacing at the window's smallest depth; raw depth is 16-bit, so the window's
+    /// depths span a ratio below 2¹⁷ and such a sum over `n` samples needs fewer than
+    /// 24 + 17 + log₂(r·n) bits, well within f64's 53: each partial sum is exact, in any order.
+    #[inline(always)]
+    fn sums(&self, zn: &[f32], z: f32, keep: impl Fn(f32, f32, f32, f32) -> bool) -> Sums {
+        let (mut n, mut su, mut sv) = ([0i32; LANES], [0i32; LANES], [0i32; LANES]);
+        let (mut uu, mut uv, mut vv) = ([0i32; LANES], [0i32; LANES], [0i32; LANES]);
+        let (mut sz, mut uz, mut vz) = ([0f64; LANES], [0f64; LANES], [0f64; LANES]);
+        for (l, zn) in self.lanes.iter().zip(zn.chunks_exact(LANES)) {
+            let zn: &[f32; LANES] = zn.try_into().unwrap();
+            // Masks of all ones where a sample is taken, as comparisons give them.
+            let mut mask = [0i32; LANES];
+            for j in 0..LANES {
+                mask[j] = -i32::from(keep(zn[j], l.du[j], l.dv[j], l.d[j]));
+            }
+            let mut fz = [0f64; LANES];
+            for j in 0..LANES {
+                fz[j] = f64::from_bits(((zn[j] - z) as f64).to_bits() & (mask[j] as i64 as u64));
+            }
+            for j in 0..LANES {
+                n[j] -= mask[j];
+                su[j] += l.idu[j] & mask[j];
+                sv[j] += l.idv[j] & mask[j];
+                uu[j] += l.iuu[j] & mask[j];
+                uv[j] += l.iuv[j] & mask[j];
+                vv[j] += l.ivv[j] & mask[j];
+            }
+            for j in 0..LANES {
+                sz[j] += fz[j];
+                uz[j] += l.du64[j] * fz[j];
+                vz[j] += l.dv64[j] * fz[j];
+            }
+        }
+        let total = |s: [i32; LANES]| s.iter().sum::<i32>();
+        let total64 = |s: [f64; LANES]| s.iter().sum::<f64>();
+        Sums {
+            n: total(n),
+            moments: [total(uu), total(uv), total(su), total(vv), total(sv)],
+            depth: [total64(uz), total64(vz), total64(sz)],
+        }
+    }
+}
+/// The normal equations of a window's plane fit: the samples taken; Σdu², Σdu·dv, Σdu, Σdv²,
+/// Σdv; Σdu·z, Σdv·z, Σz.
+struct Sums {
+    n: i32,
+    moments: [i32; 5],
+    depth: [f64; 3],
+}
+
+impl Sums {
+    /// The plane `(a, b, c)` of `z = a·du + b·dv + c`, `c` absolute for the centre depth `z`;
+    /// `None` with fewer than four samples or a degenerate layout.
+    #[inline(always)]
+    fn plane(&self, z: f32) -> Option<(f32, f32, f32)> {
+        if self.n < 4 {
+            return None;
+        }
+        let [uu, uv, su, vv, sv] = self.moments.map(f64::from);
+        let x = solve_symmetric_3x3([uu, uv, su, vv, sv, f64::from(self.n)], self.depth)?;
+        Some((x[0] as f32, x[1] as f32, x[2] as f32 + z))
+    }
 }
 
 /// Solves `A x = b` for a symmetric positive definite `A` given as its upper triangle
@@ -465,6 +666,267 @@ mod tests {
             }
         }
         (depth, k)
+    }
+
+    /// The plane fit as first written, sample after sample into a growing window: what the
+    /// laned [`plane_fit`] must give to the bit.
+    fn plane_fit_reference(
+        frame: &DepthFrame,
+        params: &SceneParams,
+        within: Option<&[Roi]>,
+    ) -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
+        let (w, h) = (frame.width as i64, frame.height as i64);
+        let k = frame.intrinsics;
+        // Depth in mm, NaN where there is none or it is out of range: one load per window sample.
+        let depth: Vec<f32> = frame
+            .depth
+            .par_iter()
+            .map(|&raw| {
+                let z = raw as f32 * frame.depth_scale_mm;
+                if raw != 0 && z >= params.min_depth_mm && z <= params.max_depth_mm {
+                    z
+                } else {
+                    f32::NAN
+                }
+            })
+            .collect();
+        let depth = &depth;
+        let tan_slope = params.max_slope_deg.to_radians().tan();
+        let nan_p = Point3::new(f32::NAN, f32::NAN, f32::NAN);
+        let nan_n = Vector3::new(f32::NAN, f32::NAN, f32::NAN);
+        let max_samples = params.plane_samples_per_axis.max(3) as i64;
+        let out: Vec<(Point3<f32>, Vector3<f32>)> = (0..h)
+            .into_par_iter()
+            .flat_map_iter(|v| {
+                // The samples of one pixel's window, reused along the row.
+                let mut window: Vec<(f32, f32, f32)> = Vec::new();
+                (0..w).map(move |u| {
+                    let z = depth[(v * w + u) as usize];
+                    if z.is_nan() {
+                        return (nan_p, nan_n);
+                    }
+                    let raw_point = k.backproject(u as f32, v as f32, z);
+                    if within
+                        .is_some_and(|rois| !rois.iter().any(|r| r.contains(u as u32, v as u32)))
+                    {
+                        return (raw_point, nan_n);
+                    }
+                    let r = params.normal_window_px(k.fx, z);
+                    let stride = ((2 * r + 1) + max_samples - 1) / max_samples;
+                    let per_pixel = params.jump_with_slope_mm(z, 1.0, k.fx, tan_slope);
+                    let residual = params
+                        .plane_residual_mm
+                        .max(params.plane_residual_fraction * z);
+                    // The window's samples with depth, gathered once for both fits.
+                    window.clear();
+                    let (x0, x1) = ((u - r).max(0), (u + r).min(w - 1));
+                    let x_start = x0 + (u - r - x0).rem_euclid(stride); // on the stride grid from u − r
+                    let mut dv = -r;
+                    while dv <= r {
+                        let y = v + dv;
+                        if y >= 0 && y < h {
+                            let row = &depth[(y * w) as usize..((y + 1) * w) as usize];
+                            let mut x = x_start;
+                            while x <= x1 {
+                                let zn = row[x as usize];
+                                if !zn.is_nan() {
+                                    window.push(((x - u) as f32, dv as f32, zn));
+                                }
+                                x += stride;
+                            }
+                        }
+                        dv += stride;
+                    }
+                    // Two fits: neighbours within the jump of the centre, then those near the plane.
+                    let jump = |du: f32, dv: f32, zn: f32| {
+                        let d = du.abs().max(dv.abs());
+                        (zn - z).abs() <= (per_pixel * d).max(params.min_depth_jump_mm)
+                    };
+                    let Some(first) = fit_window_reference(&window, z, jump) else {
+                        return (raw_point, nan_n);
+                    };
+                    let mut plane = first;
+                    if params.plane_residual_mm > 0.0 {
+                        let (a, bb, c) = first;
+                        let near = |du: f32, dv: f32, zn: f32| {
+                            (zn - (a * du + bb * dv + c)).abs() <= residual
+                        };
+                        let Some(second) = fit_window_reference(&window, z, near) else {
+                            return (raw_point, nan_n);
+                        };
+                        plane = second;
+                    }
+                    let (zu, zv, zc) = plane;
+                    normal_of_plane(&k, u as f32, v as f32, zu, zv, zc)
+                        .unwrap_or((raw_point, nan_n))
+                })
+            })
+            .collect();
+        out.into_iter().unzip()
+    }
+
+    /// [`Window::fit`] sample after sample, in f64.
+    fn fit_window_reference(
+        window: &[(f32, f32, f32)],
+        z: f32,
+        keep: impl Fn(f32, f32, f32) -> bool,
+    ) -> Option<(f32, f32, f32)> {
+        // Σdu², Σdu·dv, Σdu, Σdv², Σdv, n; Σdu·z, Σdv·z, Σz, as locals so that they stay in
+        // registers.
+        let (mut uu, mut uv, mut su, mut vv, mut sv, mut n) = (0f64, 0f64, 0f64, 0f64, 0f64, 0f64);
+        let (mut uz, mut vz, mut sz) = (0f64, 0f64, 0f64);
+        for &(du, dv, zn) in window {
+            if keep(du, dv, zn) {
+                let (fu, fv, fz) = (du as f64, dv as f64, (zn - z) as f64);
+                uu += fu * fu;
+                uv += fu * fv;
+                su += fu;
+                vv += fv * fv;
+                sv += fv;
+                n += 1.0;
+                uz += fu * fz;
+                vz += fv * fz;
+                sz += fz;
+            }
+        }
+        if n < 4.0 {
+            return None;
+        }
+        let x = solve_symmetric_3x3([uu, uv, su, vv, sv, n], [uz, vz, sz])?;
+        Some((x[0] as f32, x[1] as f32, x[2] as f32 + z))
+    }
+
+    /// `plane_fit` and `plane_fit_reference` agree on every pixel, points and normals to the bit.
+    fn assert_same_fit(frame: &DepthFrame, params: &SceneParams, within: Option<&[Roi]>) {
+        let (points, normals) = plane_fit(frame, params, within);
+        let (ref_points, ref_normals) = plane_fit_reference(frame, params, within);
+        assert_eq!(points.len(), ref_points.len());
+        let mut fitted = 0;
+        for i in 0..points.len() {
+            let (u, v) = (i as u32 % frame.width, i as u32 / frame.width);
+            assert_eq!(
+                points[i].coords.map(f32::to_bits),
+                ref_points[i].coords.map(f32::to_bits),
+                "point at ({u}, {v}) with {params:?}"
+            );
+            assert_eq!(
+                normals[i].map(f32::to_bits),
+                ref_normals[i].map(f32::to_bits),
+                "normal at ({u}, {v}) with {params:?}"
+            );
+            fitted += usize::from(normals[i].x.is_finite());
+        }
+        if frame.width * frame.height > 10_000 {
+            assert!(fitted > 1000, "{fitted} normals with {params:?}");
+        }
+    }
+
+    /// The defaults, a window in millimetres, a strided one, a single fit and wider strides.
+    fn fit_variants() -> Vec<SceneParams> {
+        let d = SceneParams::default();
+        vec![
+            d,
+            SceneParams {
+                normal_radius_px: 0,
+                ..d
+            },
+            SceneParams {
+                normal_radius_px: 5,
+                ..d
+            },
+            SceneParams {
+                plane_residual_mm: 0.0,
+                ..d
+            },
+            SceneParams {
+                normal_radius_px: 7,
+                plane_samples_per_axis: 4,
+                ..d
+            },
+            SceneParams {
+                normal_radius_px: 1,
+                min_depth_jump_mm: 0.5,
+                ..d
+            },
+        ]
+    }
+
+    /// On the real LM-O frame (a Kinect's depth, tenths of a millimetre).
+    #[test]
+    fn plane_fit_matches_reference_on_the_lmo_frame() {
+        let Some(dir) = ppfd_bop::shared_test_data("lmo") else {
+            return;
+        };
+        let dataset = ppfd_bop::dataset::BopDataset::open(&dir).unwrap();
+        // The BOP reader's frame is of the library as a dependency; its fields make this one's.
+        let owned = dataset.depth_frame(2, 3).unwrap();
+        let frame = DepthFrame {
+            width: owned.width,
+            height: owned.height,
+            intrinsics: Intrinsics {
+                fx: owned.intrinsics.fx,
+                fy: owned.intrinsics.fy,
+                cx: owned.intrinsics.cx,
+                cy: owned.intrinsics.cy,
+            },
+            depth_scale_mm: owned.depth_scale_mm,
+            depth: &owned.depth,
+        };
+        for params in fit_variants() {
+            assert_same_fit(&frame, &params, None);
+        }
+        let rois = [Roi {
+            u0: 200,
+            v0: 150,
+            width: 200,
+            height: 120,
+        }];
+        assert_same_fit(&frame, &SceneParams::default(), Some(&rois));
+    }
+
+    /// On generated frames: each part alone with Kinect noise, a cluttered table, and frames a
+    /// few pixels wide or high, where every window is clipped.
+    #[test]
+    fn plane_fit_matches_reference_on_generated_frames() {
+        use crate::synthetic::parts::Part;
+        use crate::synthetic::scene::{NoiseModel, SceneSpec, SyntheticScene};
+        let noise = NoiseModel::kinect();
+        let meshes: Vec<_> = Part::ALL.iter().map(|p| p.mesh()).collect();
+        for (i, mesh) in meshes.iter().enumerate() {
+            let pose = crate::Pose::from_parts(
+                nalgebra::Translation3::new(20.0, -10.0, 500.0 + 300.0 * i as f32),
+                nalgebra::UnitQuaternion::from_euler_angles(0.4, -0.3 * i as f32, 0.2),
+            );
+            let scene = SyntheticScene::single(mesh, 1, pose, Some(&noise), 4).unwrap();
+            for params in fit_variants() {
+                assert_same_fit(&scene.frame.view(), &params, None);
+            }
+        }
+        let mut spec = SceneSpec::new(7).noise(Some(noise)).clutter(6);
+        for (i, mesh) in meshes.iter().enumerate() {
+            spec = spec.object(i as u32 + 1, mesh);
+        }
+        let scene = spec.build().unwrap();
+        let frame = scene.frame.view();
+        for params in fit_variants() {
+            assert_same_fit(&frame, &params, None);
+        }
+        // Crops of the cluttered frame: 3 × 480, 640 × 2 and 9 × 5 pixels.
+        for (u0, v0, cw, ch) in [(300, 0, 3, 480), (0, 240, 640, 2), (320, 200, 9, 5)] {
+            let depth: Vec<u16> = (v0..v0 + ch)
+                .flat_map(|v| (u0..u0 + cw).map(move |u| (u, v)))
+                .map(|(u, v)| frame.depth[v * 640 + u])
+                .collect();
+            let crop = DepthFrame {
+                width: cw as u32,
+                height: ch as u32,
+                depth: &depth,
+                ..frame
+            };
+            for params in fit_variants() {
+                assert_same_fit(&crop, &params, None);
+            }
+        }
     }
 
     /// The written-out 3 × 3 Cholesky solve gives what nalgebra's gives on the plane fit's
