@@ -32,6 +32,7 @@ use nalgebra::{Matrix3, Matrix4, Point3, Translation3, Unit, UnitQuaternion, Vec
 use serde_json::Value;
 
 use ppfd_models::geometry::camera::{Intrinsics, OwnedDepthFrame};
+use ppfd_models::model::symmetry::{Symmetry, SymmetryAxis};
 use ppfd_models::{Error, Pose, Result};
 
 /// Tolerance on `RᵀR = I` for rotations read from files: LM-O's annotated rotations deviate by
@@ -113,6 +114,30 @@ pub struct ModelInfo {
     pub symmetries_discrete: Vec<Pose>,
     /// Continuous symmetries; empty for most objects.
     pub symmetries_continuous: Vec<ContinuousSymmetry>,
+}
+
+impl ModelInfo {
+    /// The symmetries as a model holds them (METHOD.md §1.8); refuses more than one continuous
+    /// axis (only a sphere has two, and a model supports one).
+    pub fn symmetry(&self) -> Result<Symmetry> {
+        let continuous = match self.symmetries_continuous.as_slice() {
+            [] => None,
+            [one] => Some(SymmetryAxis {
+                direction: one.axis,
+                point_mm: one.offset_mm,
+            }),
+            more => {
+                return Err(Error::InvalidParameter(format!(
+                    "{} continuous symmetries, a model supports one",
+                    more.len()
+                )))
+            }
+        };
+        Ok(Symmetry {
+            discrete: self.symmetries_discrete.clone(),
+            continuous,
+        })
+    }
 }
 
 /// One entry of `test_targets_bop19.json`: an object to find in an image, and how many times.
@@ -342,6 +367,17 @@ impl BopDataset {
                 &self.root.join("models").join("models_info.json"),
                 "missing, so there is no model info",
             )),
+        }
+    }
+
+    /// The symmetries `models_info.json` gives object `obj_id` ([`ModelInfo::symmetry`]); none
+    /// when the dataset has no `models_info.json` or it has no entry for the object.
+    pub fn symmetry(&self, obj_id: u32) -> Result<Symmetry> {
+        match (&self.models_info_path, self.model_infos.get(&obj_id)) {
+            (Some(path), Some(info)) => info
+                .symmetry()
+                .map_err(|e| dataset_error(path, format!("object {obj_id}: {e}"))),
+            _ => Ok(Symmetry::default()),
         }
     }
 
@@ -1261,6 +1297,15 @@ mod tests {
             (flipped - Point3::new(3.0, -2.0, 3.0)).norm() < 1e-5,
             "{flipped:?}"
         );
+        // As a model holds them.
+        let axis = data.symmetry(1).unwrap().continuous.unwrap();
+        assert_eq!(axis.direction.into_inner(), Vector3::z());
+        assert_eq!(axis.point_mm, Point3::new(0.0, 0.0, 5.0));
+        assert_eq!(
+            data.symmetry(2).unwrap().discrete,
+            info2.symmetries_discrete
+        );
+        assert!(data.symmetry(7).unwrap().is_none(), "no entry, no symmetry");
         assert_eq!(
             data.model_info(1).unwrap().min_mm,
             Point3::new(-10.0, -20.0, -30.0)

@@ -48,3 +48,39 @@ fn lmo_models_build_with_bop_diameters_and_round_trip() {
     }
     std::fs::remove_dir_all(out).unwrap();
 }
+
+/// The LM-O egg box (10) and glue (11) carry a half turn in `models_info.json`: their models
+/// take it, hold it through the store, and refuse a quarter turn, which they do not have.
+#[test]
+fn lmo_symmetric_objects_keep_their_symmetry_and_refuse_a_false_one() {
+    use ppfd_models::model::symmetry::Symmetry;
+    let Some(dir) = shared_test_data("lmo") else {
+        return;
+    };
+    let dataset = BopDataset::open(&dir).unwrap();
+    let out = std::env::temp_dir().join(format!("ppfd-lmo-symmetry-{}", std::process::id()));
+    std::fs::create_dir_all(&out).unwrap();
+    for id in [10, 11] {
+        let symmetry = dataset.symmetry(id).unwrap();
+        assert_eq!(symmetry.order(), Some(2), "object {id}");
+        let mesh = Mesh::from_ply_file(dataset.model_path(id).unwrap()).unwrap();
+        let name = format!("obj_{id:06}");
+        let model = ObjectModel::build(&mesh, id, &name, &ModelParams::default()).unwrap();
+        let d = model.diameter_mm();
+        for (what, off) in symmetry.misfits(&model.surface_points()) {
+            eprintln!("object {id}: {what}: {off:.2} mm ({:.3} D)", off / d);
+        }
+        let wrong = Symmetry::generated(&["z:4".parse().unwrap()]).unwrap();
+        let refused = ObjectModel::build(&mesh, id, &name, &ModelParams::default())
+            .unwrap()
+            .with_symmetry(&wrong)
+            .unwrap_err()
+            .to_string();
+        assert!(refused.contains("does not have it"), "{refused}");
+        let model = model.with_symmetry(&symmetry).unwrap();
+        let path = out.join(format!("{name}.{}", store::EXTENSION));
+        store::save(&model, &path).unwrap();
+        assert_eq!(store::load(&path).unwrap().symmetry(), symmetry);
+    }
+    std::fs::remove_dir_all(out).unwrap();
+}

@@ -23,6 +23,7 @@ use crate::detect::silhouette::{silhouette_fraction, EdgeMap};
 use crate::detect::voting::{vote_from, Selection, VotingParams};
 use crate::geometry::render::{bounding_sphere, Renderer};
 use crate::model::subsample::{OrientedPoints, SubsampleParams};
+use crate::model::symmetry::Symmetry;
 use crate::model::ObjectModel;
 use crate::{Error, Pose, Result};
 
@@ -246,8 +247,16 @@ pub struct Detections {
     pub per_object_counts: Vec<Counts>,
 }
 
-fn clusters_as_poses(clusters: &[crate::detect::clustering::PoseCluster]) -> Vec<(Pose, u32)> {
-    clusters.iter().map(|c| (c.pose, c.votes)).collect()
+/// The clusters' poses, each the canonical one of its equivalents (METHOD.md §1.8), so that the
+/// pose restriction and everything after judge the pose that is reported.
+fn clusters_as_poses(
+    clusters: &[crate::detect::clustering::PoseCluster],
+    symmetry: &Symmetry,
+) -> Vec<(Pose, u32)> {
+    clusters
+        .iter()
+        .map(|c| (symmetry.canonical(&c.pose), c.votes))
+        .collect()
 }
 
 /// Which subsampled scene clouds a detection of `models` builds, and which of them each model
@@ -366,7 +375,13 @@ impl Detector {
             let (raw, counts) = vote_from(model, scene, &selection, &self.params.voting);
             timings.voting = t.elapsed();
             let t = Instant::now();
-            let clusters = cluster_poses(&raw, model.diameter_mm(), &self.params.clustering);
+            let symmetry = model.symmetry();
+            let clusters = cluster_poses(
+                &raw,
+                model.diameter_mm(),
+                &symmetry,
+                &self.params.clustering,
+            );
             timings.clustering = t.elapsed();
             let own = Counts {
                 scene_points: scene.points.len() as u32,
@@ -380,7 +395,7 @@ impl Detector {
             out.counts.votes += own.votes;
             out.counts.hypotheses += own.hypotheses;
             out.per_object_counts.push(own);
-            let clusters = clusters_as_poses(&clusters);
+            let clusters = clusters_as_poses(&clusters, &symmetry);
             check_stop(start)?;
             let hypotheses =
                 self.after_voting(model, &clusters, &scene_image, &edges, opts, &mut timings);
@@ -468,9 +483,14 @@ impl Detector {
         timings.rescoring += t.elapsed();
 
         let t = Instant::now();
+        // ICP may carry a pose across the canonical rule's boundary.
+        let symmetry = model.symmetry();
         let refined: Vec<(Pose, u32)> = scored[..scored.len().min(p.icp.top_poses)]
             .par_iter()
-            .map(|s| (refine(&surface, &s.pose, scene, d, &p.icp).pose, s.votes))
+            .map(|s| {
+                let pose = refine(&surface, &s.pose, scene, d, &p.icp).pose;
+                (symmetry.canonical(&pose), s.votes)
+            })
             .collect();
         timings.icp += t.elapsed();
 
@@ -494,12 +514,14 @@ impl Detector {
             .instance_distance_fraction
             .unwrap_or(p.nms_distance_fraction)
             * d;
-        let distance = |pose: &Pose| (pose * sphere.0).coords.norm();
+        // The model's centre, moved onto what its symmetries leave in place: equivalent poses
+        // put it at one place, and are one instance.
+        let centre = symmetry.fixed_point(&sphere.0);
+        let distance = |pose: &Pose| (pose * centre).coords.norm();
         let n = opts.hypotheses_per_object;
         let overlaps = |list: &[Hypothesis], pose: &Pose| {
-            let centre = pose * sphere.0;
-            list.iter()
-                .any(|h| (h.pose * sphere.0 - centre).norm() < nms)
+            let at = pose * centre;
+            list.iter().any(|h| (h.pose * centre - at).norm() < nms)
         };
         let mut passed: Vec<Hypothesis> = Vec::new();
         let mut failed: Vec<Hypothesis> = Vec::new();
