@@ -1053,6 +1053,12 @@ pub fn read_test_targets(path: impl AsRef<Path>) -> Result<Vec<TestTarget>> {
     parse_file(path.as_ref(), parse_test_targets)
 }
 
+/// Reads a `models_info.json` (diameters, bounding boxes and symmetries by object id); errors
+/// name the file and the entry.
+pub fn read_models_info(path: impl AsRef<Path>) -> Result<BTreeMap<u32, ModelInfo>> {
+    parse_file(path.as_ref(), parse_models_info)
+}
+
 /// Opens a depth PNG, checked on the open file (a regular file).
 fn open_depth_png(path: &Path) -> Result<std::fs::File> {
     ppfd_models::file::open_regular(path)

@@ -9,6 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::sanity;
 use ppfd_models::model::store;
+use ppfd_models::model::symmetry::{Symmetry, SymmetryElement};
 use ppfd_models::model::{ModelParams, ObjectModel};
 
 use crate::common::ScratchDir;
@@ -43,6 +44,86 @@ pub struct BuildArgs {
     /// whose diameter is not 2 mm to 10 m is refused without it.
     #[arg(long, value_parser = positive_scale)]
     pub scale: Option<f32>,
+    /// The object's symmetry, for a single mesh; repeatable, the symmetry is all the given turns
+    /// combined. `AXIS:N` is every turn by a multiple of 360°/N about the axis (N 2 to 100),
+    /// `AXIS:inf` any turn about it; either may end in `@X,Y,Z`, a point of the axis in mm (else
+    /// the model's origin). `AXIS` is x, y, z or a direction A,B,C: `z:2`, `z:inf --symmetry x:2`,
+    /// `0,1,1:4@0,0,12.5`. `none` for no symmetry. Without it, a mesh takes the symmetries of
+    /// its entry in the `models_info.json` beside it (BOP layout), if there is one.
+    #[arg(long, value_parser = symmetry_arg, value_name = "AXIS:N|AXIS:inf|none")]
+    pub symmetry: Vec<SymmetryArg>,
+}
+
+/// One `--symmetry` value.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SymmetryArg {
+    /// `none`: no symmetry, whatever `models_info.json` says.
+    None,
+    Element(SymmetryElement),
+}
+
+fn symmetry_arg(text: &str) -> Result<SymmetryArg, String> {
+    if text.trim().eq_ignore_ascii_case("none") {
+        return Ok(SymmetryArg::None);
+    }
+    text.parse().map(SymmetryArg::Element)
+}
+
+/// The symmetry `--symmetry` gives (`None` when not given): refuses it for several meshes, and
+/// `none` with turns.
+fn given_symmetry(args: &BuildArgs) -> Result<Option<Symmetry>, String> {
+    if args.symmetry.is_empty() {
+        return Ok(None);
+    }
+    if args.meshes.len() > 1 {
+        return Err(
+            "--symmetry applies to a single mesh; with several, each takes the \
+                    symmetries of the models_info.json beside it, if any"
+                .into(),
+        );
+    }
+    let elements: Vec<SymmetryElement> = args
+        .symmetry
+        .iter()
+        .filter_map(|a| match a {
+            SymmetryArg::Element(e) => Some(*e),
+            SymmetryArg::None => None,
+        })
+        .collect();
+    if elements.len() < args.symmetry.len() {
+        return match elements.len() {
+            0 => Ok(Some(Symmetry::default())),
+            _ => Err("--symmetry none says the object has no symmetry: give it alone".into()),
+        };
+    }
+    Symmetry::generated(&elements)
+        .map(Some)
+        .map_err(|e| format!("--symmetry: {e}"))
+}
+
+/// The symmetry of object `id` in the `models_info.json` beside `mesh`, with that file's path;
+/// `None` when there is no such file or it has no entry for the object.
+fn models_info_symmetry(
+    mesh: &Path,
+    id: u32,
+) -> Result<Option<(Symmetry, PathBuf)>, Box<dyn std::error::Error>> {
+    let Some(info) = mesh
+        .parent()
+        .map(|dir| dir.join("models_info.json"))
+        .filter(|p| p.is_file())
+    else {
+        return Ok(None);
+    };
+    let infos = ppfd_bop::dataset::read_models_info(&info)?;
+    match infos.get(&id) {
+        Some(entry) => {
+            let symmetry = entry
+                .symmetry()
+                .map_err(|e| format!("{}: object {id}: {e}", info.display()))?;
+            Ok(Some((symmetry, info)))
+        }
+        None => Ok(None),
+    }
 }
 
 /// A `--scale` factor: finite and positive.
@@ -142,6 +223,17 @@ pub fn run(cmd: ModelCommand) -> Result<(), Box<dyn std::error::Error>> {
 fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
     // All refusals before anything is built.
     let ids = object_ids(&args.meshes, args.id)?;
+    let given = given_symmetry(&args)?;
+    let mut symmetries = Vec::with_capacity(ids.len());
+    for (path, &id) in args.meshes.iter().zip(&ids) {
+        symmetries.push(match &given {
+            Some(symmetry) => (symmetry.clone(), None),
+            None => match models_info_symmetry(path, id)? {
+                Some((symmetry, from)) => (symmetry, Some(from)),
+                None => (Symmetry::default(), None),
+            },
+        });
+    }
     if args.out.exists() && !args.out.is_dir() {
         return Err(format!(
             "--out {}: is a file; --out takes a folder to write the model files into (made if \
@@ -175,7 +267,7 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
     bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} {msg} [{elapsed}]").unwrap());
     let params = ModelParams::default();
     let mut failures = 0;
-    for (path, &id) in args.meshes.iter().zip(&ids) {
+    for ((path, &id), (symmetry, symmetry_from)) in args.meshes.iter().zip(&ids).zip(&symmetries) {
         let name = name_of(path);
         bar.set_message(name.clone());
         let result = Mesh::from_ply_file(path)
@@ -184,6 +276,12 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
                     mesh.scale(factor);
                 }
                 ObjectModel::build_with_report(&mesh, id, &name, &params)
+            })
+            .and_then(|(model, report)| {
+                if symmetry.is_none() {
+                    return Ok((model, report));
+                }
+                Ok((model.with_symmetry(symmetry)?, report))
             })
             .and_then(|(model, report)| {
                 let out = args.out.join(format!("{name}.{}", store::EXTENSION));
@@ -207,6 +305,17 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
                         "note: {}: the normals of this closed mesh pointed inward; the model \
                          has them flipped to point outward",
                         path.display()
+                    );
+                }
+                if !symmetry.is_none() {
+                    let from = match symmetry_from {
+                        Some(info) => format!(" (from {})", info.display()),
+                        None => String::new(),
+                    };
+                    println!(
+                        "{}: symmetry: {}{from}",
+                        path.display(),
+                        symmetry.describe()
                     );
                 }
             }),
@@ -296,6 +405,7 @@ fn info(file: &Path) -> Result<(), Box<dyn std::error::Error>> {
         mesh.faces.len(),
         model.mesh_fingerprint()
     );
+    println!("symmetry        {}", model.symmetry().describe());
     println!("bytes           {:.2} MB", model.byte_size() as f64 / 1e6);
     println!("parameters      {p:?}");
     Ok(())

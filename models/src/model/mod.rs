@@ -408,10 +408,10 @@ impl ObjectModel {
         Symmetry::from_stored(&discrete, &continuous).unwrap_or_default()
     }
 
-    /// The same model, recording `symmetry` as the object's (METHOD.md §1.8). Refuses a
+    /// A copy of the model recording `symmetry` as the object's (METHOD.md §1.8). Refuses a
     /// symmetry that fails [`Symmetry::validate`] or that the model's surface does not have
     /// ([`Symmetry::check_holds`]). The table is unchanged: symmetries act after voting.
-    pub fn with_symmetry(self, symmetry: &Symmetry) -> Result<Self> {
+    pub fn with_symmetry(&self, symmetry: &Symmetry) -> Result<Self> {
         let name = self.name().to_owned();
         let d = self.diameter_mm();
         let named = |e: Error| match e {

@@ -292,7 +292,10 @@ impl Symmetry {
         };
         let mut out = Vec::new();
         for (i, s) in self.discrete.iter().enumerate() {
-            out.push((format!("discrete transform {}", i + 1), misfit(s)));
+            out.push((
+                format!("discrete transform {} ({})", i + 1, describe_turn(s)),
+                misfit(s),
+            ));
         }
         if let Some(axis) = &self.continuous {
             for step in 1..8 {
@@ -382,28 +385,52 @@ impl Symmetry {
         Ok(out)
     }
 
-    /// One line for a person: "none", "2 discrete transforms", "continuous about (0, 0, 1)
-    /// through (0, 0, 0) mm, and 1 discrete transform".
+    /// One line for a person: "none", "discrete, 2 poses alike", "continuous about the axis
+    /// (0.000, 0.000, 1.000) through (0.0, 0.0, 0.0) mm, and discrete, 2 poses alike per turn".
     pub fn describe(&self) -> String {
-        let discrete = match self.discrete.len() {
-            0 => None,
-            1 => Some("1 discrete transform".to_owned()),
-            n => Some(format!("{n} discrete transforms")),
-        };
-        let continuous = self.continuous.map(|a| {
-            let (d, p) = (a.direction, a.point_mm);
-            format!(
-                "continuous about ({:.3}, {:.3}, {:.3}) through ({:.1}, {:.1}, {:.1}) mm",
-                d.x, d.y, d.z, p.x, p.y, p.z
-            )
-        });
-        match (continuous, discrete) {
-            (None, None) => "none".into(),
-            (Some(c), None) => c,
-            (None, Some(d)) => d,
-            (Some(c), Some(d)) => format!("{c}, and {d}"),
+        let alike = self.discrete.len() + 1;
+        match &self.continuous {
+            None if self.discrete.is_empty() => "none".into(),
+            None => format!("discrete, {alike} poses alike"),
+            Some(a) => {
+                let (d, p) = (a.direction, a.point_mm);
+                let axis = format!(
+                    "continuous about the axis ({:.3}, {:.3}, {:.3}) through ({:.1}, {:.1}, {:.1}) mm",
+                    d.x, d.y, d.z, p.x, p.y, p.z
+                );
+                if self.discrete.is_empty() {
+                    axis
+                } else {
+                    format!("{axis}, and discrete, {alike} poses alike per turn")
+                }
+            }
         }
     }
+}
+
+/// "a turn of 180° about (0.00, 0.00, 1.00)": the rotation of `transform`, for a person. A half
+/// turn's axis, whose sign is arbitrary, is shown with its largest component positive.
+fn describe_turn(transform: &Pose) -> String {
+    let Some((axis, angle)) = transform.rotation.axis_angle() else {
+        return "no turn".into();
+    };
+    let mut axis = axis.into_inner();
+    let largest = axis
+        .iter()
+        .copied()
+        .fold(0f32, |m, v| if v.abs() > m.abs() { v } else { m });
+    if angle > std::f32::consts::PI - 1e-3 && largest < 0.0 {
+        axis = -axis;
+    }
+    // Adding 0 turns -0 into 0, and rounding first shows a tiny negative component as 0.00.
+    let shown = |v: f32| (v * 100.0).round() / 100.0 + 0.0;
+    format!(
+        "a turn of {:.0}° about ({:.2}, {:.2}, {:.2})",
+        angle.to_degrees(),
+        shown(axis.x),
+        shown(axis.y),
+        shown(axis.z)
+    )
 }
 
 /// Whether two axes are the same line (to about 0.3° and 0.001 mm).
@@ -647,6 +674,32 @@ mod tests {
         }
         let p = Point3::new(1.0, 2.0, 3.0);
         assert_eq!(Symmetry::default().fixed_point(&p), p);
+    }
+
+    #[test]
+    fn symmetries_and_turns_are_described_for_a_person() {
+        assert_eq!(Symmetry::default().describe(), "none");
+        let half = Symmetry::generated(&[element("z:2")]).unwrap();
+        assert_eq!(half.describe(), "discrete, 2 poses alike");
+        // A half turn's axis comes out with either sign; it is shown one way.
+        for axis in [Vector3::z(), -Vector3::z()] {
+            let turn = pose([0.0; 3], axis, PI);
+            assert_eq!(
+                describe_turn(&turn),
+                "a turn of 180° about (0.00, 0.00, 1.00)"
+            );
+        }
+        let quarter = pose([0.0; 3], -Vector3::x(), FRAC_PI_2);
+        assert_eq!(
+            describe_turn(&quarter),
+            "a turn of 90° about (-1.00, 0.00, 0.00)"
+        );
+        let shaft = Symmetry::generated(&[element("z:inf@1,2,0"), element("x:2@0,2,0")]).unwrap();
+        assert_eq!(
+            shaft.describe(),
+            "continuous about the axis (0.000, 0.000, 1.000) through (1.0, 2.0, 0.0) mm, and \
+             discrete, 2 poses alike per turn"
+        );
     }
 
     #[test]
