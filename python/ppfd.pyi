@@ -5,7 +5,7 @@ frames into shared memory, where the daemon reads them in place. Every error is 
 with the message of the Rust client library. docs/PYTHON.md is the guide.
 """
 
-from typing import Iterator, Literal, Optional, Sequence, TypedDict, Union
+from typing import Iterable, Iterator, Literal, Optional, Sequence, TypedDict, Union
 import os
 
 import numpy as np
@@ -97,6 +97,8 @@ class Checks:
     REFINED: int
     CONSISTENT: int
     SILHOUETTE: int
+    HINT: int
+    """Came from one of the request's hints, not from voting."""
 
 class Detection:
     """One pose hypothesis of one object."""
@@ -164,6 +166,7 @@ class Client:
         tilt_axis: Optional[Sequence[float]] = None,
         tilt_direction: Optional[Sequence[float]] = None,
         order: Literal["score", "distance"] = "score",
+        hints: Optional[Iterable[Union[Detection, tuple[int, npt.ArrayLike]]]] = None,
     ) -> Detections:
         """Detects `object_ids` in the newest frame of `camera`, releasing the GIL while the
         daemon works. `hypotheses` per object, 1 to 16; `timeout` in seconds (None: 3 s);
@@ -180,6 +183,11 @@ class Client:
           by the pose, lies within this angle of the camera direction `tilt_direction` (None:
           `(0, 0, -1)`, towards the camera), 0 to 180 (None: any pose).
         - `order`: each object's poses best score first, or nearest first.
+
+        `hints`: poses already known, at most 64, each a `Detection` of an earlier answer or a
+        pair `(object_id, pose)` with a 4×4 pose of one of `object_ids`. A hinted object is
+        first refined from its hints (ICP, re-scoring, both filters, the minimum score) and
+        goes through voting only when none passes; its pose then has `Checks.HINT`.
 
         A value out of its range raises `ProtocolError` with the client library's message
         before the request is sent; a region reaching outside the frame is refused

@@ -114,7 +114,7 @@ fn hypothesis_table(d: &Detections, objects: &[u32]) -> Vec<String> {
 }
 
 /// The checks a hypothesis passed as `ppf detect --dataset` shows them: R re-scored, I refined
-/// by ICP, C consistent, S silhouette on the scene's edges.
+/// by ICP, C consistent, S silhouette on the scene's edges, H from a hint (not voted for).
 pub fn checks_letters(bits: u32) -> String {
     use ppfd_client::protocol::detect::checks;
     [
@@ -122,6 +122,7 @@ pub fn checks_letters(bits: u32) -> String {
         (checks::REFINED, 'I'),
         (checks::CONSISTENT, 'C'),
         (checks::SILHOUETTE, 'S'),
+        (checks::HINT, 'H'),
     ]
     .iter()
     .filter(|(bit, _)| bits & bit != 0)

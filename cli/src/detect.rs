@@ -1,7 +1,9 @@
 //! `ppf detect`: one detect request against a running daemon; prints the poses and the latency
 //! breakdown.
 
-use ppfd_client::DetectOptions;
+use std::path::{Path, PathBuf};
+
+use ppfd_client::{DetectOptions, PoseHint};
 
 use crate::common::{millis, print_hypotheses, print_latency, Connect};
 
@@ -22,11 +24,78 @@ pub struct DetectArgs {
     /// What the poses must satisfy, and their order.
     pub requirements: ppfd_client::Requirements,
     /// Where to write the overlay picture, and the models folder to draw outlines from.
-    pub overlay: Option<(std::path::PathBuf, std::path::PathBuf)>,
+    pub overlay: Option<(PathBuf, PathBuf)>,
+    /// A JSON file of poses to refine first.
+    pub hints: Option<PathBuf>,
     pub connect: Connect,
 }
 
+/// The poses of a hints file: the `hypotheses` of `ppf detect --json` output, or a list of
+/// objects with `object_id`, `rotation` (9 numbers, row-major) and `translation_mm` (3).
+pub fn read_hints(path: &Path) -> Result<Vec<PoseHint>, String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let value: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| format!("{}: not JSON: {e}", path.display()))?;
+    let list = value
+        .get("hypotheses")
+        .unwrap_or(&value)
+        .as_array()
+        .ok_or_else(|| {
+            format!(
+                "{}: expected a list of poses, or an object with a \"hypotheses\" list (ppf \
+                 detect --json)",
+                path.display()
+            )
+        })?;
+    list.iter()
+        .enumerate()
+        .map(|(i, entry)| {
+            let numbers = |field: &str, n: usize| -> Result<Vec<f32>, String> {
+                let bad = || {
+                    format!(
+                        "{}: pose {i}: \"{field}\" must be a list of {n} numbers",
+                        path.display()
+                    )
+                };
+                let values = entry
+                    .get(field)
+                    .and_then(|v| v.as_array())
+                    .ok_or_else(bad)?;
+                if values.len() != n {
+                    return Err(bad());
+                }
+                values
+                    .iter()
+                    .map(|v| v.as_f64().map(|x| x as f32).ok_or_else(bad))
+                    .collect()
+            };
+            let object_id = entry
+                .get("object_id")
+                .and_then(|v| v.as_u64())
+                .and_then(|v| u32::try_from(v).ok())
+                .ok_or_else(|| {
+                    format!(
+                        "{}: pose {i}: \"object_id\" must be an object id",
+                        path.display()
+                    )
+                })?;
+            let mut hint = PoseHint {
+                object_id,
+                ..Default::default()
+            };
+            hint.rotation.copy_from_slice(&numbers("rotation", 9)?);
+            hint.translation_mm
+                .copy_from_slice(&numbers("translation_mm", 3)?);
+            Ok(hint)
+        })
+        .collect()
+}
+
 pub fn run(args: DetectArgs) -> Result<(), String> {
+    let hints = match &args.hints {
+        Some(path) => read_hints(path)?,
+        None => Vec::new(),
+    };
     let client = args.connect.client()?;
     // Subscribed before the request, so that the frame the daemon uses arrives here too.
     let viewer = match &args.overlay {
@@ -40,6 +109,7 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
         hypotheses_per_object: args.hypotheses,
         timeout: millis(args.timeout_ms),
         requirements: args.requirements,
+        hints,
         ..Default::default()
     };
     let found = client

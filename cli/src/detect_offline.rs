@@ -36,9 +36,15 @@ pub struct DetectCommand {
           value_parser = clap::value_parser!(u64).range(1..))]
     pub timeout_ms: u64,
     /// Print the answer as JSON (with --camera): ranks from 1 like the table, `checks` as the
-    /// protocol's bits (1 re-scored, 2 refined, 4 consistent, 8 silhouette), times in ns.
+    /// protocol's bits (1 re-scored, 2 refined, 4 consistent, 8 silhouette, 16 from a
+    /// hint), times in ns.
     #[arg(long, conflicts_with = "dataset")]
     pub json: bool,
+    /// With --camera: a JSON file of poses the objects are expected near, refined before any
+    /// voting: `ppf detect --json` output, or a list of `{"object_id", "rotation",
+    /// "translation_mm"}`. Poses from hints carry check bit 16.
+    #[arg(long, value_name = "POSES.JSON", conflicts_with = "dataset")]
+    pub hints: Option<PathBuf>,
     /// With --dataset: instead of detecting, print the rank of the first correct pose after
     /// each stage.
     #[arg(long)]
@@ -187,6 +193,7 @@ impl DetectCommand {
             json: self.json,
             requirements: self.requirements.wire()?,
             overlay: self.overlay.zip(self.models),
+            hints: self.hints,
             connect: self.connect,
         }))
     }

@@ -458,6 +458,10 @@ mod tests {
             common::checks_letters(checks::RESCORED | checks::SILHOUETTE),
             "RS"
         );
+        assert_eq!(
+            common::checks_letters(checks::RESCORED | checks::SILHOUETTE | checks::HINT),
+            "RSH"
+        );
         // The offline table passes the detector's bits straight in, as the daemon sends them.
         use ppfd_models::detect::detector::Checks;
         assert_eq!(
@@ -465,13 +469,15 @@ mod tests {
                 Checks::RESCORED,
                 Checks::REFINED,
                 Checks::CONSISTENT,
-                Checks::SILHOUETTE
+                Checks::SILHOUETTE,
+                Checks::HINT
             ],
             [
                 checks::RESCORED,
                 checks::REFINED,
                 checks::CONSISTENT,
-                checks::SILHOUETTE
+                checks::SILHOUETTE,
+                checks::HINT
             ]
         );
     }

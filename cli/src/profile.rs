@@ -1,12 +1,15 @@
 //! `ppf profile`: time the detector's stages on one dataset frame, per object, over repeated
-//! runs, and print medians (release build for real figures).
+//! runs, and print medians (release build for real figures). With `--hints-from-truth`, time
+//! detections from the image's ground-truth poses as hints against detections from scratch.
 
 use std::path::PathBuf;
 use std::time::Duration;
 
 use clap::Args;
 use ppfd_bop::dataset::BopDataset;
-use ppfd_models::detect::detector::{DetectParams, Detector, RunOptions, StageTimings};
+use ppfd_models::detect::detector::{
+    Checks, DetectParams, Detector, Hint, RunOptions, StageTimings,
+};
 
 use crate::offline::dataset_models;
 
@@ -30,6 +33,10 @@ pub struct ProfileArgs {
     /// Override a detector parameter, `stage.field=value` (as `ppf detect --set`); repeatable.
     #[arg(long = "set", value_name = "STAGE.FIELD=VALUE")]
     pub set: Vec<String>,
+    /// Instead of the stage table: each run detects from scratch, then with the image's
+    /// ground-truth poses as hints; prints the medians of both and their ratio.
+    #[arg(long)]
+    pub hints_from_truth: bool,
 }
 
 fn ms(d: Duration) -> f64 {
@@ -69,6 +76,18 @@ pub fn run(args: ProfileArgs) -> Result<(), Box<dyn std::error::Error>> {
         ..Default::default()
     };
     let repeat = args.repeat;
+    if args.hints_from_truth {
+        let hints: Vec<Hint> = dataset
+            .ground_truth(args.scene, args.image)?
+            .iter()
+            .filter(|g| ids.contains(&g.obj_id))
+            .map(|g| Hint {
+                object_id: g.obj_id,
+                pose: g.pose,
+            })
+            .collect();
+        return compare_hinted(&detector, &frame.view(), &refs, hints, repeat);
+    }
     let mut per_object: Vec<Vec<StageTimings>> = vec![Vec::new(); refs.len()];
     let mut frame_runs = Vec::new();
     // The same frame and parameters give the same counts every run: the last run's are shown.
@@ -115,6 +134,63 @@ pub fn run(args: ProfileArgs) -> Result<(), Box<dyn std::error::Error>> {
         col(&|t| t.scene_preparation),
         col(&|t| t.kd_tree),
         col(&|t| t.total())
+    );
+    Ok(())
+}
+
+/// Detections from scratch and from `hints`, alternately `repeat` times each (so that a busy
+/// machine slows both alike): their medians, their ratio, and how many objects the hinted runs
+/// answered from their hints.
+fn compare_hinted(
+    detector: &Detector,
+    frame: &ppfd_models::geometry::camera::DepthFrame,
+    models: &[&ppfd_models::model::ObjectModel],
+    hints: Vec<Hint>,
+    repeat: u32,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let scratch = RunOptions {
+        hypotheses_per_object: 1,
+        ..Default::default()
+    };
+    let hinted = RunOptions {
+        hints,
+        ..scratch.clone()
+    };
+    let (mut from_scratch, mut from_hints) = (Vec::new(), Vec::new());
+    let mut last = None;
+    for _ in 0..repeat {
+        let t = std::time::Instant::now();
+        detector.detect(frame, models, &scratch)?;
+        from_scratch.push(ms(t.elapsed()));
+        let t = std::time::Instant::now();
+        last = Some(detector.detect(frame, models, &hinted)?);
+        from_hints.push(ms(t.elapsed()));
+    }
+    // The same frame and hints give the same answers every run: the last run's are shown.
+    let det = last.ok_or("no run")?;
+    let mut answered = 0;
+    for o in &det.objects {
+        let from_hint = o
+            .hypotheses
+            .first()
+            .is_some_and(|h| h.checks.has(Checks::HINT));
+        answered += usize::from(from_hint);
+        let best = o.hypotheses.first().map_or("no pose".to_owned(), |h| {
+            format!(
+                "score {:.3}, checks {}",
+                h.score,
+                crate::common::checks_letters(h.checks.0)
+            )
+        });
+        let how = if from_hint { "from its hint" } else { "voted" };
+        println!("object {}: {how}, {best}", o.object_id);
+    }
+    let (a, b) = (median(from_scratch), median(from_hints));
+    println!(
+        "{} objects, medians of {repeat} alternating runs: from scratch {a:.1} ms, from the \
+         ground-truth poses as hints {b:.1} ms ({answered} answered from their hints): {:.1}x",
+        models.len(),
+        a / b
     );
     Ok(())
 }

@@ -48,13 +48,12 @@ fn diagnose_counts_the_reference_points_that_propose_the_right_pose() {
             .position(|h| *h == name)
             .unwrap_or_else(|| panic!("no column {name:?} in {header:?}"))
     };
-    let (object, on_object, normal_error, references, proposing, rank) = (
+    let (object, on_object, normal_error, references, lost_at) = (
         column("object"),
         column("on object"),
         column("normal error (median °)"),
         column("reference points on object"),
-        column("proposing a correct pose"),
-        column("after ICP + re-scoring"),
+        column("lost at"),
     );
     let rows: Vec<Vec<&str>> = stdout
         .lines()
@@ -64,18 +63,44 @@ fn diagnose_counts_the_reference_points_that_propose_the_right_pose() {
     assert_eq!(rows.len(), 2, "{stdout}");
     for row in &rows {
         let n = |c: usize| row[c].parse::<f64>().unwrap_or_else(|_| panic!("{row:?}"));
-        // Every reference point on the object is one of the cloud's points on it, and only
-        // reference points on it can propose its pose.
+        // Every reference point on the object is one of the cloud's points on it.
         assert!(n(references) <= n(on_object), "{row:?}");
-        assert!(n(proposing) <= n(references), "{row:?}");
         assert!(n(references) > 0.0, "{row:?}");
         // Normals against the side of the model facing the camera: a median beyond 45° would
         // mean they are compared with the wrong surface.
         assert!(n(normal_error) < 45.0, "{row:?}");
-        // The driller's pose ranks first on this frame: some reference point proposed it.
+        // The object's stage lines, below its heading.
+        let heading = format!("object {}: {}", row[object], row[lost_at]);
+        let stages: Vec<&str> = stdout
+            .lines()
+            .skip_while(|l| *l != heading)
+            .skip(1)
+            .take_while(|l| l.starts_with("  "))
+            .map(str::trim_start)
+            .collect();
+        let stage = |name: &str| {
+            stages
+                .iter()
+                .find(|l| l.split_whitespace().next() == Some(name))
+                .copied()
+                .unwrap_or_else(|| panic!("no {name} line for object {}: {stdout}", row[object]))
+        };
+        // The voting line counts the reference points proposing a pose near the target: only
+        // reference points on the object can.
+        let voting = stage("voting");
+        let proposing: f64 = voting
+            .split_whitespace()
+            .nth(1)
+            .and_then(|w| w.parse().ok())
+            .unwrap_or_else(|| panic!("{voting}"));
+        assert!(proposing <= n(references), "{voting} / {row:?}");
+        // The driller's pose ranks first on this frame: some reference point proposed it, and
+        // ICP keeps it first.
         if row[object] == "8" {
-            assert_eq!(row[rank], "1", "{stdout}");
-            assert!(n(proposing) > 0.0, "{row:?}");
+            assert_eq!(row[lost_at], "found", "{stdout}");
+            assert!(proposing > 0.0, "{voting}");
+            let icp: Vec<&str> = stage("ICP").split_whitespace().take(3).collect();
+            assert_eq!(icp, ["ICP", "ranks", "1"], "{stdout}");
         }
     }
 }

@@ -1,7 +1,9 @@
 //! A multi-object warehouse picking loop. Each cycle takes the next order (a few object ids),
 //! asks the daemon for them in the camera's newest frame, picks the best-scored instance, "moves
 //! the robot" there and reports the cycle time. Refusals (stale camera, unknown object) are
-//! handled the way a cell controller would: skip, report, go on.
+//! handled the way a cell controller would: skip, report, go on. The poses of the previous cycle
+//! that it did not pick go with the request as hints: the daemon refines those first and votes
+//! only for the objects whose hints fail, and the loop reports how many poses came from hints.
 //!
 //! ```sh
 //! cargo run --release -p ppfd-client --example picking_loop -- kinect 20 1,5,6 8,9
@@ -12,7 +14,10 @@
 
 use std::time::{Duration, Instant};
 
-use ppfd_client::{isometry, Client, DetectOptions, Error, Status};
+use ppfd_client::protocol::MAX_HINTS_PER_REQUEST;
+use ppfd_client::{
+    checks, isometry, Client, DetectOptions, Error, PoseHint, PoseHypothesis, Status,
+};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     // `--timeout-ms=N` anywhere sets the detect timeout (default: the library's).
@@ -48,11 +53,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         max_frame_age: Some(Duration::from_millis(500)),
         ..Default::default()
     };
-    let options = DetectOptions {
+    let mut options = DetectOptions {
         timeout: timeout.unwrap_or(options.timeout),
         ..options
     };
     let mut picked = 0;
+    // The previous cycle's poses that passed both filters, less the one picked.
+    let mut known: Vec<PoseHypothesis> = Vec::new();
     // How the cycles ended, for the summary line (a soak run reads it): refusals the cell
     // expects (a stale camera, a daemon restarting), answers that never came, and answers that
     // do not match their request (poses of objects not asked for).
@@ -60,6 +67,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for cycle in 0..cycles {
         let order = &orders[cycle % orders.len()];
         let start = Instant::now();
+        options.hints = known
+            .iter()
+            .filter(|h| order.contains(&h.object_id))
+            .take(MAX_HINTS_PER_REQUEST)
+            .map(PoseHint::from)
+            .collect();
         let found = match client.detect(&camera, order, &options) {
             Ok(found) => found,
             Err(Error::Refused {
@@ -109,27 +122,51 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             mismatched += 1;
             continue;
         }
-        // The best-scored instance of any object of the order is the next pick.
-        let Some(best) = found
+        let both = checks::CONSISTENT | checks::SILHOUETTE;
+        let passed: Vec<&PoseHypothesis> = found
             .hypotheses
             .iter()
+            .filter(|h| h.checks & both == both)
+            .collect();
+        let from_hints = passed
+            .iter()
+            .filter(|h| h.checks & checks::HINT != 0)
+            .count();
+        // The best-scored instance of any object of the order is the next pick.
+        let Some(best) = passed
+            .iter()
+            .copied()
             .max_by(|a, b| a.score.total_cmp(&b.score))
         else {
             println!("cycle {cycle}: nothing of {order:?} in view");
+            known.clear();
             continue;
         };
+        // What is left in view for the next cycle: every pose but the one picked. Objects of
+        // other orders keep their poses from earlier cycles.
+        known.retain(|h| !order.contains(&h.object_id));
+        known.extend(
+            passed
+                .iter()
+                .filter(|h| !std::ptr::eq(**h, best))
+                .copied()
+                .copied(),
+        );
         let pose = isometry(best);
         let t = pose.translation.vector;
         // A real cell would plan a grasp from `pose` and move the arm here.
         picked += 1;
         println!(
             "cycle {cycle}: order {order:?} -> pick object {} (score {:.2}) at ({:.0}, {:.0}, {:.0}) mm; \
-             cycle {:.1} ms (detection {:.1} ms, overhead {:.3} ms, frame {} aged {:.1} ms)",
+             {from_hints} of {} poses from {} hints; cycle {:.1} ms (detection {:.1} ms, overhead \
+             {:.3} ms, frame {} aged {:.1} ms)",
             best.object_id,
             best.score,
             t.x,
             t.y,
             t.z,
+            passed.len(),
+            options.hints.len(),
             start.elapsed().as_secs_f64() * 1e3,
             found.latency.daemon.detection_ns as f64 / 1e6,
             found.latency.overhead_ns() as f64 / 1e6,

@@ -14,7 +14,7 @@ use ppfd_protocol::control::{
     ControlCommand, ControlRequest, ControlResponseHeader, DaemonStats, ModelInfo,
 };
 use ppfd_protocol::detect::{
-    flags, DetectCounts, DetectRequestHeader, DetectResponseHeader, LatencyBreakdown,
+    flags, DetectCounts, DetectRequestHeader, DetectResponseHeader, LatencyBreakdown, PoseHint,
     PoseHypothesis, Requirements, Status,
 };
 use ppfd_protocol::frame::FrameHeader;
@@ -106,8 +106,8 @@ impl Default for ClientOptions {
     }
 }
 
-/// Per-request options of [`Client::detect`].
-#[derive(Debug, Clone, Copy)]
+/// Per-request options of [`Client::detect`] and [`Client::detect_inline`].
+#[derive(Debug, Clone)]
 pub struct DetectOptions {
     /// Best hypotheses wanted per object (1 to 16).
     pub hypotheses_per_object: u32,
@@ -121,6 +121,13 @@ pub struct DetectOptions {
     /// What the hypotheses must satisfy (minimum score, instance distance, region of
     /// interest, pose restriction), and their order; the default asks for nothing.
     pub requirements: Requirements,
+    /// Poses the objects are expected near, at most [`ppfd_protocol::MAX_HINTS_PER_REQUEST`],
+    /// each a pose of one of the requested objects: for example the previous cycle's answers
+    /// (`PoseHint::from(&hypothesis)`). A hinted object is first looked for from its hints
+    /// alone (ICP, re-scoring, the filters and the `requirements`); only the objects with a
+    /// hint that fails (or with none) go through voting. Poses from hints carry
+    /// [`checks::HINT`](crate::checks::HINT).
+    pub hints: Vec<PoseHint>,
 }
 
 impl Default for DetectOptions {
@@ -130,6 +137,7 @@ impl Default for DetectOptions {
             timeout: Duration::from_secs(3),
             max_frame_age: None,
             requirements: Requirements::default(),
+            hints: Vec::new(),
         }
     }
 }
@@ -348,7 +356,8 @@ impl Client {
         id
     }
 
-    /// Detects `objects` in the newest frame of `camera`.
+    /// Detects `objects` in the newest frame of `camera` (from [`DetectOptions::hints`] first,
+    /// where it has any).
     pub fn detect(
         &self,
         camera: &str,
@@ -418,6 +427,7 @@ impl Client {
             ..Default::default()
         };
         header.set_objects(objects)?;
+        header.set_hints(&options.hints)?;
         header.max_frame_age_ns = options
             .max_frame_age
             .map(|d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))

@@ -35,7 +35,7 @@ pub use ppfd_protocol as protocol;
 pub use ppfd_protocol::clock::monotonic_now_ns;
 pub use ppfd_protocol::control::{DaemonStats, ModelInfo};
 pub use ppfd_protocol::detect::{
-    checks, order, DetectCounts, LatencyBreakdown, PoseHypothesis, PoseRestriction,
+    checks, order, DetectCounts, LatencyBreakdown, PoseHint, PoseHypothesis, PoseRestriction,
     RegionOfInterest, Requirements, Status,
 };
 pub use ppfd_protocol::frame::{FrameHeader, Intrinsics};

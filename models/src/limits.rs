@@ -36,6 +36,12 @@ pub const MIN_DIAMETER_MM: f32 = 2.0;
 /// micrometres or another unit.
 pub const MAX_DIAMETER_MM: f32 = 10_000.0;
 
+/// The fewest subsampled model points a model may have. Subsampling takes its leaf from the
+/// diameter, so a surface that spans its mesh's extent gives hundreds (the LM-O models have
+/// 300–1 000); a handful means that the faces cover almost nothing of the extent the vertices
+/// claim (stray vertices, degenerate faces), and a model of them votes for any small blob.
+pub const MIN_MODEL_POINTS: usize = 16;
+
 /// The refusal of a diameter outside [`MIN_DIAMETER_MM`]..=[`MAX_DIAMETER_MM`], with the scale
 /// that would bring it into millimetres; `None` for a sane one.
 pub fn diameter_out_of_range(diameter: f32) -> Option<String> {

@@ -154,6 +154,50 @@ fn icp_converges_from_poses_turned_far() {
     assert_eq!(lost, 0, "{lost} of {runs} slid away");
 }
 
+/// No surface point ends farther from where it started than `IcpParams::max_travel_mm`, the
+/// bound a hinted detection widens its rectangles of normals by, from starts near and far
+/// (pulled towards the part, or sliding away from it); and the bound is reached in part, not
+/// loose by orders of magnitude.
+#[test]
+fn icp_moves_no_surface_point_farther_than_its_travel_bound() {
+    let params = DetectParams::new();
+    let (mut farthest, mut bound_of_farthest) = (0f32, 0f32);
+    for part in Part::ALL {
+        let (mesh, model) = part_model(part);
+        let d = model.diameter_mm();
+        let bound = params.icp.max_travel_mm(d);
+        let surface = model.surface_points();
+        for (seed, shift, degrees) in [(60, 0.05, 5.0), (61, 0.15, 20.0), (62, 0.3, 40.0)] {
+            let (truth, image) = noisy_view(part, &mesh, seed, WORKING_DISTANCE_MM, &params);
+            let start = perturbed(
+                &truth,
+                &mesh,
+                [shift * d, -shift * d, 0.5 * shift * d],
+                [0.3, 1.0, -0.2],
+                degrees,
+            );
+            let end = refine(&surface, &start, &image, d, &params.icp).pose;
+            let moved = surface
+                .positions
+                .iter()
+                .map(|p| (end * p - start * p).norm())
+                .fold(0.0, f32::max);
+            assert!(
+                moved <= bound * 1.001,
+                "{} seed {seed}: {moved} mm > {bound} mm",
+                part.name()
+            );
+            if moved / bound > farthest / bound_of_farthest.max(1e-6) {
+                (farthest, bound_of_farthest) = (moved, bound);
+            }
+        }
+    }
+    assert!(
+        farthest > 0.2 * bound_of_farthest,
+        "{farthest} of {bound_of_farthest} mm"
+    );
+}
+
 /// The first iterations fit a sample of every `coarse_stride`-th surface point, and the run
 /// ends where ICP on every point throughout ends.
 #[test]

@@ -1,8 +1,9 @@
 //! What a caller asks of the answer, on generated scenes with several instances of one part:
 //! ordering by distance, the pose restriction of bin picking, the minimum score, the instance
-//! distance and the region of interest. Runs anywhere (no data files).
+//! distance and the region of interest, on voted poses and on poses from hints. Runs anywhere
+//! (no data files).
 
-use ppfd_models::detect::detector::{Detections, Detector, RunOptions};
+use ppfd_models::detect::detector::{Checks, Detections, Detector, Hint, RunOptions};
 use ppfd_models::detect::requirements::{Order, PixelRegion, PoseRestriction, Requirements};
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::geometry::render::bounding_sphere;
@@ -35,9 +36,14 @@ fn setup(seed: u64) -> Setup {
 
 impl Setup {
     fn detect(&self, n: usize, requirements: Requirements) -> Detections {
+        self.detect_hinted(n, requirements, Vec::new())
+    }
+
+    fn detect_hinted(&self, n: usize, requirements: Requirements, hints: Vec<Hint>) -> Detections {
         let options = RunOptions {
             hypotheses_per_object: n,
             requirements,
+            hints,
             ..Default::default()
         };
         Detector::default()
@@ -288,4 +294,152 @@ fn a_region_of_interest_limits_where_reference_points_are_taken() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("outside the 640x480 frame"), "{e}");
+}
+
+/// Hints go through the same requirements as voted poses: with the three instances' true poses
+/// as hints, all three come back from them nearest first when asked; a pose restriction, a
+/// minimum score or a region of interest that a hinted instance does not meet leaves that
+/// hint out (its object is then voted for, under the same requirements), and every pose
+/// returned meets them.
+#[test]
+fn hinted_poses_meet_the_requirements_as_voted_ones_do() {
+    let s = setup(31);
+    let truths: Vec<Pose> = s.scene.ground_truth.iter().map(|g| g.1).collect();
+    let hints: Vec<Hint> = truths
+        .iter()
+        .map(|&pose| Hint { object_id: 1, pose })
+        .collect();
+    let from_hints = |found: &Detections| {
+        found.objects[0]
+            .hypotheses
+            .iter()
+            .filter(|h| h.checks.has(Checks::HINT))
+            .count()
+    };
+
+    let nearest_first = Requirements {
+        order: Order::Distance,
+        ..Default::default()
+    };
+    let found = s.detect_hinted(3, nearest_first, hints.clone());
+    let hits = s.instances(&found);
+    let distances: Vec<f32> = found.objects[0]
+        .hypotheses
+        .iter()
+        .map(|h| s.distance(&h.pose))
+        .collect();
+    eprintln!("nearest first from hints: {hits:?} at {distances:?} mm");
+    assert_eq!(from_hints(&found), 3, "{hits:?}");
+    assert!(
+        found.objects[0].clusters.is_empty(),
+        "voted with every hint kept"
+    );
+    let mut sorted = hits.iter().flatten().copied().collect::<Vec<_>>();
+    sorted.sort();
+    assert_eq!(sorted, vec![0, 1, 2]);
+    assert!(distances.windows(2).all(|w| w[0] <= w[1]), "{distances:?}");
+
+    // A pose restriction around instance 0's posed axis, leaving out the others' (this seed's
+    // instances lean apart, as the pose restriction test shows).
+    let axis = nalgebra::Vector3::z();
+    let posed = |i: usize| truths[i].rotation * axis;
+    let margin = (1..3)
+        .map(|j| posed(0).angle(&posed(j)).to_degrees())
+        .fold(f32::INFINITY, f32::min);
+    assert!(
+        margin > 20.0,
+        "the instances' axes must differ: {margin:.0}°"
+    );
+    let restriction = PoseRestriction::new([0.0, 0.0, 1.0], posed(0).into(), margin / 2.0).unwrap();
+    let found = s.detect_hinted(
+        3,
+        Requirements {
+            pose_restriction: Some(restriction),
+            ..Default::default()
+        },
+        hints.clone(),
+    );
+    let hits = s.instances(&found);
+    eprintln!(
+        "restricted to instance 0's axis within {:.0}°: {hits:?}",
+        margin / 2.0
+    );
+    assert_eq!(hits.first(), Some(&Some(0)), "{hits:?}");
+    assert!(found.objects[0].hypotheses[0].checks.has(Checks::HINT));
+    assert!(
+        hits.iter().all(|h| h.is_none() || *h == Some(0)),
+        "{hits:?}"
+    );
+    assert!(found.objects[0]
+        .hypotheses
+        .iter()
+        .all(|h| restriction.allows(&h.pose)));
+
+    // A minimum score between the hinted instances' scores keeps the better ones only.
+    let all = s.detect_hinted(3, Requirements::default(), hints.clone());
+    let mut scores: Vec<f32> = all.objects[0].hypotheses.iter().map(|h| h.score).collect();
+    scores.sort_by(|a, b| b.total_cmp(a));
+    let min_score = 0.5 * (scores[1] + scores[2]);
+    let found = s.detect_hinted(
+        3,
+        Requirements {
+            min_score,
+            ..Default::default()
+        },
+        hints.clone(),
+    );
+    let kept: Vec<(bool, f32)> = found.objects[0]
+        .hypotheses
+        .iter()
+        .map(|h| (h.checks.has(Checks::HINT), h.score))
+        .collect();
+    eprintln!("hinted scores {scores:?}; at least {min_score}: {kept:?}");
+    assert!(kept.iter().all(|&(_, x)| x >= min_score), "{kept:?}");
+    assert_eq!(kept.iter().filter(|k| k.0).count(), 2, "{kept:?}");
+
+    // A region of interest around instance 0: the hints of instances with no surface in it
+    // are left out.
+    let k = s.scene.frame.intrinsics;
+    let pixels = |pose: &Pose| -> Vec<(i64, i64)> {
+        s.mesh
+            .positions
+            .iter()
+            .map(|p| k.pixel(&(pose * p)))
+            .collect()
+    };
+    let own = pixels(&truths[0]);
+    let (u0, v0) = own
+        .iter()
+        .fold((i64::MAX, i64::MAX), |a, p| (a.0.min(p.0), a.1.min(p.1)));
+    let (u1, v1) = own
+        .iter()
+        .fold((i64::MIN, i64::MIN), |a, p| (a.0.max(p.0), a.1.max(p.1)));
+    let region = PixelRegion {
+        x: u0.max(0) as u32,
+        y: v0.max(0) as u32,
+        width: (u1 - u0.max(0) + 1) as u32,
+        height: (v1 - v0.max(0) + 1) as u32,
+    };
+    let found = s.detect_hinted(
+        3,
+        Requirements {
+            region: Some(region),
+            ..Default::default()
+        },
+        hints,
+    );
+    let hits = s.instances(&found);
+    eprintln!("region {region:?} from hints: {hits:?}");
+    assert!(hits.contains(&Some(0)), "{hits:?}");
+    for (other, truth) in truths.iter().enumerate().skip(1) {
+        let reaches = pixels(truth).iter().any(|&(u, v)| {
+            u >= region.x as i64
+                && v >= region.y as i64
+                && u < (region.x + region.width) as i64
+                && v < (region.y + region.height) as i64
+        });
+        if !reaches {
+            assert!(!hits.contains(&Some(other)), "instance {other}: {hits:?}");
+        }
+    }
 }

@@ -6,8 +6,8 @@ use iceoryx2::prelude::ZeroCopySend;
 
 use crate::frame::FrameHeader;
 use crate::{
-    text, ProtocolError, CAMERA_NAME_BYTES, MAX_HYPOTHESES_PER_OBJECT, MAX_OBJECTS_PER_REQUEST,
-    MESSAGE_BYTES, PROTOCOL_VERSION,
+    text, ProtocolError, CAMERA_NAME_BYTES, MAX_HINTS_PER_REQUEST, MAX_HYPOTHESES_PER_OBJECT,
+    MAX_OBJECTS_PER_REQUEST, MESSAGE_BYTES, PROTOCOL_VERSION,
 };
 
 /// Bits of [`DetectRequestHeader::flags`].
@@ -29,6 +29,8 @@ pub mod checks {
     pub const CONSISTENT: u32 = 4;
     /// Passed the silhouette (occlusion/boundary) filter.
     pub const SILHOUETTE: u32 = 8;
+    /// Refined from one of the request's hints ([`super::PoseHint`]), not found by voting.
+    pub const HINT: u32 = 16;
 }
 
 /// The user header of a detect request. The payload is a `[u16]` slice: empty when the request
@@ -70,6 +72,15 @@ pub struct DetectRequestHeader {
     pub object_ids: [u32; MAX_OBJECTS_PER_REQUEST],
     /// What the hypotheses must satisfy, and their order.
     pub requirements: Requirements,
+    /// Number of valid entries of `hints`, 0 to [`MAX_HINTS_PER_REQUEST`].
+    pub hint_count: u32,
+    /// Zero.
+    pub reserved: u32,
+    /// Poses the requested objects are expected near (only the first `hint_count` count). An
+    /// object with hints is first looked for from them alone: ICP from each, re-scoring, the
+    /// filters and the `requirements`, as a voted pose goes through. Only an object with a hint
+    /// that fails (or with none) goes through voting.
+    pub hints: [PoseHint; MAX_HINTS_PER_REQUEST],
 }
 
 /// Values of [`Requirements::order`].
@@ -128,6 +139,71 @@ impl Default for PoseRestriction {
             camera_direction: [0.0, 0.0, -1.0],
             max_angle_deg: 180.0,
         }
+    }
+}
+
+/// A pose one requested object is expected near (the previous cycle's answer, or the cell's own
+/// bookkeeping), an element of [`DetectRequestHeader::hints`]. Maps model coordinates to camera
+/// coordinates as [`PoseHypothesis`] does: `p_cam = R p_model + t`.
+#[derive(Debug, Clone, Copy, PartialEq, Default, ZeroCopySend)]
+#[type_name("ppfd::PoseHint")]
+#[repr(C)]
+pub struct PoseHint {
+    /// Object id of the model; one of the request's objects.
+    pub object_id: u32,
+    /// Rotation `R`, row-major (`r[3 * row + col]`), unitless: orthonormal with determinant 1
+    /// (to 1e-2; the nearest rotation is used).
+    pub rotation: [f32; 9],
+    /// Translation `t`, millimetres.
+    pub translation_mm: [f32; 3],
+}
+
+impl From<&PoseHypothesis> for PoseHint {
+    /// A previous answer as a hint for the next frame.
+    fn from(h: &PoseHypothesis) -> Self {
+        PoseHint {
+            object_id: h.object_id,
+            rotation: h.rotation,
+            translation_mm: h.translation_mm,
+        }
+    }
+}
+
+/// How far a hint's rotation may be from orthonormal, per entry of `R Rᵀ − I` and for the
+/// determinant: what a matrix written with a few decimals keeps (the ground truth of BOP's LM-O
+/// frame is off by up to 2e-3). The daemon uses the nearest rotation; a scaled matrix, a shear
+/// or a reflection is off by far more.
+const ROTATION_TOLERANCE: f32 = 1e-2;
+
+impl PoseHint {
+    /// Why this is not a pose, if it is not: a value that is not finite, or a matrix that is
+    /// not a rotation (a reflection, a scaled or sheared matrix).
+    pub fn problem(&self) -> Option<String> {
+        let r = &self.rotation;
+        let t = &self.translation_mm;
+        if !r.iter().chain(t).all(|v| v.is_finite()) {
+            return Some(format!(
+                "is not a pose: rotation {r:?} and translation {t:?} mm must be finite"
+            ));
+        }
+        let mut worst = 0f32;
+        for i in 0..3 {
+            for j in 0..3 {
+                let dot: f32 = (0..3).map(|k| r[3 * i + k] * r[3 * j + k]).sum();
+                let expected = if i == j { 1.0 } else { 0.0 };
+                worst = worst.max((dot - expected).abs());
+            }
+        }
+        let det = r[0] * (r[4] * r[8] - r[5] * r[7]) - r[1] * (r[3] * r[8] - r[5] * r[6])
+            + r[2] * (r[3] * r[7] - r[4] * r[6]);
+        if worst > ROTATION_TOLERANCE || (det - 1.0).abs() > ROTATION_TOLERANCE {
+            return Some(format!(
+                "has a rotation matrix that is not a rotation: R Rᵀ is off the identity by up \
+                 to {worst:.2e} and det R is {det:.4} (a rotation has 0 and 1, to \
+                 {ROTATION_TOLERANCE:e})"
+            ));
+        }
+        None
     }
 }
 
@@ -235,6 +311,9 @@ impl Default for DetectRequestHeader {
             hypotheses_per_object: 1,
             object_ids: [0; MAX_OBJECTS_PER_REQUEST],
             requirements: Requirements::default(),
+            hint_count: 0,
+            reserved: 0,
+            hints: [PoseHint::default(); MAX_HINTS_PER_REQUEST],
         }
     }
 }
@@ -263,9 +342,46 @@ impl DetectRequestHeader {
         Ok(())
     }
 
+    /// The valid hints.
+    pub fn hints(&self) -> &[PoseHint] {
+        &self.hints[..(self.hint_count as usize).min(MAX_HINTS_PER_REQUEST)]
+    }
+
+    /// Sets the hints (after the objects: each must be for one of them), refusing too many and
+    /// any that is not a pose.
+    pub fn set_hints(&mut self, hints: &[PoseHint]) -> Result<(), ProtocolError> {
+        if hints.len() > MAX_HINTS_PER_REQUEST {
+            return Err(ProtocolError::TooManyHints(hints.len()));
+        }
+        self.check_hints(hints)?;
+        self.hints = [PoseHint::default(); MAX_HINTS_PER_REQUEST];
+        self.hints[..hints.len()].copy_from_slice(hints);
+        self.hint_count = hints.len() as u32;
+        Ok(())
+    }
+
+    fn check_hints(&self, hints: &[PoseHint]) -> Result<(), ProtocolError> {
+        for (index, h) in hints.iter().enumerate() {
+            if !self.objects().contains(&h.object_id) {
+                return Err(ProtocolError::HintForUnrequestedObject {
+                    index,
+                    object_id: h.object_id,
+                });
+            }
+            if let Some(reason) = h.problem() {
+                return Err(ProtocolError::InvalidHint {
+                    index,
+                    object_id: h.object_id,
+                    reason,
+                });
+            }
+        }
+        Ok(())
+    }
+
     /// Checks everything that can be checked without the daemon's state: version, flags, the
-    /// object list, the hypothesis count, the camera name or the inline frame against the
-    /// payload length. Returns where the frame comes from.
+    /// object list, the hypothesis count, the hints, the camera name or the inline frame
+    /// against the payload length. Returns where the frame comes from.
     pub fn validate(&self, payload_len: usize) -> Result<FrameSource, ProtocolError> {
         crate::check_version(self.protocol_version)?;
         if self.flags & !flags::KNOWN != 0 {
@@ -282,6 +398,10 @@ impl DetectRequestHeader {
             ));
         }
         self.requirements.validate()?;
+        if self.hint_count as usize > MAX_HINTS_PER_REQUEST {
+            return Err(ProtocolError::TooManyHints(self.hint_count as usize));
+        }
+        self.check_hints(self.hints())?;
         if self.flags & flags::INLINE_FRAME != 0 {
             self.inline_frame.validate(payload_len)?;
             Ok(FrameSource::Inline)
@@ -548,11 +668,15 @@ mod tests {
 
     #[test]
     fn layouts_are_fixed() {
-        assert_eq!(size_of::<DetectRequestHeader>(), 360);
+        assert_eq!(size_of::<DetectRequestHeader>(), 3696);
         assert_eq!(offset_of!(DetectRequestHeader, requirements), 304);
         assert_eq!(size_of::<Requirements>(), 56);
+        assert_eq!(offset_of!(DetectRequestHeader, hint_count), 360);
         assert_eq!(offset_of!(DetectRequestHeader, protocol_version), 0);
         assert_eq!(offset_of!(DetectRequestHeader, inline_frame), 80);
+        assert_eq!(offset_of!(DetectRequestHeader, hints), 368);
+        assert_eq!(size_of::<PoseHint>(), 52);
+        assert_eq!(align_of::<PoseHint>(), 4);
         assert_eq!(size_of::<PoseHypothesis>(), 68);
         assert_eq!(align_of::<PoseHypothesis>(), 4);
         assert_eq!(size_of::<LatencyBreakdown>(), 88);
@@ -703,6 +827,86 @@ mod tests {
         assert!(r.set_objects(&[1; MAX_OBJECTS_PER_REQUEST + 1]).is_err());
         r.set_objects(&[7, 8, 9]).unwrap();
         assert_eq!(r.objects(), &[7, 8, 9]);
+    }
+
+    fn hint(object_id: u32) -> PoseHint {
+        PoseHint {
+            object_id,
+            rotation: [0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+            translation_mm: [10.0, -20.0, 800.0],
+        }
+    }
+
+    /// Hints for requested objects pass; too many, one for an object not asked for, one with a
+    /// NaN, a scaled matrix or a reflection are refused, each naming the hint and what is
+    /// wrong; `validate` refuses what `set_hints` refuses.
+    #[test]
+    fn hints_are_poses_of_requested_objects_within_the_limit() {
+        let mut r = camera_request(&[1, 5]);
+        r.set_hints(&[hint(1), hint(5), hint(5)]).unwrap();
+        assert_eq!(r.hints().len(), 3);
+        assert!(r.validate(0).is_ok());
+        let from_answer = PoseHint::from(&PoseHypothesis {
+            object_id: 5,
+            rotation: hint(5).rotation,
+            translation_mm: hint(5).translation_mm,
+            ..Default::default()
+        });
+        assert_eq!(from_answer, hint(5));
+
+        let e = r
+            .set_hints(&[hint(1); MAX_HINTS_PER_REQUEST + 1])
+            .unwrap_err();
+        assert_eq!(e, ProtocolError::TooManyHints(MAX_HINTS_PER_REQUEST + 1));
+        assert!(
+            e.to_string().contains(&MAX_HINTS_PER_REQUEST.to_string()),
+            "{e}"
+        );
+        let mut over = r;
+        over.hint_count = MAX_HINTS_PER_REQUEST as u32 + 1;
+        assert!(matches!(
+            over.validate(0),
+            Err(ProtocolError::TooManyHints(_))
+        ));
+
+        let e = r.set_hints(&[hint(1), hint(7)]).unwrap_err();
+        assert_eq!(e.status(), Status::InvalidRequest);
+        assert_eq!(
+            e.to_string(),
+            "hint 1 is for object 7, which the request does not ask for"
+        );
+
+        let mut nan = hint(1);
+        nan.translation_mm[2] = f32::NAN;
+        let e = r.set_hints(&[nan]).unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("hint 0 for object 1 is not a pose"),
+            "{e}"
+        );
+
+        let mut scaled = hint(5);
+        scaled.rotation.iter_mut().for_each(|v| *v *= 1.1);
+        let mut mirrored = hint(5);
+        mirrored.rotation[8] = -1.0;
+        for bad in [scaled, mirrored] {
+            let e = r.set_hints(&[hint(1), bad]).unwrap_err();
+            assert!(
+                e.to_string().starts_with(
+                    "hint 1 for object 5 has a rotation matrix that is not a rotation"
+                ),
+                "{e}"
+            );
+            let mut sent = r;
+            sent.hints[1] = bad;
+            sent.hint_count = 2;
+            assert_eq!(sent.validate(0).unwrap_err(), e);
+        }
+        // Rounded to three decimals, as annotations are written, a rotation is still one.
+        let mut rounded = hint(1);
+        let (s, c) = (0.5f32.sin(), 0.5f32.cos());
+        rounded.rotation = [c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0].map(|v| (v * 1e3).round() / 1e3);
+        assert!(rounded.problem().is_none());
     }
 
     #[test]

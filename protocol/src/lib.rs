@@ -48,6 +48,11 @@ pub const MODEL_NAME_BYTES: usize = 48;
 pub const MAX_OBJECTS_PER_REQUEST: usize = 32;
 /// Hypotheses per object one detect request may ask for.
 pub const MAX_HYPOTHESES_PER_OBJECT: u32 = 16;
+/// Prior poses ([`detect::PoseHint`]) one detect request may carry, over all its objects: as
+/// many as two full answers of [`MAX_OBJECTS_PER_REQUEST`] objects, or four instances each of
+/// 16 objects. The request header holds them in place (52 bytes each); raising it means a
+/// new protocol version.
+pub const MAX_HINTS_PER_REQUEST: usize = 64;
 /// The largest frame a daemon detects in by default, pixels: 4096 × 4096, 32 MiB of depth.
 /// A detection takes about 95 bytes per pixel, so this bounds one at about 1.6 GB; depth
 /// sensors of picking cells give 0.3 to 12 megapixels. The daemon's `max_frame_pixels` sets
@@ -111,6 +116,16 @@ pub enum ProtocolError {
     UnknownFlags(u32),
     /// A request naming a camera carried a payload.
     UnexpectedPayload(usize),
+    /// More hints than [`MAX_HINTS_PER_REQUEST`].
+    TooManyHints(usize),
+    /// A hint for an object the request does not ask for.
+    HintForUnrequestedObject { index: usize, object_id: u32 },
+    /// A hint that is not a pose: a value not finite, or a matrix that is not a rotation.
+    InvalidHint {
+        index: usize,
+        object_id: u32,
+        reason: String,
+    },
     /// A value of [`detect::Requirements`] out of its range.
     Requirement {
         field: &'static str,
@@ -213,6 +228,20 @@ impl std::fmt::Display for ProtocolError {
                 "a request naming a camera must carry no frame, got {n} depth values \
                  (set the inline-frame flag to send a frame)"
             ),
+            ProtocolError::TooManyHints(n) => write!(
+                f,
+                "the request carries {n} hints, at most {MAX_HINTS_PER_REQUEST} allowed (a fixed \
+                 field of the request: send the hints of fewer objects, or one per instance)"
+            ),
+            ProtocolError::HintForUnrequestedObject { index, object_id } => write!(
+                f,
+                "hint {index} is for object {object_id}, which the request does not ask for"
+            ),
+            ProtocolError::InvalidHint {
+                index,
+                object_id,
+                reason,
+            } => write!(f, "hint {index} for object {object_id} {reason}"),
         }
     }
 }
@@ -250,6 +279,7 @@ mod tests {
                 "ppfd::DetectResponseHeader"
             );
             assert_eq!(detect::PoseHypothesis::type_name(), "ppfd::PoseHypothesis");
+            assert_eq!(detect::PoseHint::type_name(), "ppfd::PoseHint");
             assert_eq!(control::ControlRequest::type_name(), "ppfd::ControlRequest");
             assert_eq!(
                 control::ControlResponseHeader::type_name(),

@@ -9,7 +9,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::errors::{protocol_error, to_py};
-use crate::requirements::RequirementArgs;
+use crate::requirements::{hints as hint_list, RequirementArgs};
 use crate::thread::ThreadBound;
 
 /// A duration from seconds given in Python; `what` names the argument in the error.
@@ -26,6 +26,13 @@ pub fn seconds(py: Python<'_>, what: &str, value: f64) -> PyResult<Duration> {
 #[pyclass(module = "ppfd", frozen)]
 pub struct Detection {
     hypothesis: PoseHypothesis,
+}
+
+impl Detection {
+    /// This pose as a hint for a later frame.
+    pub fn hint(&self) -> ppfd_client::PoseHint {
+        ppfd_client::PoseHint::from(&self.hypothesis)
+    }
 }
 
 #[pymethods]
@@ -109,6 +116,9 @@ impl Checks {
     /// Passed the silhouette filter.
     #[classattr]
     const SILHOUETTE: u32 = checks::SILHOUETTE;
+    /// Came from one of the request's hints, not from voting.
+    #[classattr]
+    const HINT: u32 = checks::HINT;
 }
 
 /// The answer to a detect request: a sequence of `Detection`, grouped by object in request
@@ -320,10 +330,15 @@ impl Client {
     /// `(0, 0, -1)`, towards the camera) (None: any pose); `order`, `"score"` (best first) or
     /// `"distance"` (nearest first). A value out of its range raises `ProtocolError` before
     /// the request is sent.
+    ///
+    /// `hints`: poses already known (None: none), each a `Detection` of an earlier answer or a
+    /// pair `(object_id, pose)` with a 4×4 pose; at most 64, each of one of `object_ids`. A
+    /// hinted object is first refined from its hints and goes through voting only when none
+    /// passes; `Detection.checks` has `Checks.HINT` on a pose that came from a hint.
     #[pyo3(signature = (
         camera, object_ids, hypotheses=1, timeout=None, *, max_frame_age=None, min_score=0.0,
         instance_distance=None, roi=None, max_tilt_deg=None, tilt_axis=None,
-        tilt_direction=None, order="score"
+        tilt_direction=None, order="score", hints=None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn detect(
@@ -341,6 +356,7 @@ impl Client {
         tilt_axis: Option<&Bound<'_, PyAny>>,
         tilt_direction: Option<&Bound<'_, PyAny>>,
         order: &str,
+        hints: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Detections> {
         let requirements = RequirementArgs {
             min_score,
@@ -362,6 +378,10 @@ impl Client {
                 .map(|a| seconds(py, "max_frame_age", a))
                 .transpose()?,
             requirements,
+            hints: match hints {
+                Some(h) => hint_list(py, h)?,
+                None => Vec::new(),
+            },
         };
         let client = &self.inner;
         let found = py

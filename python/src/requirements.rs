@@ -1,13 +1,14 @@
 //! The keyword arguments of `Client.detect` that say what the poses must satisfy, as the
 //! protocol's `Requirements`: minimum score, instance distance, region of interest, pose
-//! restriction and order. Here they only change form (tuples, names); their ranges are checked
+//! restriction and order; and the poses already known, as the protocol's hints. Here they only change form (tuples, names); their ranges are checked
 //! by `Requirements::validate` in the client library, before the request is sent, so Python
 //! gets the Rust message.
 
-use ppfd_client::{order, PoseRestriction, RegionOfInterest, Requirements};
+use ppfd_client::{order, PoseHint, PoseRestriction, RegionOfInterest, Requirements};
 use pyo3::conversion::FromPyObjectOwned;
 use pyo3::prelude::*;
 
+use crate::client::Detection;
 use crate::errors::protocol_error;
 
 /// The requirement keywords as Python gave them; `None` leaves the protocol's default.
@@ -106,4 +107,62 @@ fn numbers<'py, T: FromPyObjectOwned<'py>, const N: usize>(
             .map_or_else(|_| "an unprintable value".into(), |r| r.to_string());
         protocol_error(py, format!("{name} must be {form}, got {got}"))
     })
+}
+
+/// The `hints` keyword of `Client.detect` as the protocol's hints: each item is a `Detection`
+/// (a previous answer) or a pair `(object_id, pose)` with `pose` a 4×4 (or 3×4) array-like
+/// `[[R, t], [0, 0, 0, 1]]` in millimetres. A value of the wrong form raises `ProtocolError`
+/// naming the item; whether the pose is a rotation, and its object one of the request's, is the
+/// client library's to check.
+pub fn hints<'py>(py: Python<'py>, value: &Bound<'py, PyAny>) -> PyResult<Vec<PoseHint>> {
+    let mut out = Vec::new();
+    for (index, item) in value.try_iter()?.enumerate() {
+        let item = item?;
+        if let Ok(detection) = item.cast::<Detection>() {
+            out.push(detection.get().hint());
+            continue;
+        }
+        let wrong = |what: &str| {
+            let got = item
+                .repr()
+                .map_or_else(|_| "an unprintable value".into(), |r| r.to_string());
+            protocol_error(
+                py,
+                format!(
+                    "hints[{index}] must be a Detection or (object_id, 4×4 pose){what}; got {got}"
+                ),
+            )
+        };
+        let (object_id, pose) = item
+            .extract::<(u32, Bound<'py, PyAny>)>()
+            .map_err(|_| wrong(""))?;
+        // A numpy array gives its rows as lists; a nested sequence is taken as it is.
+        let rows = match pose.hasattr("tolist")? {
+            true => pose.call_method0("tolist")?,
+            false => pose,
+        };
+        let rows: Vec<Vec<f64>> = rows
+            .extract()
+            .map_err(|_| wrong(": the pose is not a table of numbers"))?;
+        if !(rows.len() == 3 || rows.len() == 4) || rows.iter().any(|r| r.len() != 4) {
+            return Err(wrong(": the pose must have 4 columns and 3 or 4 rows"));
+        }
+        if rows.len() == 4 && rows[3] != [0.0, 0.0, 0.0, 1.0] {
+            return Err(wrong(": the pose's last row must be (0, 0, 0, 1)"));
+        }
+        let mut rotation = [0f32; 9];
+        let mut translation_mm = [0f32; 3];
+        for (r, row) in rows.iter().take(3).enumerate() {
+            for c in 0..3 {
+                rotation[3 * r + c] = row[c] as f32;
+            }
+            translation_mm[r] = row[3] as f32;
+        }
+        out.push(PoseHint {
+            object_id,
+            rotation,
+            translation_mm,
+        });
+    }
+    Ok(out)
 }

@@ -277,3 +277,47 @@ def test_nearest_first_above_a_minimum_score(client, camera, scene):
                 assert distance(first, centre) <= distance(second, centre) + 1e-3, object_id
                 ordered += 1
     assert ordered > 0, "no two poses of one object to order"
+
+
+def test_hints_from_an_answer_or_the_truth_come_back_refined(client, camera, scene):
+    voted = detect_when_subscribed(client, camera, scene.depth, scene.object_ids)
+    assert not any(d.checks & ppfd.Checks.HINT for d in voted)
+
+    # The previous answer as hints: every part comes back from its hint, where it was.
+    again = detect_when_subscribed(client, camera, scene.depth, scene.object_ids, hints=voted)
+    for object_id in scene.object_ids:
+        before, after = voted.best(object_id), again.best(object_id)
+        assert after.checks & ppfd.Checks.HINT, object_id
+        assert np.linalg.norm(after.pose[:3, 3] - before.pose[:3, 3]) < 5.0, object_id
+        assert rotation_deg(after.pose, before.pose) < 3.0, object_id
+
+    # The truth as (object id, 4×4 array) pairs, one of them moved far away: the far hint
+    # fails and its part is voted for, at its true pose all the same.
+    far_id, far_truth = scene.truth[0]
+    moved = far_truth.copy()
+    moved[:3, 3] += [400.0, 0.0, 0.0]
+    hints = [(far_id, moved)] + [(i, t) for i, t in scene.truth[1:]]
+    found = detect_when_subscribed(client, camera, scene.depth, scene.object_ids, hints=hints)
+    diameters = {m["object_id"]: m["diameter_mm"] for m in client.models()}
+    for object_id, truth in scene.truth:
+        best = found.best(object_id)
+        assert bool(best.checks & ppfd.Checks.HINT) == (object_id != far_id), object_id
+        dt = np.linalg.norm(best.pose[:3, 3] - truth[:3, 3])
+        assert dt < MAX_TRANSLATION_OF_DIAMETER * diameters[object_id], (object_id, dt)
+        assert rotation_deg(best.pose, truth) < MAX_ROTATION_DEG, object_id
+    assert found.latency["voting_ns"] > 0
+
+
+def test_malformed_hints_are_refused_before_sending(client, camera, scene):
+    object_id, truth = scene.truth[0]
+    sheared = truth.copy()
+    sheared[0, 1] += 0.5
+    with pytest.raises(ppfd.ProtocolError, match="rotation"):
+        client.detect("parts", [object_id], hints=[(object_id, sheared)])
+    with pytest.raises(ppfd.ProtocolError, match=r"hints\[0\]"):
+        client.detect("parts", [object_id], hints=[(object_id, truth[:2])])
+    with pytest.raises(ppfd.ProtocolError, match=r"hints\[1\]"):
+        client.detect("parts", [object_id], hints=[(object_id, truth), "a pose"])
+    other = next(i for i in scene.object_ids if i != object_id)
+    with pytest.raises(ppfd.ProtocolError, match=str(other)):
+        client.detect("parts", [object_id], hints=[(other, truth)])

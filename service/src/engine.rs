@@ -9,7 +9,9 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use ppfd_protocol::control::ModelInfo;
-use ppfd_protocol::detect::{DetectCounts, LatencyBreakdown, PoseHypothesis, Requirements, Status};
+use ppfd_protocol::detect::{
+    DetectCounts, LatencyBreakdown, PoseHint, PoseHypothesis, Requirements, Status,
+};
 use ppfd_protocol::frame::Intrinsics;
 
 /// A depth frame as the engine sees it: borrowed straight from shared memory.
@@ -60,6 +62,8 @@ pub struct EngineOptions {
     /// Set by the daemon when the request's client is gone: stop early (the answer would go
     /// nowhere) and free the worker for the requests behind it.
     pub cancel: Arc<AtomicBool>,
+    /// The request's hints, checked against the contract (each a pose of a requested object).
+    pub hints: Vec<PoseHint>,
 }
 
 /// What one detection found, in wire types.

@@ -3,14 +3,15 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use ppfd_models::detect::detector::{Detector, RunOptions};
+use ppfd_models::detect::detector::{Detector, Hint, RunOptions};
 use ppfd_models::detect::requirements::{Order, PixelRegion, PoseRestriction, Requirements};
 use ppfd_models::geometry::camera::{DepthFrame, Intrinsics};
 use ppfd_models::model::store;
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_protocol::control::ModelInfo;
 use ppfd_protocol::detect::{
-    order, DetectCounts, LatencyBreakdown, PoseHypothesis, Requirements as WireRequirements, Status,
+    order, DetectCounts, LatencyBreakdown, PoseHint, PoseHypothesis,
+    Requirements as WireRequirements, Status,
 };
 use ppfd_protocol::text;
 
@@ -96,6 +97,20 @@ fn model_error(e: ppfd_models::Error) -> EngineError {
         status,
         message: e.to_string(),
         value,
+    }
+}
+
+/// A wire hint as the detector's: its rotation matrix (checked orthonormal by the contract) as
+/// the nearest unit quaternion.
+fn hint_of(h: &PoseHint) -> Hint {
+    let r = nalgebra::Matrix3::from_row_slice(&h.rotation);
+    let [x, y, z] = h.translation_mm;
+    Hint {
+        object_id: h.object_id,
+        pose: ppfd_models::Pose::from_parts(
+            nalgebra::Translation3::new(x, y, z),
+            nalgebra::UnitQuaternion::from_matrix(&r),
+        ),
     }
 }
 
@@ -276,6 +291,7 @@ impl DetectionEngine for PpfEngine {
             requirements: detector_requirements(&options.requirements)?,
             deadline: options.deadline,
             cancel: Some(options.cancel.clone()),
+            hints: options.hints.iter().map(hint_of).collect(),
         };
         let found = self
             .detector

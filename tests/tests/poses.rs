@@ -257,6 +257,159 @@ fn generated_scene_poses_through_the_whole_path_match_the_ground_truth() {
     generated_scene_through_the_whole_path("gen_poses", SEED, true);
 }
 
+/// Hints through the daemon: of the generated scene's parts 1, 2 and 3, the first two hinted at
+/// their true poses come back from their hints (check bit `HINT`) without voting for them, and
+/// part 3, hinted 0.8 of its diameter off, fails its hint and is found by voting. Hints below
+/// the request's minimum score fail. A hint with a NaN, or one for an object not asked for, is
+/// refused with what is wrong, and the daemon serves on.
+#[test]
+fn hinted_parts_come_back_from_their_hints_and_a_wrong_hint_from_voting() {
+    use ppfd_client::{checks, PoseHint};
+    let test = "gen_hints";
+    let scene = parts_scene(SEED, true);
+    let prefix = Prefix::new(test);
+    let work = WorkDir::new(test);
+    let diameters = write_part_models(&work.join("models"));
+    let _daemon = start_daemon(&prefix, &work.join("models"), &work.join("cache"), &[]);
+    let mut cam = parts_camera(&prefix, SEED, true);
+    cam.wait_line("camera ready", STARTUP);
+    let client = ppfd_client::Client::connect_with(&ppfd_client::ClientOptions {
+        prefix: Some(prefix.0.clone()),
+        ..Default::default()
+    })
+    .unwrap();
+    let options = ppfd_client::DetectOptions {
+        timeout: DETECTION,
+        ..Default::default()
+    };
+    let truth = |id: u32| scene.ground_truth.iter().find(|g| g.0 == id).unwrap().1;
+    let hint = |id: u32, pose: Pose| {
+        let r = pose.rotation.to_rotation_matrix();
+        let m = r.matrix();
+        let t = pose.translation.vector;
+        PoseHint {
+            object_id: id,
+            rotation: [
+                m[(0, 0)],
+                m[(0, 1)],
+                m[(0, 2)],
+                m[(1, 0)],
+                m[(1, 1)],
+                m[(1, 2)],
+                m[(2, 0)],
+                m[(2, 1)],
+                m[(2, 2)],
+            ],
+            translation_mm: [t.x, t.y, t.z],
+        }
+    };
+    let d3 = diameters[2];
+    let mut off = truth(3);
+    off.translation.vector.x += 0.8 * d3;
+    let hinted = ppfd_client::DetectOptions {
+        hints: vec![hint(1, truth(1)), hint(2, truth(2)), hint(3, off)],
+        ..options.clone()
+    };
+    let found = loop {
+        match client.detect("parts", &[1, 2, 3], &hinted) {
+            Err(ppfd_client::Error::Refused {
+                status: ppfd_client::Status::NoFrame | ppfd_client::Status::UnknownCamera,
+                ..
+            }) => std::thread::sleep(Duration::from_millis(50)),
+            answer => break answer.expect("detections"),
+        }
+    };
+    let mut report = String::new();
+    for (id, d) in [(1, diameters[0]), (2, diameters[1]), (3, d3)] {
+        let best = found
+            .best(id)
+            .unwrap_or_else(|| panic!("no pose of part {id}"));
+        let (dt, dr) = errors(&ppfd_client::isometry(best), &truth(id));
+        report += &format!(
+            "part {id}: checks {:#b}, {dt:.1} mm, {dr:.1} deg\n",
+            best.checks
+        );
+        let from_hint = best.checks & checks::HINT != 0;
+        assert_eq!(from_hint, id != 3, "{report}");
+        assert!(
+            dt <= MAX_TRANSLATION_OF_DIAMETER * d && dr <= MAX_ROTATION_DEG,
+            "{report}"
+        );
+    }
+    // Only part 3 voted: fewer reference points than the three parts voting.
+    let voted = client.detect("parts", &[1, 2, 3], &options).unwrap();
+    assert!(
+        0 < found.counts.reference_points
+            && found.counts.reference_points < voted.counts.reference_points,
+        "{report}{:?} {:?}",
+        found.counts,
+        voted.counts
+    );
+    // The request's minimum score holds for hints too: above what parts 1 and 2 scored from
+    // their hints, their hints fail, and voting returns nothing below it either.
+    let best_hinted = [1, 2]
+        .map(|id| found.best(id).unwrap().score)
+        .into_iter()
+        .fold(0f32, f32::max);
+    let min_score = (best_hinted + 0.01).min(1.0);
+    let demanding = ppfd_client::DetectOptions {
+        requirements: ppfd_client::Requirements {
+            min_score,
+            ..Default::default()
+        },
+        hints: hinted.hints[..2].to_vec(),
+        ..options.clone()
+    };
+    let strict = client.detect("parts", &[1, 2], &demanding).unwrap();
+    report += &format!(
+        "at least {min_score}: {:?}\n",
+        strict
+            .hypotheses
+            .iter()
+            .map(|h| (h.object_id, h.checks, h.score))
+            .collect::<Vec<_>>()
+    );
+    assert!(
+        strict
+            .hypotheses
+            .iter()
+            .all(|h| h.checks & checks::HINT == 0 && h.score >= min_score),
+        "{report}"
+    );
+    assert!(strict.counts.reference_points > 0, "{report}");
+    eprintln!("{report}");
+
+    let refusal = |header: &ppfd_client::protocol::detect::DetectRequestHeader| match client
+        .send_raw(header, &[], DETECTION)
+    {
+        Err(ppfd_client::Error::Refused {
+            status, message, ..
+        }) => (status, message),
+        other => panic!("expected a refusal, got {other:?}"),
+    };
+    let mut header = ppfd_client::protocol::detect::DetectRequestHeader {
+        camera_name: ppfd_client::protocol::text::encode_name("camera", "parts").unwrap(),
+        ..Default::default()
+    };
+    header.set_objects(&[1, 2]).unwrap();
+    header.hints[0] = hint(1, truth(1));
+    header.hints[0].translation_mm[0] = f32::NAN;
+    header.hint_count = 1;
+    let (status, message) = refusal(&header);
+    assert_eq!(status, ppfd_client::Status::InvalidRequest);
+    assert!(
+        message.starts_with("hint 0 for object 1 is not a pose"),
+        "{message}"
+    );
+    header.hints[0] = hint(4, truth(4));
+    let (_, message) = refusal(&header);
+    assert_eq!(
+        message,
+        "hint 0 is for object 4, which the request does not ask for"
+    );
+    assert!(client.detect("parts", &[1], &options).is_ok());
+}
+
 #[test]
 fn lmo_object_built_from_its_mesh_by_the_daemon_is_found_through_the_whole_path() {
     let Some(root) = ppfd_bop::shared_test_data("synth-lmo-dev") else {

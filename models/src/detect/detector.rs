@@ -4,12 +4,16 @@
 //! frame ─► scene points (once) ─► subsampled cloud + kd-tree (per diameter group)
 //!        ─► per object: voting ─► pose clustering ─► re-scoring ─► ICP ─► filters ─► hypotheses
 //! ```
+//!
+//! With hints ([`RunOptions::hints`]), each hinted object first goes through ICP from its hints,
+//! re-scoring and the filters alone, on a scene whose normals are fitted only where the hints
+//! project; the full preparation and voting run only for the objects left without an answer.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
-use crate::geometry::camera::DepthFrame;
+use crate::geometry::camera::{DepthFrame, Intrinsics};
 use rayon::prelude::*;
 
 use crate::detect::clustering::{cluster_poses, ClusteringParams};
@@ -18,14 +22,16 @@ use crate::detect::icp::{refine, IcpParams};
 use crate::detect::plane::{PlaneParams, SupportingPlane};
 use crate::detect::requirements::{Order, Requirements};
 use crate::detect::rescoring::{prescreen, score_poses, Outline, RescoringParams};
-use crate::detect::scene::{prepare, PreparedScene, SceneImage, SceneParams};
+use crate::detect::scene::{prepare, prepare_within, PreparedScene, SceneImage, SceneParams};
 use crate::detect::silhouette::{silhouette_fraction, EdgeMap};
 use crate::detect::voting::{vote_from, Selection, VotingParams};
-use crate::geometry::render::{bounding_sphere, Renderer};
+use crate::geometry::mesh::Mesh;
+use crate::geometry::render::{bounding_sphere, Renderer, Roi};
 use crate::model::subsample::{OrientedPoints, SubsampleParams};
 use crate::model::symmetry::Symmetry;
 use crate::model::ObjectModel;
 use crate::{Error, Pose, Result};
+use nalgebra::Point3;
 
 /// Parameters of the whole detection pipeline, one struct per stage; [`DetectParams::new`] (and
 /// `default()`) gives the paper's settings with this project's measured departures.
@@ -129,6 +135,15 @@ pub struct RunOptions {
     /// detection nobody waits for any more. Like the deadline, it is looked at between stages:
     /// before each object, and between an object's voting and re-scoring.
     pub cancel: Option<Arc<AtomicBool>>,
+    /// Poses the requested objects are expected near, any number per object (one per
+    /// instance). An object with hints is first looked for from them alone: each is refined by
+    /// ICP, re-scored and filtered as a voted pose is, and kept when it passes both filters and
+    /// the [`requirements`](RunOptions::requirements) (minimum score, pose restriction, some
+    /// of its surface in the region of interest). Only an object with a hint that is not kept
+    /// (or with none) goes through voting, and then its kept hints lead its voted hypotheses
+    /// (in score order; in distance order all are sorted together). Two hints of one instance
+    /// count as one kept and one not.
+    pub hints: Vec<Hint>,
 }
 
 impl Default for RunOptions {
@@ -138,8 +153,18 @@ impl Default for RunOptions {
             requirements: Requirements::default(),
             deadline: None,
             cancel: None,
+            hints: Vec::new(),
         }
     }
+}
+
+/// A pose one requested object is expected near: the previous cycle's answer, or the cell's own
+/// bookkeeping (see [`RunOptions::hints`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hint {
+    pub object_id: u32,
+    /// Model to camera, mm.
+    pub pose: Pose,
 }
 
 /// Which checks a hypothesis went through and passed (bit set).
@@ -155,6 +180,8 @@ impl Checks {
     pub const CONSISTENT: u32 = 4;
     /// Passed the silhouette vs. scene edges filter.
     pub const SILHOUETTE: u32 = 8;
+    /// Refined from one of [`RunOptions::hints`], not found by voting.
+    pub const HINT: u32 = 16;
 
     pub fn has(&self, bit: u32) -> bool {
         self.0 & bit != 0
@@ -247,6 +274,45 @@ pub struct Detections {
     pub per_object_counts: Vec<Counts>,
 }
 
+/// Whether `pose` puts the model's centre (`centre`, model coordinates) within `nms_mm` of where
+/// a hypothesis of `list` puts it: the same instance.
+fn overlaps(list: &[Hypothesis], pose: &Pose, centre: &Point3<f32>, nms_mm: f32) -> bool {
+    let at = pose * centre;
+    list.iter().any(|h| (h.pose * centre - at).norm() < nms_mm)
+}
+
+/// Refuses hints that are not poses of requested objects.
+fn check_hints(models: &[&ObjectModel], opts: &RunOptions) -> Result<()> {
+    for (i, h) in opts.hints.iter().enumerate() {
+        let id = h.object_id;
+        if !models.iter().any(|m| m.object_id() == id) {
+            let ids: Vec<u32> = models.iter().map(|m| m.object_id()).collect();
+            return Err(Error::InvalidParameter(format!(
+                "hint {i} is for object {id}, which the detection does not look for (objects \
+                 {ids:?})"
+            )));
+        }
+        let t = h.pose.translation.vector;
+        let q = h.pose.rotation.quaternion().coords;
+        if !t.iter().chain(q.iter()).all(|c| c.is_finite()) {
+            return Err(Error::InvalidParameter(format!(
+                "hint {i} for object {id} is not a pose: translation {:?} mm, rotation \
+                 quaternion {:?} (every value must be finite)",
+                t.as_slice(),
+                q.as_slice()
+            )));
+        }
+        if (q.norm() - 1.0).abs() > 1e-3 {
+            return Err(Error::InvalidParameter(format!(
+                "hint {i} for object {id} is not a rotation: its quaternion has norm {} \
+                 (a rotation's is 1)",
+                q.norm()
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// The clusters' poses, each the canonical one of its equivalents (METHOD.md §1.8), so that the
 /// pose restriction and everything after judge the pose that is reported.
 fn clusters_as_poses(
@@ -304,7 +370,7 @@ impl Detector {
         &self.params
     }
 
-    /// Detects each of `models` in `frame`.
+    /// Detects each of `models` in `frame`; objects with [`RunOptions::hints`] from those first.
     pub fn detect(
         &self,
         frame: &DepthFrame,
@@ -321,6 +387,7 @@ impl Detector {
         }
         frame.validate()?;
         opts.requirements.check(frame.width, frame.height)?;
+        check_hints(models, opts)?;
         let check_stop = |start: Instant| {
             if opts
                 .cancel
@@ -339,111 +406,231 @@ impl Detector {
             }
         };
         let start = Instant::now();
-        let mut out = Detections::default();
-        let t = Instant::now();
-        let scene_image = prepare(frame, &self.params.scene)?;
-        let points = scene_image.oriented_points();
-        let planes = SupportingPlane::find_all(&points, &self.params.plane);
-        out.timings.scene_preparation = t.elapsed();
-        out.counts.scene_points = points.len() as u32;
+        let n = models.len();
+        let mut out = Detections {
+            per_object_timings: vec![StageTimings::default(); n],
+            per_object_counts: vec![Counts::default(); n],
+            ..Default::default()
+        };
+        let mut objects: Vec<Option<ObjectDetections>> = vec![None; n];
+        // Per object, the hints it kept when some were not: they lead its voted hypotheses.
+        let mut kept_hints: Vec<Vec<Hypothesis>> = vec![Vec::new(); n];
 
-        let (groups, cloud_of) = self.params.scene_clouds(models);
-        // The groups' clouds are independent: build them side by side.
-        check_stop(start)?;
-        let t = Instant::now();
-        let clouds = self.params.prepare_clouds(&points, &groups)?;
-        out.timings.kd_tree += t.elapsed();
-
-        let edges = OnceLock::new();
-        for (i, model) in models.iter().enumerate() {
-            check_stop(start)?;
-            let scene = &clouds[cloud_of[i]];
-            let mut timings = StageTimings::default();
+        if !opts.hints.is_empty() {
             let t = Instant::now();
-            let region = opts
-                .requirements
-                .region
-                .as_ref()
-                .map(|r| (r, &frame.intrinsics));
-            let selection = Selection::within(
-                scene,
-                &self.params.voting,
-                &planes,
-                model.diameter_mm(),
-                region,
-            );
-            let (raw, counts) = vote_from(model, scene, &selection, &self.params.voting);
-            timings.voting = t.elapsed();
-            let t = Instant::now();
-            let symmetry = model.symmetry();
-            let clusters = cluster_poses(
-                &raw,
-                model.diameter_mm(),
-                &symmetry,
-                &self.params.clustering,
-            );
-            timings.clustering = t.elapsed();
-            let own = Counts {
-                scene_points: scene.points.len() as u32,
-                reference_points: counts.reference_points,
-                pairs: counts.pairs,
-                votes: counts.votes,
-                hypotheses: raw.len() as u32,
-            };
-            out.counts.reference_points += own.reference_points;
-            out.counts.pairs += own.pairs;
-            out.counts.votes += own.votes;
-            out.counts.hypotheses += own.hypotheses;
-            out.per_object_counts.push(own);
-            let clusters = clusters_as_poses(&clusters, &symmetry);
-            check_stop(start)?;
-            let hypotheses =
-                self.after_voting(model, &clusters, &scene_image, &edges, opts, &mut timings);
-            out.objects.push(ObjectDetections {
-                object_id: model.object_id(),
-                hypotheses,
-                clusters: clusters
+            let rois = self.hint_rois(frame, models, &opts.hints);
+            let image = prepare_within(frame, &self.params.scene, &rois)?;
+            out.timings.scene_preparation += t.elapsed();
+            out.counts.scene_points =
+                image.normals.iter().filter(|n| n.x.is_finite()).count() as u32;
+            let edges = OnceLock::new();
+            for (i, model) in models.iter().enumerate() {
+                let hints: Vec<(Pose, u32)> = opts
+                    .hints
                     .iter()
-                    .take(self.params.clusters_kept)
-                    .copied()
-                    .collect(),
-            });
-            out.timings.add(&timings);
-            out.per_object_timings.push(timings);
+                    .filter(|h| h.object_id == model.object_id())
+                    .map(|h| (h.pose, 0))
+                    .collect();
+                if hints.is_empty() {
+                    continue;
+                }
+                check_stop(start)?;
+                let timings = &mut out.per_object_timings[i];
+                let kept = self.refine_hints(model, &hints, &image, &edges, opts, timings);
+                if kept.len() >= hints.len().min(opts.hypotheses_per_object) {
+                    objects[i] = Some(ObjectDetections {
+                        object_id: model.object_id(),
+                        hypotheses: kept,
+                        clusters: Vec::new(),
+                    });
+                } else {
+                    kept_hints[i] = kept;
+                }
+            }
         }
+
+        let voters: Vec<usize> = (0..n).filter(|&i| objects[i].is_none()).collect();
+        if !voters.is_empty() {
+            check_stop(start)?;
+            let t = Instant::now();
+            let scene_image = prepare(frame, &self.params.scene)?;
+            let points = scene_image.oriented_points();
+            let planes = SupportingPlane::find_all(&points, &self.params.plane);
+            out.timings.scene_preparation += t.elapsed();
+            out.counts.scene_points = points.len() as u32;
+
+            let voting_models: Vec<&ObjectModel> = voters.iter().map(|&i| models[i]).collect();
+            let (groups, cloud_of) = self.params.scene_clouds(&voting_models);
+            // The groups' clouds are independent: build them side by side.
+            check_stop(start)?;
+            let t = Instant::now();
+            let clouds = self.params.prepare_clouds(&points, &groups)?;
+            out.timings.kd_tree += t.elapsed();
+
+            let edges = OnceLock::new();
+            for (j, &i) in voters.iter().enumerate() {
+                let model = models[i];
+                check_stop(start)?;
+                let scene = &clouds[cloud_of[j]];
+                let timings = &mut out.per_object_timings[i];
+                let t = Instant::now();
+                let region = opts
+                    .requirements
+                    .region
+                    .as_ref()
+                    .map(|r| (r, &frame.intrinsics));
+                let selection = Selection::within(
+                    scene,
+                    &self.params.voting,
+                    &planes,
+                    model.diameter_mm(),
+                    region,
+                );
+                let (raw, counts) = vote_from(model, scene, &selection, &self.params.voting);
+                timings.voting += t.elapsed();
+                let t = Instant::now();
+                let symmetry = model.symmetry();
+                let clusters = cluster_poses(
+                    &raw,
+                    model.diameter_mm(),
+                    &symmetry,
+                    &self.params.clustering,
+                );
+                timings.clustering += t.elapsed();
+                let own = Counts {
+                    scene_points: scene.points.len() as u32,
+                    reference_points: counts.reference_points,
+                    pairs: counts.pairs,
+                    votes: counts.votes,
+                    hypotheses: raw.len() as u32,
+                };
+                out.counts.reference_points += own.reference_points;
+                out.counts.pairs += own.pairs;
+                out.counts.votes += own.votes;
+                out.counts.hypotheses += own.hypotheses;
+                out.per_object_counts[i] = own;
+                let clusters = clusters_as_poses(&clusters, &symmetry);
+                check_stop(start)?;
+                let kept = std::mem::take(&mut kept_hints[i]);
+                let hypotheses =
+                    self.after_voting(model, &clusters, kept, &scene_image, &edges, opts, timings);
+                objects[i] = Some(ObjectDetections {
+                    object_id: model.object_id(),
+                    hypotheses,
+                    clusters: clusters
+                        .iter()
+                        .take(self.params.clusters_kept)
+                        .copied()
+                        .collect(),
+                });
+            }
+        }
+        for t in &out.per_object_timings {
+            out.timings.add(t);
+        }
+        out.objects = objects.into_iter().flatten().collect();
         Ok(out)
     }
 
-    /// Re-scoring of the best clusters, ICP on the best of those, scoring again, the filters,
-    /// and non-maximum suppression (METHOD.md §3.2–3.5).
+    /// The pixels the hints' objects can cover once ICP has moved them: each model's bounding
+    /// sphere at its hint, widened by the farthest ICP moves a surface point
+    /// ([`IcpParams::max_travel_mm`]). ICP and re-scoring look normals up nowhere else.
+    fn hint_rois(&self, frame: &DepthFrame, models: &[&ObjectModel], hints: &[Hint]) -> Vec<Roi> {
+        hints
+            .iter()
+            .filter_map(|h| {
+                let model = models.iter().find(|m| m.object_id() == h.object_id)?;
+                let (centre, radius) = bounding_sphere(&self.silhouette_mesh(model));
+                let reach = radius + self.params.icp.max_travel_mm(model.diameter_mm());
+                Roi::around_sphere(
+                    &(h.pose * centre),
+                    reach,
+                    &frame.intrinsics,
+                    frame.width,
+                    frame.height,
+                )
+            })
+            .collect()
+    }
+
+    /// The simplified mesh whose outline re-scoring and the silhouette filter measure.
+    fn silhouette_mesh(&self, model: &ObjectModel) -> Arc<Mesh> {
+        model.silhouette_mesh(
+            self.params.rescoring.silhouette_mesh_cell_fraction * model.diameter_mm(),
+        )
+    }
+
+    /// The hints of one object that pass ICP, re-scoring, the filters and the requirements, in
+    /// the order asked for, one per instance, marked [`Checks::HINT`].
+    fn refine_hints(
+        &self,
+        model: &ObjectModel,
+        hints: &[(Pose, u32)],
+        scene: &SceneImage,
+        edges: &OnceLock<EdgeMap>,
+        opts: &RunOptions,
+        timings: &mut StageTimings,
+    ) -> Vec<Hypothesis> {
+        let v = self.verification(model, scene, edges, timings);
+        let (kept, _) = self.refine_and_filter(&v, hints, Vec::new(), scene, opts, timings);
+        let t = Instant::now();
+        let mut kept = self.answer(kept, Vec::new(), &v, opts);
+        timings.filters += t.elapsed();
+        for h in &mut kept {
+            h.checks.0 |= Checks::HINT;
+        }
+        kept
+    }
+
+    /// What the stages after voting need of one object, made once per object: its surface
+    /// points, its silhouette mesh and that mesh's bounding sphere, and the scene's depth edges
+    /// (made at the first object's call).
+    fn verification<'a>(
+        &self,
+        model: &ObjectModel,
+        scene: &SceneImage,
+        edges: &'a OnceLock<EdgeMap>,
+        timings: &mut StageTimings,
+    ) -> Verification<'a> {
+        let t = Instant::now();
+        let mesh = self.silhouette_mesh(model);
+        let sphere = bounding_sphere(&mesh);
+        let edges = edges.get_or_init(|| EdgeMap::new(scene, &self.params.filters));
+        timings.filters += t.elapsed();
+        let d = model.diameter_mm();
+        let symmetry = model.symmetry();
+        Verification {
+            surface: model.surface_points(),
+            mesh,
+            centre: symmetry.fixed_point(&sphere.0),
+            sphere,
+            symmetry,
+            edges,
+            diameter_mm: d,
+            conflict_mm: self.params.rescoring.conflict_mm(d),
+        }
+    }
+
+    /// Re-scoring of the best clusters, then ICP on the best of those, scoring again, the
+    /// filters and non-maximum suppression (METHOD.md §3.2–3.5). `leading` (hints the object
+    /// kept) come first, and the voted poses of their instances are suppressed.
+    #[allow(clippy::too_many_arguments)]
     fn after_voting(
         &self,
         model: &ObjectModel,
         clusters: &[(Pose, u32)],
+        leading: Vec<Hypothesis>,
         scene: &SceneImage,
         edges: &OnceLock<EdgeMap>,
         opts: &RunOptions,
         timings: &mut StageTimings,
     ) -> Vec<Hypothesis> {
         let p = &self.params;
-        let d = model.diameter_mm();
-        let surface = model.surface_points();
-        let conflict = p.rescoring.conflict_mm(d);
-        let t = Instant::now();
-        let mesh = model.silhouette_mesh(p.rescoring.silhouette_mesh_cell_fraction * d);
-        let sphere = bounding_sphere(&mesh);
-        let edges = edges.get_or_init(|| EdgeMap::new(scene, &p.filters));
-        timings.filters += t.elapsed();
-
-        let outline = Outline {
-            mesh: mesh.as_ref(),
-            sphere: &sphere,
-            edges,
-            max_outline_px: p.filters.max_outline_px,
-        };
+        let v = self.verification(model, scene, edges, timings);
+        let d = v.diameter_mm;
         let coarse_outline = Outline {
             max_outline_px: p.rescoring.coarse_outline(p.filters.max_outline_px),
-            ..outline
+            ..v.outline(p.filters.max_outline_px)
         };
         let t = Instant::now();
         let wanted = &opts.requirements;
@@ -463,33 +650,105 @@ impl Detector {
         let top = &clusters[..clusters.len().min(p.rescoring.top_clusters)];
         let top = prescreen(
             top,
-            &surface,
+            &v.surface,
             scene,
             p.rescoring.tolerance_mm(d),
-            conflict,
+            v.conflict_mm,
             &p.rescoring,
         );
         // Only the best `top_poses` go on to ICP.
         let scored = score_poses(
             &top,
-            &surface,
+            &v.surface,
             scene,
             p.rescoring.tolerance_mm(d),
-            conflict,
+            v.conflict_mm,
             &p.rescoring,
             &coarse_outline,
             p.icp.top_poses,
         );
         timings.rescoring += t.elapsed();
-
+        let candidates: Vec<(Pose, u32)> = scored[..scored.len().min(p.icp.top_poses)]
+            .iter()
+            .map(|s| (s.pose, s.votes))
+            .collect();
+        let (passed, failed) =
+            self.refine_and_filter(&v, &candidates, leading, scene, opts, timings);
         let t = Instant::now();
-        // ICP may carry a pose across the canonical rule's boundary.
-        let symmetry = model.symmetry();
-        let refined: Vec<(Pose, u32)> = scored[..scored.len().min(p.icp.top_poses)]
+        let out = self.answer(passed, failed, &v, opts);
+        timings.filters += t.elapsed();
+        out
+    }
+
+    /// Two hypotheses of an object of `diameter_mm` whose centres lie closer than this are one
+    /// instance: the request's instance distance, or [`DetectParams::nms_distance_fraction`].
+    fn instance_distance_mm(&self, opts: &RunOptions, diameter_mm: f32) -> f32 {
+        opts.requirements
+            .instance_distance_fraction
+            .unwrap_or(self.params.nms_distance_fraction)
+            * diameter_mm
+    }
+
+    /// One object's answer from the hypotheses that passed both filters and those that did
+    /// not, in the order asked for, at most [`RunOptions::hypotheses_per_object`]. Poses that
+    /// failed a filter still fill the list, after those that passed, with their checks saying
+    /// so: those that passed one filter before those that passed none, each group in the order
+    /// asked for (the sorts are stable).
+    fn answer(
+        &self,
+        mut passed: Vec<Hypothesis>,
+        mut failed: Vec<Hypothesis>,
+        v: &Verification,
+        opts: &RunOptions,
+    ) -> Vec<Hypothesis> {
+        let n = opts.hypotheses_per_object;
+        if opts.requirements.order == Order::Distance {
+            let distance = |h: &Hypothesis| (h.pose * v.centre).coords.norm();
+            passed.sort_by(|a, b| distance(a).total_cmp(&distance(b)));
+            failed.sort_by(|a, b| distance(a).total_cmp(&distance(b)));
+        }
+        passed.truncate(n);
+        let all = Checks::CONSISTENT | Checks::SILHOUETTE;
+        failed.sort_by_key(|h| std::cmp::Reverse((h.checks.0 & all).count_ones()));
+        let nms = self.instance_distance_mm(opts, v.diameter_mm);
+        let mut out = passed;
+        for h in failed {
+            if out.len() == n {
+                break;
+            }
+            if !overlaps(&out, &h.pose, &v.centre, nms) {
+                out.push(h);
+            }
+        }
+        out
+    }
+
+    /// ICP from each of `poses` (with their votes), re-scoring, and the filters in score order
+    /// with non-maximum suppression after `passed` (hypotheses already kept), leaving out poses
+    /// the requirements refuse (below the minimum score, outside the pose restriction, or with
+    /// none of the model's surface in the region of interest): the hypotheses that pass both
+    /// filters, appended to `passed` (in score order up to
+    /// [`RunOptions::hypotheses_per_object`]), and those that do not. The stages a voted pose
+    /// goes through after its first re-scoring, and all a hint goes through.
+    fn refine_and_filter(
+        &self,
+        v: &Verification,
+        poses: &[(Pose, u32)],
+        mut passed: Vec<Hypothesis>,
+        scene: &SceneImage,
+        opts: &RunOptions,
+        timings: &mut StageTimings,
+    ) -> (Vec<Hypothesis>, Vec<Hypothesis>) {
+        let p = &self.params;
+        let d = v.diameter_mm;
+        let t = Instant::now();
+        // ICP may carry a pose across the canonical rule's boundary; a hint may come from any of
+        // the equivalent poses.
+        let refined: Vec<(Pose, u32)> = poses
             .par_iter()
-            .map(|s| {
-                let pose = refine(&surface, &s.pose, scene, d, &p.icp).pose;
-                (symmetry.canonical(&pose), s.votes)
+            .map(|&(pose, votes)| {
+                let pose = refine(&v.surface, &pose, scene, d, &p.icp).pose;
+                (v.symmetry.canonical(&pose), votes)
             })
             .collect();
         timings.icp += t.elapsed();
@@ -498,40 +757,32 @@ impl Detector {
         // Only the best `max_candidates` go through the filters.
         let rescored = score_poses(
             &refined,
-            &surface,
+            &v.surface,
             scene,
             p.rescoring.refined_tolerance_mm(d),
-            conflict,
+            v.conflict_mm,
             &p.rescoring,
-            &outline,
+            &v.outline(p.filters.max_outline_px),
             p.filters.max_candidates,
         );
         timings.rescoring += t.elapsed();
 
         let t = Instant::now();
         let mut renderer = Renderer::new();
-        let nms = wanted
-            .instance_distance_fraction
-            .unwrap_or(p.nms_distance_fraction)
-            * d;
-        // The model's centre, moved onto what its symmetries leave in place: equivalent poses
-        // put it at one place, and are one instance.
-        let centre = symmetry.fixed_point(&sphere.0);
-        let distance = |pose: &Pose| (pose * centre).coords.norm();
-        let n = opts.hypotheses_per_object;
-        let overlaps = |list: &[Hypothesis], pose: &Pose| {
-            let at = pose * centre;
-            list.iter().any(|h| (h.pose * centre - at).norm() < nms)
-        };
-        let mut passed: Vec<Hypothesis> = Vec::new();
+        let wanted = &opts.requirements;
+        let nms = self.instance_distance_mm(opts, d);
         let mut failed: Vec<Hypothesis> = Vec::new();
         let all = Checks::CONSISTENT | Checks::SILHOUETTE;
         for s in rescored.iter().take(p.filters.max_candidates) {
             // Nearest first needs every instance that passes, not the first `n`.
-            if passed.len() == n && wanted.order == Order::Score {
+            if passed.len() >= opts.hypotheses_per_object && wanted.order == Order::Score {
                 break;
             }
-            if s.score < wanted.min_score || !wanted.allows(&s.pose) || overlaps(&passed, &s.pose) {
+            if s.score < wanted.min_score
+                || !wanted.allows(&s.pose)
+                || !v.reaches_region(wanted, &scene.intrinsics, &s.pose)
+                || overlaps(&passed, &s.pose, &v.centre, nms)
+            {
                 continue;
             }
             let mut checks = Checks(Checks::RESCORED | Checks::REFINED);
@@ -541,12 +792,12 @@ impl Detector {
             let silhouette = s.silhouette.or_else(|| {
                 silhouette_fraction(
                     &mut renderer,
-                    &mesh,
-                    &sphere,
+                    &v.mesh,
+                    &v.sphere,
                     &s.pose,
                     scene,
-                    edges,
-                    conflict,
+                    v.edges,
+                    v.conflict_mm,
                     p.rescoring.min_visible_outline,
                 )
             });
@@ -565,26 +816,46 @@ impl Detector {
                 failed.push(h);
             }
         }
-        // Poses that failed a filter still fill the list, after those that passed, with their
-        // checks saying so: those that passed one filter before those that passed none, each
-        // group in the order asked for (the sorts are stable).
-        if wanted.order == Order::Distance {
-            passed.sort_by(|a, b| distance(&a.pose).total_cmp(&distance(&b.pose)));
-            failed.sort_by(|a, b| distance(&a.pose).total_cmp(&distance(&b.pose)));
-        }
-        passed.truncate(n);
-        failed.sort_by_key(|h| std::cmp::Reverse((h.checks.0 & all).count_ones()));
-        let mut out = passed;
-        for h in failed {
-            if out.len() == n {
-                break;
-            }
-            if !overlaps(&out, &h.pose) {
-                out.push(h);
-            }
-        }
         timings.filters += t.elapsed();
-        out
+        (passed, failed)
+    }
+}
+
+/// One object's share of the stages after voting ([`Detector::verification`]).
+struct Verification<'a> {
+    surface: OrientedPoints,
+    mesh: Arc<Mesh>,
+    sphere: (Point3<f32>, f32),
+    /// The bounding sphere's centre moved onto what the object's symmetries leave in place
+    /// ([`Symmetry::fixed_point`]): equivalent poses put it at one place, so they are one
+    /// instance, at one distance from the camera.
+    centre: Point3<f32>,
+    symmetry: Symmetry,
+    edges: &'a EdgeMap,
+    diameter_mm: f32,
+    conflict_mm: f32,
+}
+
+impl Verification<'_> {
+    /// Whether `pose` puts some of the model's surface into the requirements' region of
+    /// interest (any pose without one): what a voted pose has from its reference point, which
+    /// lies in the region, and a hint must show after ICP.
+    fn reaches_region(&self, wanted: &Requirements, intrinsics: &Intrinsics, pose: &Pose) -> bool {
+        wanted.region.as_ref().is_none_or(|r| {
+            self.surface
+                .positions
+                .iter()
+                .any(|p| r.holds(intrinsics, &(pose * p)))
+        })
+    }
+
+    fn outline(&self, max_outline_px: u32) -> Outline<'_> {
+        Outline {
+            mesh: self.mesh.as_ref(),
+            sphere: &self.sphere,
+            edges: self.edges,
+            max_outline_px,
+        }
     }
 }
 

@@ -55,6 +55,22 @@ impl Default for IcpParams {
     }
 }
 
+impl IcpParams {
+    /// How far one run can move any surface point of a model of `diameter_mm` from where it
+    /// starts, mm: no step moves a point farther than that iteration's pair distance limit,
+    /// which halves from the initial limit down to the final one.
+    pub fn max_travel_mm(&self, diameter_mm: f32) -> f32 {
+        let mut limit = self.initial_distance_fraction * diameter_mm;
+        let floor = self.final_distance_fraction * diameter_mm;
+        let mut travel = 0.0;
+        for _ in 0..self.iterations {
+            travel += limit;
+            limit = (limit * 0.5).max(floor);
+        }
+        travel
+    }
+}
+
 /// What one ICP run did.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct IcpResult {

@@ -6,6 +6,7 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use crate::geometry::camera::{DepthFrame, Intrinsics};
+use crate::geometry::render::Roi;
 use crate::model::subsample::{subsample, OrientedPoints, SubsampleParams};
 use crate::{Error, Result};
 
@@ -86,6 +87,16 @@ pub struct SceneImage {
 }
 
 impl SceneImage {
+    fn of(frame: &DepthFrame, points: Vec<Point3<f32>>, normals: Vec<Vector3<f32>>) -> Self {
+        SceneImage {
+            width: frame.width,
+            height: frame.height,
+            intrinsics: frame.intrinsics,
+            points,
+            normals,
+        }
+    }
+
     /// The point and normal at pixel `(u, v)`, if both exist.
     #[inline]
     pub fn at(&self, u: i64, v: i64) -> Option<(Point3<f32>, Vector3<f32>)> {
@@ -186,8 +197,14 @@ fn normal_of_plane(
 /// smoothed depth) and the plane's normal facing the camera. Structured-light depth comes in
 /// steps of 3–4 mm at 1 m; a fit over the whole window sees through the staircase better than
 /// differences of two smoothed values. Without depth both are NaN; with too few neighbours on
-/// the same surface the point is the measured one and the normal NaN.
-fn plane_fit(frame: &DepthFrame, params: &SceneParams) -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
+/// the same surface the point is the measured one and the normal NaN. With `within`, only the
+/// pixels inside one of its rectangles are fitted: every other pixel keeps its measured point
+/// and no normal.
+fn plane_fit(
+    frame: &DepthFrame,
+    params: &SceneParams,
+    within: Option<&[Roi]>,
+) -> (Vec<Point3<f32>>, Vec<Vector3<f32>>) {
     let (w, h) = (frame.width as i64, frame.height as i64);
     let k = frame.intrinsics;
     // Depth in mm, NaN where there is none or it is out of range: one load per window sample.
@@ -219,6 +236,9 @@ fn plane_fit(frame: &DepthFrame, params: &SceneParams) -> (Vec<Point3<f32>>, Vec
                     return (nan_p, nan_n);
                 }
                 let raw_point = k.backproject(u as f32, v as f32, z);
+                if within.is_some_and(|rois| !rois.iter().any(|r| r.contains(u as u32, v as u32))) {
+                    return (raw_point, nan_n);
+                }
                 let r = params.normal_window_px(k.fx, z);
                 let stride = ((2 * r + 1) + max_samples - 1) / max_samples;
                 let per_pixel = params.jump_with_slope_mm(z, 1.0, k.fx, tan_slope);
@@ -342,7 +362,7 @@ fn solve_symmetric_3x3(a: [f64; 6], b: [f64; 3]) -> Option<[f64; 3]> {
 /// usable point.
 pub fn prepare(frame: &DepthFrame, params: &SceneParams) -> Result<SceneImage> {
     frame.validate()?;
-    let (points, normals) = plane_fit(frame, params);
+    let (points, normals) = plane_fit(frame, params, None);
     if !normals.iter().any(|n| n.x.is_finite()) {
         let valid = points.iter().filter(|p| p.z.is_finite()).count();
         return Err(Error::InvalidFrame(if valid == 0 {
@@ -356,13 +376,25 @@ pub fn prepare(frame: &DepthFrame, params: &SceneParams) -> Result<SceneImage> {
             )
         }));
     }
-    Ok(SceneImage {
-        width: frame.width,
-        height: frame.height,
-        intrinsics: frame.intrinsics,
-        points,
-        normals,
-    })
+    Ok(SceneImage::of(frame, points, normals))
+}
+
+/// [`prepare`] with normals fitted only inside `rois`: every pixel gets its point, and the
+/// pixels inside a rectangle the normal the full preparation gives them. What refining known
+/// poses needs, which look the scene up only where their objects project; the plane fit is most
+/// of a preparation's time. Refuses a frame without valid depth, but not one whose rectangles
+/// hold no normal (a pose over a hole in the depth finds nothing there).
+pub fn prepare_within(
+    frame: &DepthFrame,
+    params: &SceneParams,
+    rois: &[Roi],
+) -> Result<SceneImage> {
+    frame.validate()?;
+    let (points, normals) = plane_fit(frame, params, Some(rois));
+    if !points.iter().any(|p| p.z.is_finite()) {
+        return Err(Error::InvalidFrame(no_depth_in_range(frame, params)));
+    }
+    Ok(SceneImage::of(frame, points, normals))
 }
 
 /// Why a frame has no depth in the working range, in words that point at the likely cause: a
@@ -569,6 +601,75 @@ mod tests {
             err.to_string().contains("no surface normal") && err.to_string().contains("640 pixels"),
             "{err}"
         );
+    }
+
+    /// Inside the rectangles, the normals and points of the full preparation, to the bit;
+    /// outside, the measured point and no normal; a frame without depth is still refused.
+    #[test]
+    fn preparing_within_rectangles_fits_normals_there_only() {
+        let part = crate::synthetic::parts::Part::TPipe;
+        let pose = crate::Pose::from_parts(
+            nalgebra::Translation3::new(20.0, -10.0, 750.0),
+            nalgebra::UnitQuaternion::from_euler_angles(0.4, -0.3, 0.2),
+        );
+        let noise = crate::synthetic::scene::NoiseModel::kinect();
+        let scene =
+            crate::synthetic::scene::SyntheticScene::single(&part.mesh(), 1, pose, Some(&noise), 4)
+                .unwrap();
+        let frame = scene.frame.view();
+        let params = SceneParams::default();
+        let full = prepare(&frame, &params).unwrap();
+        let rois = [
+            Roi {
+                u0: 250,
+                v0: 170,
+                width: 80,
+                height: 60,
+            },
+            Roi {
+                u0: 300,
+                v0: 200,
+                width: 90,
+                height: 100,
+            },
+        ];
+        let part_image = prepare_within(&frame, &params, &rois).unwrap();
+        let (mut inside, mut outside) = (0, 0);
+        for v in 0..480u32 {
+            for u in 0..640u32 {
+                let i = (v * 640 + u) as usize;
+                let (p, n) = (part_image.points[i], part_image.normals[i]);
+                if rois.iter().any(|r| r.contains(u, v)) {
+                    assert_eq!(
+                        p.coords.map(f32::to_bits),
+                        full.points[i].coords.map(f32::to_bits)
+                    );
+                    assert_eq!(n.map(f32::to_bits), full.normals[i].map(f32::to_bits));
+                    inside += usize::from(n.x.is_finite());
+                } else {
+                    assert!(n.x.is_nan(), "a normal outside at ({u}, {v})");
+                    let raw = frame.depth[i];
+                    if raw != 0 {
+                        let expected = frame.intrinsics.backproject(u as f32, v as f32, raw as f32);
+                        assert!((p - expected).norm() < 1e-3, "({u}, {v}): {p} {expected}");
+                        outside += 1;
+                    } else {
+                        assert!(p.z.is_nan());
+                    }
+                }
+            }
+        }
+        assert!(inside > 3000 && outside > 500, "{inside} {outside}");
+
+        let empty = vec![0u16; 640 * 480];
+        let no_depth = DepthFrame {
+            depth: &empty,
+            ..frame
+        };
+        match prepare_within(&no_depth, &params, &rois) {
+            Err(e) => assert!(e.to_string().contains("no valid depth"), "{e}"),
+            Ok(_) => panic!("a frame without depth was prepared"),
+        }
     }
 
     /// A frame whose values are in another unit than its scale says is refused with the range

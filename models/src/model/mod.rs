@@ -22,6 +22,7 @@ use rayon::prelude::*;
 use rkyv::util::AlignedVec;
 
 use crate::geometry::mesh::Mesh;
+use crate::limits;
 use crate::model::feature::{key_count, LocalFrame, PointPairFeature, Quantizer};
 use crate::model::sampling::sample_surface;
 use crate::model::subsample::{subsample, OrientedPoints, SubsampleParams};
@@ -274,6 +275,15 @@ impl ObjectModel {
         let count = ((area / (step * step)) as usize).clamp(1_000, 2_000_000);
         let dense = sample_surface(mesh, count, 0x5eed ^ object_id as u64)?;
         let points = subsample(&dense, &params.subsample_params(diameter_mm));
+        if points.len() < limits::MIN_MODEL_POINTS {
+            return Err(Error::InvalidMesh(format!(
+                "{name}: {} model points after subsampling, at least {} needed: the faces cover \
+                 too little of the extent of the mesh's vertices ({diameter_mm} mm across); remove \
+                 stray vertices and degenerate faces",
+                points.len(),
+                limits::MIN_MODEL_POINTS
+            )));
+        }
         if points.len() > u16::MAX as usize {
             return Err(Error::InvalidParameter(format!(
                 "{name}: {} model points after subsampling, at most {} fit a table entry",
@@ -686,5 +696,51 @@ pub(crate) mod tests {
             ObjectModel::build(&empty, 1, "e", &ModelParams::default()),
             Err(Error::InvalidMesh(_))
         ));
+    }
+
+    /// Faces that cover almost nothing of the extent their mesh's vertices claim give a
+    /// handful of model points, and such a model is refused rather than built.
+    #[test]
+    fn a_mesh_whose_faces_cover_almost_nothing_of_its_extent_is_refused() {
+        // A 1 mm tetrahedron, and the corners of a 100 mm cube as stray vertices with normals
+        // (as a PLY may carry them) that no face uses.
+        let mut mesh = Mesh::from_triangles(
+            vec![
+                Point3::new(50.0, 50.0, 50.0),
+                Point3::new(51.0, 50.0, 50.0),
+                Point3::new(50.0, 51.0, 50.0),
+                Point3::new(50.0, 50.0, 51.0),
+            ],
+            &[[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+        )
+        .unwrap();
+        for i in 0..8 {
+            let c = |bit: u32| if i & (1 << bit) != 0 { 100.0 } else { 0.0 };
+            let corner = Point3::new(c(0), c(1), c(2));
+            mesh.positions.push(corner);
+            mesh.normals
+                .push((corner - Point3::new(50.0, 50.0, 50.0)).normalize());
+        }
+        let m = match ObjectModel::build(&mesh, 1, "speck", &ModelParams::default()) {
+            Err(Error::InvalidMesh(m)) => m,
+            other => panic!("{:?}", other.map(|m| m.point_count())),
+        };
+        assert!(
+            m.contains("speck") && m.contains("model points after subsampling"),
+            "{m}"
+        );
+        // The same tetrahedron at its own size builds.
+        let alone = Mesh::from_triangles(
+            vec![
+                Point3::new(0.0, 0.0, 0.0),
+                Point3::new(40.0, 0.0, 0.0),
+                Point3::new(0.0, 40.0, 0.0),
+                Point3::new(0.0, 0.0, 40.0),
+            ],
+            &[[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+        )
+        .unwrap();
+        let model = ObjectModel::build(&alone, 1, "tetrahedron", &ModelParams::default()).unwrap();
+        assert!(model.point_count() >= limits::MIN_MODEL_POINTS);
     }
 }

@@ -310,6 +310,12 @@ fn check_consistency(d: &ArchivedModelData) -> std::result::Result<(), String> {
             d.surface_normals.len()
         ));
     }
+    if n < crate::limits::MIN_MODEL_POINTS {
+        return Err(format!(
+            "{n} model points, at least {}",
+            crate::limits::MIN_MODEL_POINTS
+        ));
+    }
     if n > u16::MAX as usize {
         return Err(format!("{n} model points, at most {}", u16::MAX));
     }

@@ -151,6 +151,7 @@ impl Daemon {
             requirements: q.header.requirements,
             deadline: (q.header.deadline_ns != 0).then(|| instant_of(q.header.deadline_ns)),
             cancel: cancel.clone(),
+            hints: q.header.hints().to_vec(),
         };
         let done = self.done_tx.clone();
         let signaller = self.signaller;
