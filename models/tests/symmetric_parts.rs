@@ -3,7 +3,7 @@
 //! object, and clustering gathers the votes of equivalent poses. Runs anywhere (no data files).
 
 use ppfd_models::detect::clustering::cluster_poses;
-use ppfd_models::detect::detector::{DetectParams, Detector, RunOptions};
+use ppfd_models::detect::detector::{Checks, DetectParams, Detector, Hint, RunOptions};
 use ppfd_models::detect::scene::{prepare, PreparedScene};
 use ppfd_models::detect::voting::vote;
 use ppfd_models::model::symmetry::Symmetry;
@@ -129,5 +129,53 @@ fn clustering_gathers_the_votes_of_equivalent_poses() {
             plain[0].votes
         );
         assert!(gathered.len() < plain.len());
+    }
+}
+
+/// A hint at a pose that is not canonical comes back as the canonical pose, and two hints at
+/// equivalent poses are one instance: one of them is answered, and no voted pose of the same
+/// instance follows it.
+#[test]
+fn hints_of_symmetric_parts_come_back_canonical_and_as_one_instance() {
+    let detector = Detector::default();
+    let noise = NoiseModel::kinect();
+    for part in SymmetricPart::ALL {
+        let model = model_of(part);
+        let symmetry = model.symmetry();
+        let d = model.diameter_mm();
+        let mut rng = Rng::new(20 + part.object_id() as u64);
+        let shown = non_canonical_pose(part, &symmetry, &mut rng, d);
+        let canonical = symmetry.canonical(&shown);
+        let scene =
+            SyntheticScene::single(&part.mesh(), part.object_id(), shown, Some(&noise), 7).unwrap();
+        let hint = |pose| Hint {
+            object_id: part.object_id(),
+            pose,
+        };
+        let opts = RunOptions {
+            hints: vec![hint(shown), hint(canonical)],
+            hypotheses_per_object: 2,
+            ..RunOptions::default()
+        };
+        let found = detector
+            .detect(&scene.frame.view(), &[&model], &opts)
+            .unwrap();
+        let hypotheses = &found.objects[0].hypotheses;
+        let best = &hypotheses[0];
+        let (dt, dr) = errors(&best.pose, &canonical);
+        assert!(
+            best.checks.has(Checks::HINT) && dt < 0.05 * d && dr < 5.0,
+            "{part:?}: {:?}, {dt:.1} mm, {dr:.1}° from the canonical pose",
+            best.checks
+        );
+        let both = Checks::CONSISTENT | Checks::SILHOUETTE;
+        let passed = hypotheses
+            .iter()
+            .filter(|h| h.checks.0 & both == both)
+            .count();
+        assert_eq!(passed, 1, "{part:?}: {hypotheses:?}");
+        for h in hypotheses {
+            assert!(errors(&symmetry.canonical(&h.pose), &h.pose).1 < 0.01);
+        }
     }
 }
