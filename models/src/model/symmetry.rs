@@ -357,7 +357,7 @@ impl Symmetry {
         let mut out = Symmetry::default();
         for (i, s) in discrete.iter().enumerate() {
             let q = nalgebra::Quaternion::new(s[0], s[1], s[2], s[3]);
-            if !((q.norm() - 1.0).abs() < 1e-5) {
+            if !unit_length(q.norm()) {
                 return bad(format!(
                     "discrete transform {i}: its quaternion has norm {}, not 1",
                     q.norm()
@@ -372,7 +372,7 @@ impl Symmetry {
             [] => {}
             [a] => {
                 let d = Vector3::new(a[0], a[1], a[2]);
-                if !((d.norm() - 1.0).abs() < 1e-5) {
+                if !unit_length(d.norm()) {
                     return bad(format!("the axis direction has length {}, not 1", d.norm()));
                 }
                 out.continuous = Some(SymmetryAxis {
@@ -431,6 +431,11 @@ fn describe_turn(transform: &Pose) -> String {
         shown(axis.y),
         shown(axis.z)
     )
+}
+
+/// Whether a stored quaternion's or direction's norm is 1 (to 10⁻⁵); false for NaN.
+fn unit_length(norm: f32) -> bool {
+    (norm - 1.0).abs() < 1e-5
 }
 
 /// Whether two axes are the same line (to about 0.3° and 0.001 mm).
