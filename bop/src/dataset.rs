@@ -1059,6 +1059,27 @@ pub fn read_models_info(path: impl AsRef<Path>) -> Result<BTreeMap<u32, ModelInf
     parse_file(path.as_ref(), parse_models_info)
 }
 
+/// The symmetries the `models_info.json` beside the mesh file `mesh` gives object `obj_id`
+/// ([`ModelInfo::symmetry`]), with that file's path: `None` when there is no such file or it
+/// has no entry for the object. The rule `ppf model build`, the daemon and the offline commands
+/// share for a mesh's model (METHOD.md §1.8); errors name the file and the object.
+pub fn symmetry_beside(mesh: &Path, obj_id: u32) -> Result<Option<(Symmetry, PathBuf)>> {
+    let Some(info) = mesh
+        .parent()
+        .map(|dir| dir.join("models_info.json"))
+        .filter(|p| p.is_file())
+    else {
+        return Ok(None);
+    };
+    let Some(entry) = read_models_info(&info)?.remove(&obj_id) else {
+        return Ok(None);
+    };
+    let symmetry = entry
+        .symmetry()
+        .map_err(|e| dataset_error(&info, format!("object {obj_id}: {e}")))?;
+    Ok(Some((symmetry, info)))
+}
+
 /// Opens a depth PNG, checked on the open file (a regular file).
 fn open_depth_png(path: &Path) -> Result<std::fs::File> {
     ppfd_models::file::open_regular(path)
@@ -1312,6 +1333,14 @@ mod tests {
             info2.symmetries_discrete
         );
         assert!(data.symmetry(7).unwrap().is_none(), "no entry, no symmetry");
+        // Beside a mesh: the same, with the file it came from.
+        let mesh = dir.0.join("models/obj_000002.ply");
+        let (beside, from) = symmetry_beside(&mesh, 2).unwrap().unwrap();
+        assert_eq!(beside, data.symmetry(2).unwrap());
+        assert_eq!(from, dir.0.join("models/models_info.json"));
+        assert!(symmetry_beside(&mesh, 7).unwrap().is_none(), "no entry");
+        let elsewhere = dir.0.join("test/obj_000002.ply");
+        assert!(symmetry_beside(&elsewhere, 2).unwrap().is_none(), "no file");
         assert_eq!(
             data.model_info(1).unwrap().min_mm,
             Point3::new(-10.0, -20.0, -30.0)

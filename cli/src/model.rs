@@ -46,10 +46,12 @@ pub struct BuildArgs {
     pub scale: Option<f32>,
     /// The object's symmetry, for a single mesh; repeatable, the symmetry is all the given turns
     /// combined. `AXIS:N` is every turn by a multiple of 360°/N about the axis (N 2 to 100),
-    /// `AXIS:inf` any turn about it; either may end in `@X,Y,Z`, a point of the axis in mm (else
-    /// the model's origin). `AXIS` is x, y, z or a direction A,B,C: `z:2`, `z:inf --symmetry x:2`,
-    /// `0,1,1:4@0,0,12.5`. `none` for no symmetry. Without it, a mesh takes the symmetries of
-    /// its entry in the `models_info.json` beside it (BOP layout), if there is one.
+    /// `AXIS:inf` any turn about it; either may end in `@X,Y,Z`, a point of the axis in the
+    /// model's mm, after --scale (else the model's origin). `AXIS` is x, y, z or a direction
+    /// A,B,C: `z:2`, `z:inf --symmetry x:2`, `0,1,1:4@0,0,12.5`. `none` for no symmetry. A
+    /// symmetry the mesh does not have is refused. Without it, a mesh takes the symmetries of
+    /// its entry in the `models_info.json` beside it (BOP layout), if there is one, as the
+    /// daemon and `ppf eval` do; one the mesh does not have is then left out with a warning.
     #[arg(long, value_parser = symmetry_arg, value_name = "AXIS:N|AXIS:inf|none")]
     pub symmetry: Vec<SymmetryArg>,
 }
@@ -99,31 +101,6 @@ fn given_symmetry(args: &BuildArgs) -> Result<Option<Symmetry>, String> {
     Symmetry::generated(&elements)
         .map(Some)
         .map_err(|e| format!("--symmetry: {e}"))
-}
-
-/// The symmetry of object `id` in the `models_info.json` beside `mesh`, with that file's path;
-/// `None` when there is no such file or it has no entry for the object.
-fn models_info_symmetry(
-    mesh: &Path,
-    id: u32,
-) -> Result<Option<(Symmetry, PathBuf)>, Box<dyn std::error::Error>> {
-    let Some(info) = mesh
-        .parent()
-        .map(|dir| dir.join("models_info.json"))
-        .filter(|p| p.is_file())
-    else {
-        return Ok(None);
-    };
-    let infos = ppfd_bop::dataset::read_models_info(&info)?;
-    match infos.get(&id) {
-        Some(entry) => {
-            let symmetry = entry
-                .symmetry()
-                .map_err(|e| format!("{}: object {id}: {e}", info.display()))?;
-            Ok(Some((symmetry, info)))
-        }
-        None => Ok(None),
-    }
 }
 
 /// A `--scale` factor: finite and positive.
@@ -228,8 +205,9 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
     for (path, &id) in args.meshes.iter().zip(&ids) {
         symmetries.push(match &given {
             Some(symmetry) => (symmetry.clone(), None),
-            None => match models_info_symmetry(path, id)? {
-                Some((symmetry, from)) => (symmetry, Some(from)),
+            // In the mesh's units, as the mesh is.
+            None => match ppfd_bop::dataset::symmetry_beside(path, id)? {
+                Some((symmetry, from)) => (symmetry.scaled(args.scale.unwrap_or(1.0)), Some(from)),
                 None => (Symmetry::default(), None),
             },
         });
@@ -270,27 +248,44 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
     for ((path, &id), (symmetry, symmetry_from)) in args.meshes.iter().zip(&ids).zip(&symmetries) {
         let name = name_of(path);
         bar.set_message(name.clone());
-        let result = Mesh::from_ply_file(path)
-            .and_then(|mut mesh| {
-                if let Some(factor) = args.scale {
-                    mesh.scale(factor);
-                }
-                ObjectModel::build_with_report(&mesh, id, &name, &params)
+        let result = ppfd_models::file::read_bounded(path, &ppfd_models::limits::MESH_FILE)
+            .and_then(|bytes| {
+                let mut mesh = Mesh::from_ply_reader(&bytes[..], path)?;
+                let (model, report) = match args.scale {
+                    Some(factor) => {
+                        mesh.scale(factor);
+                        ObjectModel::build_with_report(&mesh, id, &name, &params)?
+                    }
+                    // The model of the file's very bytes, as the daemon would build it: it
+                    // records their CRC, so that the daemon takes it, beside the mesh, before
+                    // the model it cached of the mesh, whose symmetry may differ.
+                    None => {
+                        let (model, report) =
+                            ObjectModel::build_with_report(&mesh, id, &name, &params)?;
+                        (model.with_source_crc(store::source_crc(&bytes))?, report)
+                    }
+                };
+                Ok((model, report))
             })
             .and_then(|(model, report)| {
                 if symmetry.is_none() {
-                    return Ok((model, report));
+                    return Ok((model, report, None));
                 }
-                Ok((model.with_symmetry(symmetry)?, report))
+                match model.with_symmetry(symmetry) {
+                    Ok(symmetric) => Ok((symmetric, report, None)),
+                    // Read beside the mesh: left out, as the daemon and `ppf eval` leave it.
+                    Err(e) if symmetry_from.is_some() => Ok((model, report, Some(e))),
+                    Err(e) => Err(e),
+                }
             })
-            .and_then(|(model, report)| {
+            .and_then(|(model, report, left_out)| {
                 let out = args.out.join(format!("{name}.{}", store::EXTENSION));
-                store::save(&model, &out).map(|_| (model, report, out))
+                store::save(&model, &out).map(|_| (model, report, out, left_out))
             });
         match result {
             // `suspend`, not `ProgressBar::println`: that prints nothing when the bar is
             // hidden (output not a terminal), and a script would see no reason for a failure.
-            Ok((model, report, out)) => bar.suspend(|| {
+            Ok((model, report, out, left_out)) => bar.suspend(|| {
                 println!(
                     "{}: object {id}, {}, {} points, {} table entries, {:.1} MB -> {}",
                     path.display(),
@@ -307,7 +302,13 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
                         path.display()
                     );
                 }
-                if !symmetry.is_none() {
+                if let (Some(e), Some(info)) = (&left_out, symmetry_from) {
+                    eprintln!(
+                        "warning: {}: the symmetry of {} is left out, the model has none: {e}",
+                        path.display(),
+                        info.display()
+                    );
+                } else if !symmetry.is_none() {
                     let from = match symmetry_from {
                         Some(info) => format!(" (from {})", info.display()),
                         None => String::new(),

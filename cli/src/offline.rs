@@ -1,5 +1,5 @@
 //! What the offline commands share: loading a BOP dataset's models, built once and cached
-//! ([`ppfd::model_cache`]).
+//! ([`ppfd::model_cache`]), with the symmetries of the `models_info.json` beside the meshes.
 
 use indicatif::{ProgressBar, ProgressStyle};
 use ppfd::model_cache::{load_or_build, MeshSource, ModelFiles};
@@ -21,30 +21,15 @@ pub fn dataset_models(dataset: &BopDataset, ids: &[u32]) -> Result<Vec<ObjectMod
         let files = ModelFiles::of_mesh(&path, Some(&store::default_cache_dir()));
         let cached = load_or_build(MeshSource::File(&path), id, &params, &files)
             .map_err(|e| e.to_string())?;
-        out.push(with_dataset_symmetry(dataset, cached.model)?);
+        // With the symmetry of the models_info.json beside the mesh, as the daemon's.
+        if let Some(why) = &cached.symmetry_left_out {
+            bar.suspend(|| eprintln!("warning: {why}"));
+        }
+        out.push(cached.model);
         bar.inc(1);
     }
     bar.finish_and_clear();
     Ok(out)
-}
-
-/// `model` with the symmetry the dataset's `models_info.json` gives its object (METHOD.md §1.8),
-/// set in memory only: the cache keeps the model of the mesh alone, so that the daemon, given the
-/// same mesh, builds the same model whatever ran before. A symmetry the model refuses (one
-/// the mesh does not have) is left out with a warning, and the evaluation goes on.
-fn with_dataset_symmetry(dataset: &BopDataset, model: ObjectModel) -> Result<ObjectModel, String> {
-    let id = model.object_id();
-    let symmetry = dataset.symmetry(id).map_err(|e| e.to_string())?;
-    if symmetry == model.symmetry() {
-        return Ok(model);
-    }
-    match model.with_symmetry(&symmetry) {
-        Ok(symmetric) => Ok(symmetric),
-        Err(e) => {
-            eprintln!("warning: object {id}: the symmetry of models_info.json is left out: {e}");
-            Ok(model)
-        }
-    }
 }
 
 /// Translation error (mm) and rotation error (degrees) of `est` against `gt`.

@@ -195,6 +195,42 @@ fn a_symmetry_given_or_read_beside_the_mesh_is_stored_and_shown() {
     );
     let (_, stdout, _) = ppf_model(&[os("info"), model.as_os_str()]);
     assert!(stdout.contains("symmetry        none\n"), "{stdout}");
+    // The model of the file's bytes records their CRC, as the daemon's cache does: the daemon
+    // takes it, beside the mesh, before a model it cached of the mesh.
+    use ppfd_models::model::store;
+    let crc = store::source_crc(&std::fs::read(&mesh).unwrap());
+    assert_eq!(store::load(&model).unwrap().source_crc(), crc);
+
+    // A symmetry of models_info.json that the mesh does not have (a quarter turn) is left out
+    // with a warning, as the daemon and `ppf eval` leave it; given with --symmetry, refused.
+    std::fs::write(
+        scratch.join("models_info.json"),
+        r#"{"5": {"diameter": 150.7, "min_x": -45, "min_y": -55, "min_z": -25,
+                  "size_x": 90, "size_y": 110, "size_z": 50,
+                  "symmetries_discrete": [[0, -1, 0, 0, 1, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]]}}"#,
+    )
+    .unwrap();
+    let (run, stdout, stderr) =
+        ppf_model(&[os("build"), mesh.as_os_str(), os("--out"), out.as_os_str()]);
+    assert!(run.status.success(), "{stderr}");
+    assert!(!stdout.contains(": symmetry:"), "{stdout}");
+    assert!(
+        stderr.contains("obj_000005.ply: the symmetry of ")
+            && stderr.contains("models_info.json is left out, the model has none")
+            && stderr.contains("does not have it"),
+        "{stderr}"
+    );
+    assert!(store::load(&model).unwrap().symmetry().is_none());
+    let (run, _, stderr) = ppf_model(&[
+        os("build"),
+        mesh.as_os_str(),
+        os("--symmetry"),
+        os("z:4"),
+        os("--out"),
+        out.as_os_str(),
+    ]);
+    assert_eq!(run.status.code(), Some(1));
+    assert!(stderr.contains("does not have it"), "{stderr}");
 }
 
 /// Each refusal of `--symmetry` says what was wrong, and nothing is written.

@@ -79,6 +79,27 @@ impl Symmetry {
         self.discrete.is_empty() && self.continuous.is_none()
     }
 
+    /// The same symmetry of the object scaled by `factor` (a mesh given in other units): the
+    /// translations and the axis point scale, the rotations stay.
+    pub fn scaled(&self, factor: f32) -> Symmetry {
+        Symmetry {
+            discrete: self
+                .discrete
+                .iter()
+                .map(|s| {
+                    Pose::from_parts(
+                        Translation3::from(s.translation.vector * factor),
+                        s.rotation,
+                    )
+                })
+                .collect(),
+            continuous: self.continuous.map(|a| SymmetryAxis {
+                point_mm: Point3::from(a.point_mm.coords * factor),
+                ..a
+            }),
+        }
+    }
+
     /// The identity and the discrete transforms, in that order.
     pub fn discrete_with_identity(&self) -> impl Iterator<Item = Pose> + '_ {
         std::iter::once(Pose::identity()).chain(self.discrete.iter().copied())
@@ -662,6 +683,21 @@ mod tests {
         let p = target * pose([0.0; 3], Vector3::z(), 3.0 * FRAC_PI_2 + 0.05);
         let found = four.closest_equivalent(&p, &target.rotation);
         assert!((found.rotation.angle_to(&target.rotation) - 0.05).abs() < 1e-4);
+    }
+
+    /// A symmetry of an object holds for the object scaled, scaled the same way.
+    #[test]
+    fn a_scaled_symmetry_is_that_of_the_scaled_object() {
+        let s = Symmetry::generated(&[element("z:inf@1,2,0"), element("x:2@0,2,7")]).unwrap();
+        let big = s.scaled(1000.0);
+        let p = Point3::new(3.0, -1.0, 4.0);
+        let (flip, flip_big) = (s.discrete[0], big.discrete[0]);
+        assert!(((flip_big * (p * 1000.0)) - (flip * p) * 1000.0).norm() < 0.1);
+        assert_eq!(
+            big.continuous.unwrap().point_mm,
+            Point3::new(1000.0, 2000.0, 0.0)
+        );
+        assert_eq!(s.scaled(1.0), s);
     }
 
     #[test]
