@@ -313,16 +313,12 @@ fn check_hints(models: &[&ObjectModel], opts: &RunOptions) -> Result<()> {
     Ok(())
 }
 
-/// The clusters' poses, each the canonical one of its equivalents (METHOD.md §1.8), so that the
-/// pose restriction and everything after judge the pose that is reported.
-fn clusters_as_poses(
-    clusters: &[crate::detect::clustering::PoseCluster],
-    symmetry: &Symmetry,
-) -> Vec<(Pose, u32)> {
-    clusters
-        .iter()
-        .map(|c| (symmetry.canonical(&c.pose), c.votes))
-        .collect()
+/// The clusters' poses as they were averaged, each the equivalent of its seed's (a voted pose)
+/// that the scene supports: re-scoring, ICP and the filters fit the model there. The canonical
+/// pose (METHOD.md §1.8) is only what is reported and what the request's pose restriction
+/// judges: a real part is symmetric only nearly, and ICP from an equivalent pose fits it worse.
+fn clusters_as_poses(clusters: &[crate::detect::clustering::PoseCluster]) -> Vec<(Pose, u32)> {
+    clusters.iter().map(|c| (c.pose, c.votes)).collect()
 }
 
 /// Which subsampled scene clouds a detection of `models` builds, and which of them each model
@@ -509,7 +505,7 @@ impl Detector {
                 out.counts.votes += own.votes;
                 out.counts.hypotheses += own.hypotheses;
                 out.per_object_counts[i] = own;
-                let clusters = clusters_as_poses(&clusters, &symmetry);
+                let clusters = clusters_as_poses(&clusters);
                 check_stop(start)?;
                 let kept = std::mem::take(&mut kept_hints[i]);
                 let hypotheses =
@@ -520,7 +516,7 @@ impl Detector {
                     clusters: clusters
                         .iter()
                         .take(self.params.clusters_kept)
-                        .copied()
+                        .map(|&(pose, votes)| (symmetry.canonical(&pose), votes))
                         .collect(),
                 });
             }
@@ -640,7 +636,7 @@ impl Detector {
         let clusters = if wanted.pose_restriction.is_some() {
             allowed = clusters
                 .iter()
-                .filter(|(pose, _)| wanted.allows(pose))
+                .filter(|(pose, _)| wanted.allows(&v.symmetry.canonical(pose)))
                 .copied()
                 .collect();
             &allowed[..]
@@ -729,7 +725,8 @@ impl Detector {
     /// none of the model's surface in the region of interest): the hypotheses that pass both
     /// filters, appended to `passed` (in score order up to
     /// [`RunOptions::hypotheses_per_object`]), and those that do not. The stages a voted pose
-    /// goes through after its first re-scoring, and all a hint goes through.
+    /// goes through after its first re-scoring, and all a hint goes through. Poses are fitted as
+    /// given, and each hypothesis holds the canonical one of its refined pose (METHOD.md §1.8).
     fn refine_and_filter(
         &self,
         v: &Verification,
@@ -742,14 +739,9 @@ impl Detector {
         let p = &self.params;
         let d = v.diameter_mm;
         let t = Instant::now();
-        // ICP may carry a pose across the canonical rule's boundary; a hint may come from any of
-        // the equivalent poses.
         let refined: Vec<(Pose, u32)> = poses
             .par_iter()
-            .map(|&(pose, votes)| {
-                let pose = refine(&v.surface, &pose, scene, d, &p.icp).pose;
-                (v.symmetry.canonical(&pose), votes)
-            })
+            .map(|&(pose, votes)| (refine(&v.surface, &pose, scene, d, &p.icp).pose, votes))
             .collect();
         timings.icp += t.elapsed();
 
@@ -778,8 +770,11 @@ impl Detector {
             if passed.len() >= opts.hypotheses_per_object && wanted.order == Order::Score {
                 break;
             }
+            // Fitted where the scene supports it, reported canonical (METHOD.md §1.8); the
+            // equivalents are one instance, at one distance (`v.centre`).
+            let reported = v.symmetry.canonical(&s.pose);
             if s.score < wanted.min_score
-                || !wanted.allows(&s.pose)
+                || !wanted.allows(&reported)
                 || !v.reaches_region(wanted, &scene.intrinsics, &s.pose)
                 || overlaps(&passed, &s.pose, &v.centre, nms)
             {
@@ -805,7 +800,7 @@ impl Detector {
                 checks.0 |= Checks::SILHOUETTE;
             }
             let h = Hypothesis {
-                pose: s.pose,
+                pose: reported,
                 score: s.score,
                 votes: s.votes,
                 checks,
