@@ -32,6 +32,7 @@ use nalgebra::{Matrix3, Matrix4, Point3, Translation3, Unit, UnitQuaternion, Vec
 use serde_json::Value;
 
 use ppfd_models::geometry::camera::{Intrinsics, OwnedDepthFrame};
+use ppfd_models::model::symmetry::{Symmetry, SymmetryAxis};
 use ppfd_models::{Error, Pose, Result};
 
 /// Tolerance on `RᵀR = I` for rotations read from files: LM-O's annotated rotations deviate by
@@ -113,6 +114,30 @@ pub struct ModelInfo {
     pub symmetries_discrete: Vec<Pose>,
     /// Continuous symmetries; empty for most objects.
     pub symmetries_continuous: Vec<ContinuousSymmetry>,
+}
+
+impl ModelInfo {
+    /// The symmetries as a model holds them (METHOD.md §1.8); refuses more than one continuous
+    /// axis (only a sphere has two, and a model supports one).
+    pub fn symmetry(&self) -> Result<Symmetry> {
+        let continuous = match self.symmetries_continuous.as_slice() {
+            [] => None,
+            [one] => Some(SymmetryAxis {
+                direction: one.axis,
+                point_mm: one.offset_mm,
+            }),
+            more => {
+                return Err(Error::InvalidParameter(format!(
+                    "{} continuous symmetries, a model supports one",
+                    more.len()
+                )))
+            }
+        };
+        Ok(Symmetry {
+            discrete: self.symmetries_discrete.clone(),
+            continuous,
+        })
+    }
 }
 
 /// One entry of `test_targets_bop19.json`: an object to find in an image, and how many times.
@@ -342,6 +367,17 @@ impl BopDataset {
                 &self.root.join("models").join("models_info.json"),
                 "missing, so there is no model info",
             )),
+        }
+    }
+
+    /// The symmetries `models_info.json` gives object `obj_id` ([`ModelInfo::symmetry`]); none
+    /// when the dataset has no `models_info.json` or it has no entry for the object.
+    pub fn symmetry(&self, obj_id: u32) -> Result<Symmetry> {
+        match (&self.models_info_path, self.model_infos.get(&obj_id)) {
+            (Some(path), Some(info)) => info
+                .symmetry()
+                .map_err(|e| dataset_error(path, format!("object {obj_id}: {e}"))),
+            _ => Ok(Symmetry::default()),
         }
     }
 
@@ -1017,6 +1053,33 @@ pub fn read_test_targets(path: impl AsRef<Path>) -> Result<Vec<TestTarget>> {
     parse_file(path.as_ref(), parse_test_targets)
 }
 
+/// Reads a `models_info.json` (diameters, bounding boxes and symmetries by object id); errors
+/// name the file and the entry.
+pub fn read_models_info(path: impl AsRef<Path>) -> Result<BTreeMap<u32, ModelInfo>> {
+    parse_file(path.as_ref(), parse_models_info)
+}
+
+/// The symmetries the `models_info.json` beside the mesh file `mesh` gives object `obj_id`
+/// ([`ModelInfo::symmetry`]), with that file's path: `None` when there is no such file or it
+/// has no entry for the object. The rule `ppf model build`, the daemon and the offline commands
+/// share for a mesh's model (METHOD.md §1.8); errors name the file and the object.
+pub fn symmetry_beside(mesh: &Path, obj_id: u32) -> Result<Option<(Symmetry, PathBuf)>> {
+    let Some(info) = mesh
+        .parent()
+        .map(|dir| dir.join("models_info.json"))
+        .filter(|p| p.is_file())
+    else {
+        return Ok(None);
+    };
+    let Some(entry) = read_models_info(&info)?.remove(&obj_id) else {
+        return Ok(None);
+    };
+    let symmetry = entry
+        .symmetry()
+        .map_err(|e| dataset_error(&info, format!("object {obj_id}: {e}")))?;
+    Ok(Some((symmetry, info)))
+}
+
 /// Opens a depth PNG, checked on the open file (a regular file).
 fn open_depth_png(path: &Path) -> Result<std::fs::File> {
     ppfd_models::file::open_regular(path)
@@ -1261,6 +1324,23 @@ mod tests {
             (flipped - Point3::new(3.0, -2.0, 3.0)).norm() < 1e-5,
             "{flipped:?}"
         );
+        // As a model holds them.
+        let axis = data.symmetry(1).unwrap().continuous.unwrap();
+        assert_eq!(axis.direction.into_inner(), Vector3::z());
+        assert_eq!(axis.point_mm, Point3::new(0.0, 0.0, 5.0));
+        assert_eq!(
+            data.symmetry(2).unwrap().discrete,
+            info2.symmetries_discrete
+        );
+        assert!(data.symmetry(7).unwrap().is_none(), "no entry, no symmetry");
+        // Beside a mesh: the same, with the file it came from.
+        let mesh = dir.0.join("models/obj_000002.ply");
+        let (beside, from) = symmetry_beside(&mesh, 2).unwrap().unwrap();
+        assert_eq!(beside, data.symmetry(2).unwrap());
+        assert_eq!(from, dir.0.join("models/models_info.json"));
+        assert!(symmetry_beside(&mesh, 7).unwrap().is_none(), "no entry");
+        let elsewhere = dir.0.join("test/obj_000002.ply");
+        assert!(symmetry_beside(&elsewhere, 2).unwrap().is_none(), "no file");
         assert_eq!(
             data.model_info(1).unwrap().min_mm,
             Point3::new(-10.0, -20.0, -30.0)

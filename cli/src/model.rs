@@ -9,6 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::sanity;
 use ppfd_models::model::store;
+use ppfd_models::model::symmetry::{Symmetry, SymmetryElement};
 use ppfd_models::model::{ModelParams, ObjectModel};
 
 use crate::common::ScratchDir;
@@ -43,6 +44,63 @@ pub struct BuildArgs {
     /// whose diameter is not 2 mm to 10 m is refused without it.
     #[arg(long, value_parser = positive_scale)]
     pub scale: Option<f32>,
+    /// The object's symmetry, for a single mesh; repeatable, the symmetry is all the given turns
+    /// combined. `AXIS:N` is every turn by a multiple of 360°/N about the axis (N 2 to 100),
+    /// `AXIS:inf` any turn about it; either may end in `@X,Y,Z`, a point of the axis in the
+    /// model's mm, after --scale (else the model's origin). `AXIS` is x, y, z or a direction
+    /// A,B,C: `z:2`, `z:inf --symmetry x:2`, `0,1,1:4@0,0,12.5`. `none` for no symmetry. A
+    /// symmetry the mesh does not have is refused. Without it, a mesh takes the symmetries of
+    /// its entry in the `models_info.json` beside it (BOP layout), if there is one, as the
+    /// daemon and `ppf eval` do; one the mesh does not have is then left out with a warning.
+    #[arg(long, value_parser = symmetry_arg, value_name = "AXIS:N|AXIS:inf|none")]
+    pub symmetry: Vec<SymmetryArg>,
+}
+
+/// One `--symmetry` value.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SymmetryArg {
+    /// `none`: no symmetry, whatever `models_info.json` says.
+    None,
+    Element(SymmetryElement),
+}
+
+fn symmetry_arg(text: &str) -> Result<SymmetryArg, String> {
+    if text.trim().eq_ignore_ascii_case("none") {
+        return Ok(SymmetryArg::None);
+    }
+    text.parse().map(SymmetryArg::Element)
+}
+
+/// The symmetry `--symmetry` gives (`None` when not given): refuses it for several meshes, and
+/// `none` with turns.
+fn given_symmetry(args: &BuildArgs) -> Result<Option<Symmetry>, String> {
+    if args.symmetry.is_empty() {
+        return Ok(None);
+    }
+    if args.meshes.len() > 1 {
+        return Err(
+            "--symmetry applies to a single mesh; with several, each takes the \
+                    symmetries of the models_info.json beside it, if any"
+                .into(),
+        );
+    }
+    let elements: Vec<SymmetryElement> = args
+        .symmetry
+        .iter()
+        .filter_map(|a| match a {
+            SymmetryArg::Element(e) => Some(*e),
+            SymmetryArg::None => None,
+        })
+        .collect();
+    if elements.len() < args.symmetry.len() {
+        return match elements.len() {
+            0 => Ok(Some(Symmetry::default())),
+            _ => Err("--symmetry none says the object has no symmetry: give it alone".into()),
+        };
+    }
+    Symmetry::generated(&elements)
+        .map(Some)
+        .map_err(|e| format!("--symmetry: {e}"))
 }
 
 /// A `--scale` factor: finite and positive.
@@ -142,6 +200,18 @@ pub fn run(cmd: ModelCommand) -> Result<(), Box<dyn std::error::Error>> {
 fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
     // All refusals before anything is built.
     let ids = object_ids(&args.meshes, args.id)?;
+    let given = given_symmetry(&args)?;
+    let mut symmetries = Vec::with_capacity(ids.len());
+    for (path, &id) in args.meshes.iter().zip(&ids) {
+        symmetries.push(match &given {
+            Some(symmetry) => (symmetry.clone(), None),
+            // In the mesh's units, as the mesh is.
+            None => match ppfd_bop::dataset::symmetry_beside(path, id)? {
+                Some((symmetry, from)) => (symmetry.scaled(args.scale.unwrap_or(1.0)), Some(from)),
+                None => (Symmetry::default(), None),
+            },
+        });
+    }
     if args.out.exists() && !args.out.is_dir() {
         return Err(format!(
             "--out {}: is a file; --out takes a folder to write the model files into (made if \
@@ -175,24 +245,47 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
     bar.set_style(ProgressStyle::with_template("{bar:30} {pos}/{len} {msg} [{elapsed}]").unwrap());
     let params = ModelParams::default();
     let mut failures = 0;
-    for (path, &id) in args.meshes.iter().zip(&ids) {
+    for ((path, &id), (symmetry, symmetry_from)) in args.meshes.iter().zip(&ids).zip(&symmetries) {
         let name = name_of(path);
         bar.set_message(name.clone());
-        let result = Mesh::from_ply_file(path)
-            .and_then(|mut mesh| {
-                if let Some(factor) = args.scale {
-                    mesh.scale(factor);
-                }
-                ObjectModel::build_with_report(&mesh, id, &name, &params)
+        let result = ppfd_models::file::read_bounded(path, &ppfd_models::limits::MESH_FILE)
+            .and_then(|bytes| {
+                let mut mesh = Mesh::from_ply_reader(&bytes[..], path)?;
+                let (model, report) = match args.scale {
+                    Some(factor) => {
+                        mesh.scale(factor);
+                        ObjectModel::build_with_report(&mesh, id, &name, &params)?
+                    }
+                    // The model of the file's very bytes, as the daemon would build it: it
+                    // records their CRC, so that the daemon takes it, beside the mesh, before
+                    // the model it cached of the mesh, whose symmetry may differ.
+                    None => {
+                        let (model, report) =
+                            ObjectModel::build_with_report(&mesh, id, &name, &params)?;
+                        (model.with_source_crc(store::source_crc(&bytes))?, report)
+                    }
+                };
+                Ok((model, report))
             })
             .and_then(|(model, report)| {
+                if symmetry.is_none() {
+                    return Ok((model, report, None));
+                }
+                match model.with_symmetry(symmetry) {
+                    Ok(symmetric) => Ok((symmetric, report, None)),
+                    // Read beside the mesh: left out, as the daemon and `ppf eval` leave it.
+                    Err(e) if symmetry_from.is_some() => Ok((model, report, Some(e))),
+                    Err(e) => Err(e),
+                }
+            })
+            .and_then(|(model, report, left_out)| {
                 let out = args.out.join(format!("{name}.{}", store::EXTENSION));
-                store::save(&model, &out).map(|_| (model, report, out))
+                store::save(&model, &out).map(|_| (model, report, out, left_out))
             });
         match result {
             // `suspend`, not `ProgressBar::println`: that prints nothing when the bar is
             // hidden (output not a terminal), and a script would see no reason for a failure.
-            Ok((model, report, out)) => bar.suspend(|| {
+            Ok((model, report, out, left_out)) => bar.suspend(|| {
                 println!(
                     "{}: object {id}, {}, {} points, {} table entries, {:.1} MB -> {}",
                     path.display(),
@@ -207,6 +300,23 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
                         "note: {}: the normals of this closed mesh pointed inward; the model \
                          has them flipped to point outward",
                         path.display()
+                    );
+                }
+                if let (Some(e), Some(info)) = (&left_out, symmetry_from) {
+                    eprintln!(
+                        "warning: {}: the symmetry of {} is left out, the model has none: {e}",
+                        path.display(),
+                        info.display()
+                    );
+                } else if !symmetry.is_none() {
+                    let from = match symmetry_from {
+                        Some(info) => format!(" (from {})", info.display()),
+                        None => String::new(),
+                    };
+                    println!(
+                        "{}: symmetry: {}{from}",
+                        path.display(),
+                        symmetry.describe()
                     );
                 }
             }),
@@ -296,6 +406,7 @@ fn info(file: &Path) -> Result<(), Box<dyn std::error::Error>> {
         mesh.faces.len(),
         model.mesh_fingerprint()
     );
+    println!("symmetry        {}", model.symmetry().describe());
     println!("bytes           {:.2} MB", model.byte_size() as f64 / 1e6);
     println!("parameters      {p:?}");
     Ok(())

@@ -1,5 +1,5 @@
 //! What the offline commands share: loading a BOP dataset's models, built once and cached
-//! ([`ppfd::model_cache`]).
+//! ([`ppfd::model_cache`]), with the symmetries of the `models_info.json` beside the meshes.
 
 use indicatif::{ProgressBar, ProgressStyle};
 use ppfd::model_cache::{load_or_build, MeshSource, ModelFiles};
@@ -21,6 +21,10 @@ pub fn dataset_models(dataset: &BopDataset, ids: &[u32]) -> Result<Vec<ObjectMod
         let files = ModelFiles::of_mesh(&path, Some(&store::default_cache_dir()));
         let cached = load_or_build(MeshSource::File(&path), id, &params, &files)
             .map_err(|e| e.to_string())?;
+        // With the symmetry of the models_info.json beside the mesh, as the daemon's.
+        if let Some(why) = &cached.symmetry_left_out {
+            bar.suspend(|| eprintln!("warning: {why}"));
+        }
         out.push(cached.model);
         bar.inc(1);
     }

@@ -128,3 +128,177 @@ fn a_model_of_another_object_is_not_overwritten() {
     // The same object again is rebuilt in place.
     assert!(build(&["--id", "8"]).status.success());
 }
+
+fn ppf_model(args: &[&std::ffi::OsStr]) -> (std::process::Output, String, String) {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_ppf"));
+    command.arg("model").args(args);
+    let out = command.output().unwrap();
+    common::show(&command, &out);
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    (out, stdout, stderr)
+}
+
+/// `--symmetry` is stored in the model and shown by `ppf model info`; without it, a mesh takes
+/// the symmetries of the `models_info.json` beside it.
+#[test]
+fn a_symmetry_given_or_read_beside_the_mesh_is_stored_and_shown() {
+    use ppfd_models::synthetic::parts::SymmetricPart;
+    let scratch = Scratch::new("model-build-symmetry");
+    let mesh = scratch.join("obj_000005.ply");
+    std::fs::write(&mesh, SymmetricPart::UChannel.mesh().to_ply_ascii()).unwrap();
+    let out = scratch.join("models");
+    let model = out.join("obj_000005.ppfm");
+    let os = |s: &'static str| std::ffi::OsStr::new(s);
+
+    let (run, stdout, _) = ppf_model(&[
+        os("build"),
+        mesh.as_os_str(),
+        os("--symmetry"),
+        os("z:2"),
+        os("--out"),
+        out.as_os_str(),
+    ]);
+    assert!(run.status.success());
+    assert!(stdout.contains("obj_000005.ply: symmetry: discrete, 2 poses alike\n"));
+    let (run, stdout, _) = ppf_model(&[os("info"), model.as_os_str()]);
+    assert!(run.status.success());
+    assert!(stdout.contains("symmetry        discrete, 2 poses alike\n"));
+
+    // The same half turn from models_info.json (BOP's row-major 4×4), and `none` to ignore it.
+    std::fs::write(
+        scratch.join("models_info.json"),
+        r#"{"5": {"diameter": 150.7, "min_x": -45, "min_y": -55, "min_z": -25,
+                  "size_x": 90, "size_y": 110, "size_z": 50,
+                  "symmetries_discrete": [[-1, 0, 0, 0, 0, -1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]]}}"#,
+    )
+    .unwrap();
+    let (run, stdout, _) =
+        ppf_model(&[os("build"), mesh.as_os_str(), os("--out"), out.as_os_str()]);
+    assert!(run.status.success());
+    assert!(
+        stdout.contains("symmetry: discrete, 2 poses alike (from ")
+            && stdout.contains("models_info.json)"),
+        "{stdout}"
+    );
+    let (run, stdout, _) = ppf_model(&[
+        os("build"),
+        mesh.as_os_str(),
+        os("--symmetry"),
+        os("none"),
+        os("--out"),
+        out.as_os_str(),
+    ]);
+    assert!(
+        run.status.success() && !stdout.contains(": symmetry:"),
+        "{stdout}"
+    );
+    let (_, stdout, _) = ppf_model(&[os("info"), model.as_os_str()]);
+    assert!(stdout.contains("symmetry        none\n"), "{stdout}");
+    // The model of the file's bytes records their CRC, as the daemon's cache does: the daemon
+    // takes it, beside the mesh, before a model it cached of the mesh.
+    use ppfd_models::model::store;
+    let crc = store::source_crc(&std::fs::read(&mesh).unwrap());
+    assert_eq!(store::load(&model).unwrap().source_crc(), crc);
+
+    // A symmetry of models_info.json that the mesh does not have (a quarter turn) is left out
+    // with a warning, as the daemon and `ppf eval` leave it; given with --symmetry, refused.
+    std::fs::write(
+        scratch.join("models_info.json"),
+        r#"{"5": {"diameter": 150.7, "min_x": -45, "min_y": -55, "min_z": -25,
+                  "size_x": 90, "size_y": 110, "size_z": 50,
+                  "symmetries_discrete": [[0, -1, 0, 0, 1, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]]}}"#,
+    )
+    .unwrap();
+    let (run, stdout, stderr) =
+        ppf_model(&[os("build"), mesh.as_os_str(), os("--out"), out.as_os_str()]);
+    assert!(run.status.success(), "{stderr}");
+    assert!(!stdout.contains(": symmetry:"), "{stdout}");
+    assert!(
+        stderr.contains("obj_000005.ply: the symmetry of ")
+            && stderr.contains("models_info.json is left out, the model has none")
+            && stderr.contains("does not have it"),
+        "{stderr}"
+    );
+    assert!(store::load(&model).unwrap().symmetry().is_none());
+    let (run, _, stderr) = ppf_model(&[
+        os("build"),
+        mesh.as_os_str(),
+        os("--symmetry"),
+        os("z:4"),
+        os("--out"),
+        out.as_os_str(),
+    ]);
+    assert_eq!(run.status.code(), Some(1));
+    assert!(stderr.contains("does not have it"), "{stderr}");
+}
+
+/// Each refusal of `--symmetry` says what was wrong, and nothing is written.
+#[test]
+fn a_malformed_or_false_symmetry_is_refused_saying_why() {
+    let scratch = Scratch::new("model-build-symmetry-refused");
+    let mesh = scratch.join("obj_000001.ply");
+    std::fs::write(&mesh, Part::LBracket.mesh().to_ply_ascii()).unwrap();
+    let other = scratch.join("obj_000002.ply");
+    std::fs::write(&other, Part::TPipe.mesh().to_ply_ascii()).unwrap();
+    let out = scratch.join("models");
+    let os = std::ffi::OsStr::new;
+    let usage = [
+        ("z:1", "the order 1 is not 2 to 100"),
+        ("z:half", "the order \"half\" is not a whole number or inf"),
+        ("w:2", "the axis \"w\" is not three finite numbers"),
+        ("0,0,0:inf", "the axis has zero length"),
+        ("z:2@1,2", "the point \"1,2\" is not three finite numbers"),
+        ("z2", "no ':' between the axis and the order"),
+    ];
+    for (value, why) in usage {
+        let (run, _, stderr) = ppf_model(&[
+            os("build"),
+            mesh.as_os_str(),
+            os("--symmetry"),
+            os(value),
+            os("--out"),
+            out.as_os_str(),
+        ]);
+        assert_eq!(run.status.code(), Some(2), "{value}: a usage error");
+        assert!(
+            stderr.contains(&format!("invalid value '{value}' for '--symmetry"))
+                && stderr.contains(why),
+            "{value}: {stderr}"
+        );
+    }
+    let refusals: [(&[&str], &[&std::path::Path], &str); 4] = [
+        (
+            &["--symmetry", "none", "--symmetry", "z:2"],
+            &[&mesh],
+            "--symmetry none says the object has no symmetry: give it alone",
+        ),
+        (
+            &["--symmetry", "z:inf", "--symmetry", "x:inf"],
+            &[&mesh],
+            "two different continuous symmetry axes",
+        ),
+        (
+            &["--symmetry", "z:2"],
+            &[&mesh, &other],
+            "--symmetry applies to a single mesh",
+        ),
+        // The bracket has no half turn.
+        (
+            &["--symmetry", "z:2"],
+            &[&mesh],
+            "obj_000001: symmetry: the object does not have it: discrete transform 1 (a turn \
+             of 180° about (0.00, 0.00, 1.00)) moves a tenth of its surface",
+        ),
+    ];
+    for (extra, meshes, why) in refusals {
+        let mut args: Vec<&std::ffi::OsStr> = vec![os("build")];
+        args.extend(meshes.iter().map(|m| m.as_os_str()));
+        args.extend(extra.iter().map(|a| os(a)));
+        args.extend([os("--out"), out.as_os_str()]);
+        let (run, _, stderr) = ppf_model(&args);
+        assert_eq!(run.status.code(), Some(1), "{extra:?}");
+        assert!(stderr.contains(why), "{extra:?}: {stderr}");
+    }
+    assert!(!out.join("obj_000001.ppfm").exists());
+}

@@ -11,8 +11,9 @@
 //! - [`model`]: [`model::ObjectModel`] is built from a mesh once, offline: dense surface samples
 //!   ([`sampling`]) are subsampled with normal clustering ([`subsample`]) and every ordered pair
 //!   of the remaining oriented points is stored under its quantised point pair feature
-//!   ([`feature`]) in a dense lookup table ([`table::LookupTable`]). [`store`] writes it to disk
-//!   and reads it back.
+//!   ([`feature`]) in a dense lookup table ([`table::LookupTable`]). A model may carry the
+//!   object's [`symmetry`], the poses that cannot be told apart. [`store`] writes it to disk and
+//!   reads it back.
 //! - [`detect`]: at run time a depth frame becomes oriented scene points ([`scene`]), which vote
 //!   for model-point/angle pairs ([`voting`]); the votes become poses that are clustered
 //!   ([`clustering`]), re-scored from the camera's view ([`rescoring`]), refined by projective
@@ -33,6 +34,7 @@
 //! [`subsample`]: model::subsample
 //! [`feature`]: model::feature
 //! [`table::LookupTable`]: model::table::LookupTable
+//! [`symmetry`]: model::symmetry
 //! [`store`]: model::store
 //! [`scene`]: detect::scene
 //! [`voting`]: detect::voting

@@ -32,7 +32,13 @@ fn best_cluster(model: &ObjectModel, scene: &SyntheticScene, params: &DetectPara
     )
     .unwrap();
     let (raw, counts) = vote(model, &cloud, &params.voting);
-    let best = cluster_poses(&raw, model.diameter_mm(), &params.clustering)[0].pose;
+    let best = cluster_poses(
+        &raw,
+        model.diameter_mm(),
+        &model.symmetry(),
+        &params.clustering,
+    )[0]
+    .pose;
     (best, counts.reference_points)
 }
 
@@ -284,7 +290,7 @@ fn model_points_moved_by_a_pose_vote_for_that_pose() {
         }
         let cloud = PreparedScene::new(&moved, &model.params().subsample_params(d)).unwrap();
         let (raw, _) = vote(&model, &cloud, &params.voting);
-        let best = cluster_poses(&raw, d, &params.clustering)[0].pose;
+        let best = cluster_poses(&raw, d, &model.symmetry(), &params.clustering)[0].pose;
         let (dt, dr) = errors(&best, &pose);
         eprintln!("{}: {dt:.1} mm {dr:.1} deg", part.name());
         if dt < 0.05 * d && dr < 5.0 {

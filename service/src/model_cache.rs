@@ -12,7 +12,15 @@
 //!   binary keeps its model, which then records the file's new CRC.
 //!
 //! Otherwise the model is built and saved, replacing the file that was there (a cached model of
-//! another mesh, another object id or an older format). [`store::save`] writes through a
+//! another mesh, another object id or an older format).
+//!
+//! The model of a mesh file then takes the symmetries that the `models_info.json` beside the
+//! mesh gives its object (BOP layout; METHOD.md §1.8), in memory: the saved model keeps the
+//! symmetry it was saved with, so that editing `models_info.json` needs no rebuild. Without
+//! such a file or entry, the model keeps the symmetry saved in it (`ppf model build
+//! --symmetry` writes one), none for a model built here. A symmetry the mesh does not have is
+//! left out with a warning ([`CachedModel::symmetry_left_out`]), and the model keeps its own.
+//! `ppf model build` follows the same rule. [`store::save`] writes through a
 //! temporary file of the writer's own and a rename, so that processes sharing a cache never read
 //! a half-written model, and removes the temporary files of writers killed meanwhile.
 //!
@@ -109,13 +117,70 @@ pub struct CachedModel {
     pub rejected: Vec<String>,
     /// Why a model built now was not saved; the model is returned all the same.
     pub not_saved: Option<ppfd_models::Error>,
+    /// The `models_info.json` whose symmetry the model has (see the module documentation).
+    pub symmetry_from: Option<PathBuf>,
+    /// Why the symmetry of the `models_info.json` beside the mesh was left out (the mesh does
+    /// not have it), naming the file and the object.
+    pub symmetry_left_out: Option<String>,
 }
 
 /// The model of `source` as object `object_id`, from the first of `files`' candidates that
-/// holds it (see the module documentation), or built and saved at `files.save_to`. Fails only
-/// when the mesh cannot be read or the model cannot be built; a failed save is reported in
-/// [`CachedModel::not_saved`] and logged.
+/// holds it (see the module documentation), or built and saved at `files.save_to`; a mesh
+/// file's model with the symmetries of the `models_info.json` beside it. Fails only when the
+/// mesh or that `models_info.json` cannot be read or the model cannot be built; a failed save
+/// is reported in [`CachedModel::not_saved`] and logged.
 pub fn load_or_build(
+    source: MeshSource<'_>,
+    object_id: u32,
+    params: &ModelParams,
+    files: &ModelFiles,
+) -> Result<CachedModel, ppfd_models::Error> {
+    let mut cached = load_or_build_mesh_model(source, object_id, params, files)?;
+    if let MeshSource::File(mesh) = source {
+        take_symmetry_beside(&mut cached, mesh)?;
+    }
+    Ok(cached)
+}
+
+/// Gives `cached.model` the symmetry the `models_info.json` beside `mesh` gives its object, if
+/// there is such an entry and the mesh has it (see the module documentation).
+fn take_symmetry_beside(cached: &mut CachedModel, mesh: &Path) -> Result<(), ppfd_models::Error> {
+    let id = cached.model.object_id();
+    let Some((symmetry, info)) = ppfd_bop::dataset::symmetry_beside(mesh, id)? else {
+        return Ok(());
+    };
+    if symmetry != cached.model.symmetry() {
+        match cached.model.with_symmetry(&symmetry) {
+            Ok(symmetric) => cached.model = symmetric,
+            Err(e) => {
+                tracing::warn!(
+                    path = %mesh.display(),
+                    models_info = %info.display(),
+                    error = %e,
+                    "the symmetry of models_info.json is left out"
+                );
+                cached.symmetry_left_out = Some(format!(
+                    "{}: object {id}: the symmetry is left out: {e}",
+                    info.display()
+                ));
+                return Ok(());
+            }
+        }
+    }
+    if !symmetry.is_none() {
+        tracing::info!(
+            path = %mesh.display(),
+            models_info = %info.display(),
+            symmetry = %symmetry.describe(),
+            "model takes the symmetry of models_info.json"
+        );
+    }
+    cached.symmetry_from = Some(info);
+    Ok(())
+}
+
+/// [`load_or_build`] without the symmetries of `models_info.json`.
+fn load_or_build_mesh_model(
     source: MeshSource<'_>,
     object_id: u32,
     params: &ModelParams,
@@ -129,6 +194,8 @@ pub fn load_or_build(
         file: Some(file.to_path_buf()),
         rejected,
         not_saved: None,
+        symmetry_from: None,
+        symmetry_left_out: None,
     };
 
     let parsed: Mesh;
@@ -223,6 +290,8 @@ pub fn load_or_build(
         file: None,
         rejected,
         not_saved: None,
+        symmetry_from: None,
+        symmetry_left_out: None,
     };
     match store::save(&built.model, save_to) {
         // Read the saved file back: what the next load will use is checked now.
@@ -400,6 +469,87 @@ mod tests {
     }
 
     /// With a cache, a model file beside the mesh is looked at first, read but never written.
+    /// A mesh file's model takes the symmetry the `models_info.json` beside the mesh gives its
+    /// object, in memory, whether built now or found; one the mesh does not have is left out,
+    /// saying why; without an entry, the model keeps the symmetry saved in it.
+    #[test]
+    fn a_mesh_files_model_takes_the_symmetry_of_the_models_info_beside_it() {
+        use ppfd_models::model::symmetry::Symmetry;
+        use ppfd_models::synthetic::parts::SymmetricPart;
+        let root = scratch("symmetry");
+        let (models, cache) = (root.join("models"), root.join("cache"));
+        std::fs::create_dir_all(&models).unwrap();
+        let ply = models.join("obj_000005.ply");
+        std::fs::write(&ply, SymmetricPart::UChannel.mesh().to_ply_ascii()).unwrap();
+        let info = models.join("models_info.json");
+        // BOP's row-major 4 × 4: a half turn about z, then a quarter turn (the part has no such).
+        let write_info = |matrix: &str| {
+            std::fs::write(
+                &info,
+                format!(
+                    r#"{{"5": {{"diameter": 150.7, "min_x": -45, "min_y": -55, "min_z": -25,
+                        "size_x": 90, "size_y": 110, "size_z": 50,
+                        "symmetries_discrete": [[{matrix}]]}}}}"#
+                ),
+            )
+            .unwrap()
+        };
+        let half = "-1, 0, 0, 0, 0, -1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1";
+        let quarter = "0, -1, 0, 0, 1, 0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1";
+        let files = ModelFiles::of_mesh(&ply, Some(&cache));
+        let params = ModelParams::default();
+        let load = || load_or_build(MeshSource::File(&ply), 5, &params, &files).unwrap();
+
+        write_info(half);
+        let built = load();
+        assert_eq!(built.origin, Origin::Built);
+        assert_eq!(built.model.symmetry().order(), Some(2));
+        assert_eq!(built.symmetry_from.as_ref(), Some(&info));
+        // In memory only: the cache holds the mesh's model, and gives it the symmetry again.
+        assert!(store::load(&files.save_to).unwrap().symmetry().is_none());
+        let found = load();
+        assert_eq!(found.origin, Origin::SameFile);
+        assert_eq!(found.model.symmetry(), built.model.symmetry());
+
+        write_info(quarter);
+        let refused = load();
+        assert!(refused.model.symmetry().is_none());
+        let why = refused.symmetry_left_out.expect("left out");
+        assert!(
+            why.contains("models_info.json: object 5: the symmetry is left out")
+                && why.contains("does not have it"),
+            "{why}"
+        );
+
+        // No entry for the object: a model beside the mesh keeps the symmetry saved in it. One
+        // `ppf model build --symmetry` wrote, with the file's CRC: taken before the cached one.
+        std::fs::write(&info, "{}").unwrap();
+        let turned = Symmetry::generated(&["z:2".parse().unwrap()]).unwrap();
+        let beside = ply.with_extension(store::EXTENSION);
+        let own = ObjectModel::build(&SymmetricPart::UChannel.mesh(), 5, "own", &params)
+            .unwrap()
+            .with_source_crc(file_crc(&ply))
+            .unwrap()
+            .with_symmetry(&turned)
+            .unwrap();
+        store::save(&own, &beside).unwrap();
+        let kept = load();
+        assert_eq!(kept.model.name(), "own");
+        assert_eq!(kept.model.symmetry(), turned);
+        assert!(kept.symmetry_from.is_none() && kept.symmetry_left_out.is_none());
+        // A malformed models_info.json is an error naming it.
+        std::fs::write(&info, "{").unwrap();
+        let e = load_or_build(MeshSource::File(&ply), 5, &params, &files)
+            .err()
+            .expect("refused")
+            .to_string();
+        assert!(
+            e.contains("models_info.json") && e.contains("not valid JSON"),
+            "{e}"
+        );
+        std::fs::remove_dir_all(root).unwrap();
+    }
+
     #[test]
     fn a_model_beside_the_mesh_is_read_but_never_written() {
         let root = scratch("beside-with-cache");

@@ -744,7 +744,17 @@ fn request_requirements_are_checked_by_the_daemon_and_served() {
         width: 100,
         height: 10,
     };
-    match client.send_raw(&outside, &[], DETECTION) {
+    // The camera's first frame may not have reached the daemon yet.
+    let answer = loop {
+        match client.send_raw(&outside, &[], DETECTION) {
+            Err(ppfd_client::Error::Refused {
+                status: Status::NoFrame | Status::UnknownCamera,
+                ..
+            }) => std::thread::sleep(Duration::from_millis(50)),
+            answer => break answer,
+        }
+    };
+    match answer {
         Err(ppfd_client::Error::Refused {
             status, message, ..
         }) => {

@@ -28,6 +28,7 @@ use crate::detect::voting::{vote_from, Selection, VotingParams};
 use crate::geometry::mesh::Mesh;
 use crate::geometry::render::{bounding_sphere, Renderer, Roi};
 use crate::model::subsample::{OrientedPoints, SubsampleParams};
+use crate::model::symmetry::Symmetry;
 use crate::model::ObjectModel;
 use crate::{Error, Pose, Result};
 use nalgebra::Point3;
@@ -312,6 +313,10 @@ fn check_hints(models: &[&ObjectModel], opts: &RunOptions) -> Result<()> {
     Ok(())
 }
 
+/// The clusters' poses as they were averaged, each the equivalent of its seed's (a voted pose)
+/// that the scene supports: re-scoring, ICP and the filters fit the model there. The canonical
+/// pose (METHOD.md §1.8) is only what is reported and what the request's pose restriction
+/// judges: a real part is symmetric only nearly, and ICP from an equivalent pose fits it worse.
 fn clusters_as_poses(clusters: &[crate::detect::clustering::PoseCluster]) -> Vec<(Pose, u32)> {
     clusters.iter().map(|c| (c.pose, c.votes)).collect()
 }
@@ -480,7 +485,13 @@ impl Detector {
                 let (raw, counts) = vote_from(model, scene, &selection, &self.params.voting);
                 timings.voting += t.elapsed();
                 let t = Instant::now();
-                let clusters = cluster_poses(&raw, model.diameter_mm(), &self.params.clustering);
+                let symmetry = model.symmetry();
+                let clusters = cluster_poses(
+                    &raw,
+                    model.diameter_mm(),
+                    &symmetry,
+                    &self.params.clustering,
+                );
                 timings.clustering += t.elapsed();
                 let own = Counts {
                     scene_points: scene.points.len() as u32,
@@ -505,7 +516,7 @@ impl Detector {
                     clusters: clusters
                         .iter()
                         .take(self.params.clusters_kept)
-                        .copied()
+                        .map(|&(pose, votes)| (symmetry.canonical(&pose), votes))
                         .collect(),
                 });
             }
@@ -583,10 +594,13 @@ impl Detector {
         let edges = edges.get_or_init(|| EdgeMap::new(scene, &self.params.filters));
         timings.filters += t.elapsed();
         let d = model.diameter_mm();
+        let symmetry = model.symmetry();
         Verification {
             surface: model.surface_points(),
             mesh,
+            centre: symmetry.fixed_point(&sphere.0),
             sphere,
+            symmetry,
             edges,
             diameter_mm: d,
             conflict_mm: self.params.rescoring.conflict_mm(d),
@@ -622,7 +636,7 @@ impl Detector {
         let clusters = if wanted.pose_restriction.is_some() {
             allowed = clusters
                 .iter()
-                .filter(|(pose, _)| wanted.allows(pose))
+                .filter(|(pose, _)| wanted.allows(&v.symmetry.canonical(pose)))
                 .copied()
                 .collect();
             &allowed[..]
@@ -685,7 +699,7 @@ impl Detector {
     ) -> Vec<Hypothesis> {
         let n = opts.hypotheses_per_object;
         if opts.requirements.order == Order::Distance {
-            let distance = |h: &Hypothesis| (h.pose * v.sphere.0).coords.norm();
+            let distance = |h: &Hypothesis| (h.pose * v.centre).coords.norm();
             passed.sort_by(|a, b| distance(a).total_cmp(&distance(b)));
             failed.sort_by(|a, b| distance(a).total_cmp(&distance(b)));
         }
@@ -698,7 +712,7 @@ impl Detector {
             if out.len() == n {
                 break;
             }
-            if !overlaps(&out, &h.pose, &v.sphere.0, nms) {
+            if !overlaps(&out, &h.pose, &v.centre, nms) {
                 out.push(h);
             }
         }
@@ -711,7 +725,8 @@ impl Detector {
     /// none of the model's surface in the region of interest): the hypotheses that pass both
     /// filters, appended to `passed` (in score order up to
     /// [`RunOptions::hypotheses_per_object`]), and those that do not. The stages a voted pose
-    /// goes through after its first re-scoring, and all a hint goes through.
+    /// goes through after its first re-scoring, and all a hint goes through. Poses are fitted as
+    /// given, and each hypothesis holds the canonical one of its refined pose (METHOD.md §1.8).
     fn refine_and_filter(
         &self,
         v: &Verification,
@@ -755,10 +770,13 @@ impl Detector {
             if passed.len() >= opts.hypotheses_per_object && wanted.order == Order::Score {
                 break;
             }
+            // Fitted where the scene supports it, reported canonical (METHOD.md §1.8); the
+            // equivalents are one instance, at one distance (`v.centre`).
+            let reported = v.symmetry.canonical(&s.pose);
             if s.score < wanted.min_score
-                || !wanted.allows(&s.pose)
+                || !wanted.allows(&reported)
                 || !v.reaches_region(wanted, &scene.intrinsics, &s.pose)
-                || overlaps(&passed, &s.pose, &v.sphere.0, nms)
+                || overlaps(&passed, &s.pose, &v.centre, nms)
             {
                 continue;
             }
@@ -782,7 +800,7 @@ impl Detector {
                 checks.0 |= Checks::SILHOUETTE;
             }
             let h = Hypothesis {
-                pose: s.pose,
+                pose: reported,
                 score: s.score,
                 votes: s.votes,
                 checks,
@@ -803,6 +821,11 @@ struct Verification<'a> {
     surface: OrientedPoints,
     mesh: Arc<Mesh>,
     sphere: (Point3<f32>, f32),
+    /// The bounding sphere's centre moved onto what the object's symmetries leave in place
+    /// ([`Symmetry::fixed_point`]): equivalent poses put it at one place, so they are one
+    /// instance, at one distance from the camera.
+    centre: Point3<f32>,
+    symmetry: Symmetry,
     edges: &'a EdgeMap,
     diameter_mm: f32,
     conflict_mm: f32,

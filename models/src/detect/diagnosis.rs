@@ -143,7 +143,7 @@ pub fn diagnose(
     }
 
     // Clustering, and the cut to the clusters re-scored.
-    let clusters = cluster_poses(&raw, d, &p.clustering);
+    let clusters = cluster_poses(&raw, d, &model.symmetry(), &p.clustering);
     let cut = p.rescoring.top_clusters;
     let first_votes = clusters.first().map_or(0, |c| c.votes);
     let found = first_near(clusters.iter().map(|c| c.pose), errors, d);

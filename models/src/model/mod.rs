@@ -1,5 +1,6 @@
 //! Global modelling (offline, once per object): from a mesh to an [`ObjectModel`] holding the
-//! subsampled oriented points, the PPF lookup table and what rendering needs.
+//! subsampled oriented points, the PPF lookup table, what rendering needs and the object's
+//! [`symmetry`].
 //!
 //! [`ObjectModel`] is the same in memory whether just built or read from a model file
 //! ([`crate::model::store`], into a private memory map): a byte buffer holding an rkyv archive of
@@ -10,6 +11,7 @@ pub mod sampling;
 pub mod sanity;
 pub mod store;
 pub mod subsample;
+pub mod symmetry;
 pub mod table;
 
 use std::sync::{Arc, Mutex};
@@ -24,6 +26,7 @@ use crate::limits;
 use crate::model::feature::{key_count, LocalFrame, PointPairFeature, Quantizer};
 use crate::model::sampling::sample_surface;
 use crate::model::subsample::{subsample, OrientedPoints, SubsampleParams};
+use crate::model::symmetry::Symmetry;
 use crate::model::table::{pack_entry, LookupTable};
 use crate::{Error, Result};
 
@@ -171,6 +174,10 @@ pub struct ModelData {
     /// The mesh, for rendering: vertex positions (mm) and triangles.
     pub mesh_positions: Vec<[f32; 3]>,
     pub mesh_faces: Vec<[u32; 3]>,
+    /// The object's discrete symmetries, [`Symmetry::stored_discrete`]; empty without.
+    pub symmetries_discrete: Vec<[f32; 7]>,
+    /// Its continuous symmetry axis, [`Symmetry::stored_continuous`]: at most one.
+    pub symmetries_continuous: Vec<[f32; 6]>,
 }
 
 enum Backing {
@@ -308,6 +315,8 @@ impl ObjectModel {
             table_entries: table.entries,
             mesh_positions: mesh.positions.iter().map(|p| [p.x, p.y, p.z]).collect(),
             mesh_faces: mesh.faces.clone(),
+            symmetries_discrete: Vec::new(),
+            symmetries_continuous: Vec::new(),
         };
         let bytes = rkyv::to_bytes::<rkyv::rancor::Error>(&data)
             .map_err(|e| Error::InvalidParameter(format!("{name}: cannot archive model: {e}")))?;
@@ -384,6 +393,49 @@ impl ObjectModel {
         let mut data = rkyv::deserialize::<ModelData, rkyv::rancor::Error>(model.data())
             .map_err(|e| Error::InvalidParameter(format!("cannot read the model back: {e}")))?;
         data.source_crc = crc;
+        let bytes = rkyv::to_bytes::<rkyv::rancor::Error>(&data)
+            .map_err(|e| Error::InvalidParameter(format!("cannot archive model: {e}")))?;
+        Ok(Self {
+            backing: Backing::Owned(bytes),
+            silhouette: Mutex::new(None),
+        })
+    }
+
+    /// The object's symmetries (none unless set with [`ObjectModel::with_symmetry`]).
+    pub fn symmetry(&self) -> Symmetry {
+        let d = self.data();
+        let discrete: Vec<[f32; 7]> = d
+            .symmetries_discrete
+            .iter()
+            .map(|s| s.map(|v| v.to_native()))
+            .collect();
+        let continuous: Vec<[f32; 6]> = d
+            .symmetries_continuous
+            .iter()
+            .map(|a| a.map(|v| v.to_native()))
+            .collect();
+        // Checked when the model was built or its file loaded.
+        Symmetry::from_stored(&discrete, &continuous).unwrap_or_default()
+    }
+
+    /// A copy of the model recording `symmetry` as the object's (METHOD.md §1.8). Refuses a
+    /// symmetry that fails [`Symmetry::validate`] or that the model's surface does not have
+    /// ([`Symmetry::check_holds`]). The table is unchanged: symmetries act after voting.
+    pub fn with_symmetry(&self, symmetry: &Symmetry) -> Result<Self> {
+        let name = self.name().to_owned();
+        let d = self.diameter_mm();
+        let named = |e: Error| match e {
+            Error::InvalidParameter(reason) => Error::InvalidParameter(format!("{name}: {reason}")),
+            other => other,
+        };
+        symmetry.validate(d).map_err(named)?;
+        symmetry
+            .check_holds(&self.surface_points(), d)
+            .map_err(named)?;
+        let mut data = rkyv::deserialize::<ModelData, rkyv::rancor::Error>(self.data())
+            .map_err(|e| Error::InvalidParameter(format!("cannot read the model back: {e}")))?;
+        data.symmetries_discrete = symmetry.stored_discrete();
+        data.symmetries_continuous = symmetry.stored_continuous();
         let bytes = rkyv::to_bytes::<rkyv::rancor::Error>(&data)
             .map_err(|e| Error::InvalidParameter(format!("cannot archive model: {e}")))?;
         Ok(Self {

@@ -29,10 +29,10 @@ pub const EXTENSION: &str = "ppfm";
 /// Bumped whenever [`crate::model::ModelData`], the table encoding or what a model is built
 /// from a mesh changes. Version 2 added the mesh fingerprint, version 3 the CRC of the mesh
 /// file; version 4 takes the normals of a mesh without normals from its faces split at creases
-/// ([`crate::geometry::mesh::CREASE_ANGLE_DEG`]). Only the models of such meshes differ, but every file
-/// of an earlier version is refused: a cached model is rebuilt from its mesh, a model file
-/// without one has to be rebuilt (`ppf model build`).
-pub const FORMAT_VERSION: u32 = 4;
+/// ([`crate::geometry::mesh::CREASE_ANGLE_DEG`]); version 5 added the object's symmetries.
+/// Every file of an earlier version is refused: a cached model is rebuilt from its mesh, a model
+/// file without one has to be rebuilt (`ppf model build`).
+pub const FORMAT_VERSION: u32 = 5;
 const MAGIC: &[u8; 8] = b"PPFDMODL";
 const HEADER_LEN: usize = 32;
 
@@ -363,6 +363,19 @@ fn check_consistency(d: &ArchivedModelData) -> std::result::Result<(), String> {
             "a mesh face index is out of range ({vertices} vertices)"
         ));
     }
+    let discrete: Vec<[f32; 7]> = d
+        .symmetries_discrete
+        .iter()
+        .map(|s| s.map(|v| v.to_native()))
+        .collect();
+    let continuous: Vec<[f32; 6]> = d
+        .symmetries_continuous
+        .iter()
+        .map(|a| a.map(|v| v.to_native()))
+        .collect();
+    crate::model::symmetry::Symmetry::from_stored(&discrete, &continuous)
+        .and_then(|s| s.validate(diameter))
+        .map_err(|e| e.to_string())?;
     let finite = |v: &[rkyv::Archived<f32>; 3]| v.iter().all(|x| x.to_native().is_finite());
     if !d.points.iter().all(finite)
         || !d.normals.iter().all(finite)
@@ -428,6 +441,55 @@ mod tests {
         let path = dir.join("true.ppfm");
         save(&model, &path).unwrap();
         assert_eq!(load(&path).unwrap().diameter_mm(), true_diameter);
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    /// A model's symmetries go into its file and come back; copies made for the file's CRC keep
+    /// them; a file whose symmetry no object of its size can have is refused.
+    #[test]
+    fn symmetries_are_stored_and_read_back() {
+        use crate::model::symmetry::Symmetry;
+        let dir = temp_dir("symmetry");
+        // The box's half turns about z and x (and so about y).
+        let symmetry =
+            Symmetry::generated(&["z:2".parse().unwrap(), "x:2".parse().unwrap()]).unwrap();
+        assert_eq!(symmetry.order(), Some(4));
+        let model = built().with_symmetry(&symmetry).unwrap();
+        assert_eq!(model.symmetry(), symmetry);
+        assert!(built().symmetry().is_none());
+        assert_eq!(model.table(), built().table(), "the table does not change");
+        let path = dir.join("box.ppfm");
+        save(&model, &path).unwrap();
+        let loaded = load(&path).unwrap();
+        assert_eq!(loaded.symmetry(), symmetry);
+        assert_eq!(loaded.with_source_crc(7).unwrap().symmetry(), symmetry);
+
+        // A quarter turn is not the box's: refused before anything is stored.
+        let quarter = Symmetry::generated(&["z:4".parse().unwrap()]).unwrap();
+        let refused = built().with_symmetry(&quarter).unwrap_err().to_string();
+        assert!(
+            refused.starts_with("invalid parameter: box: symmetry: the object does not have it"),
+            "{refused}"
+        );
+
+        // A forged file whose half turn moves the model by a metre.
+        let mut data =
+            rkyv::deserialize::<crate::model::ModelData, rkyv::rancor::Error>(model.data())
+                .unwrap();
+        data.symmetries_discrete[0][4] = 1000.0;
+        let forged = ObjectModel {
+            backing: crate::model::Backing::Owned(
+                rkyv::to_bytes::<rkyv::rancor::Error>(&data).unwrap(),
+            ),
+            silhouette: std::sync::Mutex::new(None),
+        };
+        save(&forged, &path).unwrap();
+        match load(&path) {
+            Err(Error::ModelStore { reason, .. }) => {
+                assert!(reason.contains("more than its diameter"), "{reason}")
+            }
+            r => panic!("{r:?}"),
+        }
         std::fs::remove_dir_all(dir).unwrap();
     }
 
@@ -606,7 +668,7 @@ mod tests {
         let mut version = good.clone();
         version[8] = 99;
         assert!(refused(&version, &dir, "version.ppfm").contains("format version 99"));
-        // A file of the previous format (before the mesh fingerprint) asks to be rebuilt.
+        // A file of the previous format asks to be rebuilt.
         version[8..12].copy_from_slice(&(FORMAT_VERSION - 1).to_le_bytes());
         let old = refused(&version, &dir, "old.ppfm");
         assert!(

@@ -23,6 +23,7 @@ use std::f64::consts::{PI, TAU};
 use nalgebra::{Point3, Vector2, Vector3};
 
 use crate::geometry::mesh::{split_creases, Mesh};
+use crate::model::symmetry::{Symmetry, SymmetryElement};
 
 /// Edges whose faces meet at a larger angle than this keep one normal per side.
 pub const CREASE_ANGLE_DEG: f64 = 35.0;
@@ -87,6 +88,128 @@ impl Part {
             Part::TPipe => t_pipe(),
         }
     }
+}
+
+/// A generated test object with a symmetry (METHOD.md §1.8), for the tests of symmetric objects:
+/// unlike the [`Part`]s, these have poses that cannot be told apart.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum SymmetricPart {
+    /// A U-channel (90 × 110 × 50 mm, 8 mm walls) with two holes through its floor, diagonally
+    /// opposite: a half turn about z is its only symmetry.
+    UChannel,
+    /// A stepped shaft: a 80 mm collar, 30 mm long, under a 44 mm shaft, 80 mm long; any turn
+    /// about z maps it onto itself, and nothing else does.
+    SteppedShaft,
+}
+
+impl SymmetricPart {
+    pub const ALL: [SymmetricPart; 2] = [SymmetricPart::UChannel, SymmetricPart::SteppedShaft];
+
+    pub fn name(&self) -> &'static str {
+        match self {
+            SymmetricPart::UChannel => "u_channel",
+            SymmetricPart::SteppedShaft => "stepped_shaft",
+        }
+    }
+
+    /// The object id in generated scenes: after the [`Part`]s'.
+    pub fn object_id(&self) -> u32 {
+        match self {
+            SymmetricPart::UChannel => 5,
+            SymmetricPart::SteppedShaft => 6,
+        }
+    }
+
+    pub fn mesh(&self) -> Mesh {
+        match self {
+            SymmetricPart::UChannel => u_channel(),
+            SymmetricPart::SteppedShaft => stepped_shaft(),
+        }
+    }
+
+    /// The part's symmetry, as `ppf model build --symmetry` would give it.
+    pub fn symmetry(&self) -> Symmetry {
+        let spec = match self {
+            SymmetricPart::UChannel => "z:2",
+            SymmetricPart::SteppedShaft => "z:inf",
+        };
+        let element: SymmetryElement = spec.parse().expect("a valid element");
+        Symmetry::generated(&[element]).expect("one generator")
+    }
+}
+
+fn u_channel() -> Mesh {
+    const WIDTH: f64 = 90.0; // along x
+    const LENGTH: f64 = 110.0; // along y, the extrusion
+    const HEIGHT: f64 = 50.0; // along z
+    const WALL: f64 = 8.0;
+    let mut b = SolidBuilder::default();
+    let profile = [
+        (0.0, 0.0),
+        (WIDTH, 0.0),
+        (WIDTH, HEIGHT),
+        (WIDTH - WALL, HEIGHT),
+        (WIDTH - WALL, WALL),
+        (WALL, WALL),
+        (WALL, HEIGHT),
+        (0.0, HEIGHT),
+    ];
+    let front: Vec<u32> = profile
+        .iter()
+        .map(|&(x, z)| b.vertex(Point3::new(x, 0.0, z)))
+        .collect();
+    let back: Vec<u32> = profile
+        .iter()
+        .map(|&(x, z)| b.vertex(Point3::new(x, LENGTH, z)))
+        .collect();
+    b.planar(&front, &[]);
+    b.planar(&back, &[]);
+    // Diagonally opposite about the centre of the floor: the half turn maps one onto the other.
+    let (cx, cy) = (WIDTH / 2.0, LENGTH / 2.0);
+    let holes = [(cx - 22.0, cy - 30.0), (cx + 22.0, cy + 30.0)];
+    let ring_at = |b: &mut SolidBuilder, z: f64| -> Vec<Vec<u32>> {
+        holes
+            .iter()
+            .map(|&(x, y)| b.ring(Point3::new(x, y, z), Vector3::x(), Vector3::y(), 7.0, 24))
+            .collect()
+    };
+    let bottom_rings = ring_at(&mut b, 0.0);
+    let floor_rings = ring_at(&mut b, WALL);
+    for i in 0..profile.len() {
+        let j = (i + 1) % profile.len();
+        let quad = [front[i], front[j], back[j], back[i]];
+        match i {
+            0 => b.planar(&quad, &bottom_rings),
+            4 => b.planar(&quad, &floor_rings),
+            _ => b.planar(&quad, &[]),
+        }
+    }
+    for (bottom, floor) in bottom_rings.iter().zip(&floor_rings) {
+        b.strip(bottom, floor);
+    }
+    b.finish(true)
+}
+
+fn stepped_shaft() -> Mesh {
+    const COLLAR_R: f64 = 40.0;
+    const COLLAR_H: f64 = 30.0;
+    const SHAFT_R: f64 = 22.0;
+    const SHAFT_H: f64 = 80.0;
+    const SEGMENTS: usize = 64;
+    let mut b = SolidBuilder::default();
+    let (x, y) = (Vector3::x(), Vector3::y());
+    let ring =
+        |b: &mut SolidBuilder, r: f64, z: f64| b.ring(Point3::new(0.0, 0.0, z), x, y, r, SEGMENTS);
+    let collar_bottom = ring(&mut b, COLLAR_R, 0.0);
+    let collar_top = ring(&mut b, COLLAR_R, COLLAR_H);
+    let shaft_bottom = ring(&mut b, SHAFT_R, COLLAR_H);
+    let shaft_top = ring(&mut b, SHAFT_R, COLLAR_H + SHAFT_H);
+    b.planar(&collar_bottom, &[]);
+    b.strip(&collar_bottom, &collar_top);
+    b.planar(&collar_top, std::slice::from_ref(&shaft_bottom));
+    b.strip(&shaft_bottom, &shaft_top);
+    b.planar(&shaft_top, &[]);
+    b.finish(true)
 }
 
 /// A closed box of the given edge lengths (mm), centred on the origin, axis-aligned; 24 vertices
@@ -938,6 +1061,39 @@ pub(crate) mod tests {
                     part.name(),
                     r.scaled_axis()
                 );
+            }
+        }
+    }
+
+    /// The symmetric parts are closed, and have the symmetry they claim and no other turn of
+    /// those the plain parts are checked for.
+    #[test]
+    fn symmetric_parts_have_their_symmetry_and_no_other() {
+        for part in SymmetricPart::ALL {
+            let mesh = part.mesh();
+            let sanity = crate::model::sanity::check_mesh(&mesh).unwrap();
+            assert!(sanity.closed && !sanity.inward_normals, "{part:?}");
+            let symmetry = part.symmetry();
+            let points = crate::model::sampling::sample_surface(&mesh, 20_000, 1).unwrap();
+            let d = sanity.diameter_mm;
+            for (what, off) in symmetry.misfits(&points) {
+                assert!(off < 0.01 * d, "{part:?}: {what} moves it {off} mm");
+            }
+            let mut wrong = Vec::new();
+            for axis in [Vector3::x(), Vector3::y()] {
+                for angle in [0.5 * PI, PI] {
+                    wrong.push(crate::Pose::rotation(axis * angle as f32));
+                }
+            }
+            if part == SymmetricPart::UChannel {
+                wrong.push(crate::Pose::rotation(Vector3::z() * (0.5 * PI) as f32));
+            }
+            let not = Symmetry {
+                discrete: wrong,
+                continuous: None,
+            };
+            for (what, off) in not.misfits(&points) {
+                assert!(off > 0.1 * d, "{part:?}: {what} moves it only {off} mm");
             }
         }
     }
