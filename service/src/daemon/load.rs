@@ -122,6 +122,7 @@ impl Daemon {
                         "loading failed unexpectedly (panic)",
                     ))
                 });
+                release_freed_memory();
                 let _ = tx.send(ModelLoaded { job, result });
                 signaller.signal();
             });
@@ -176,5 +177,19 @@ impl Daemon {
                 self.control_answer(active, status, &e.message, &[]);
             }
         }
+    }
+}
+
+/// Hands the memory a build freed back to the system. A build's temporaries are many times
+/// its model's size, and glibc keeps freed pages in its arenas: in a daemon that runs for
+/// weeks they would stay resident, and the next build, unable to reuse them all, would take
+/// its peak on top of them. In `tests/tests/limits.rs`, four loads in a row peak at 122–123 MB
+/// above idle with this and 123–133 MB without it on a quiet host, and up to 185 MB without it
+/// on a busy one.
+fn release_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only returns free memory of the allocator's own arenas to the system.
+    unsafe {
+        libc::malloc_trim(0);
     }
 }
