@@ -403,19 +403,8 @@ impl ObjectModel {
 
     /// The object's symmetries (none unless set with [`ObjectModel::with_symmetry`]).
     pub fn symmetry(&self) -> Symmetry {
-        let d = self.data();
-        let discrete: Vec<[f32; 7]> = d
-            .symmetries_discrete
-            .iter()
-            .map(|s| s.map(|v| v.to_native()))
-            .collect();
-        let continuous: Vec<[f32; 6]> = d
-            .symmetries_continuous
-            .iter()
-            .map(|a| a.map(|v| v.to_native()))
-            .collect();
         // Checked when the model was built or its file loaded.
-        Symmetry::from_stored(&discrete, &continuous).unwrap_or_default()
+        stored_symmetry(self.data()).unwrap_or_default()
     }
 
     /// A copy of the model recording `symmetry` as the object's (METHOD.md §1.8). Refuses a
@@ -570,6 +559,21 @@ fn build_table(points: &OrientedPoints, quantizer: &Quantizer) -> LookupTable {
         key_count(quantizer.distance_bins, quantizer.angle_bins),
         &pairs,
     )
+}
+
+/// The symmetry a model's data holds, read back from its archived form.
+pub(crate) fn stored_symmetry(d: &ArchivedModelData) -> Result<Symmetry> {
+    let discrete: Vec<[f32; 7]> = d
+        .symmetries_discrete
+        .iter()
+        .map(|s| s.map(|v| v.to_native()))
+        .collect();
+    let continuous: Vec<[f32; 6]> = d
+        .symmetries_continuous
+        .iter()
+        .map(|a| a.map(|v| v.to_native()))
+        .collect();
+    Symmetry::from_stored(&discrete, &continuous)
 }
 
 #[cfg(test)]

@@ -363,17 +363,7 @@ fn check_consistency(d: &ArchivedModelData) -> std::result::Result<(), String> {
             "a mesh face index is out of range ({vertices} vertices)"
         ));
     }
-    let discrete: Vec<[f32; 7]> = d
-        .symmetries_discrete
-        .iter()
-        .map(|s| s.map(|v| v.to_native()))
-        .collect();
-    let continuous: Vec<[f32; 6]> = d
-        .symmetries_continuous
-        .iter()
-        .map(|a| a.map(|v| v.to_native()))
-        .collect();
-    crate::model::symmetry::Symmetry::from_stored(&discrete, &continuous)
+    crate::model::stored_symmetry(d)
         .and_then(|s| s.validate(diameter))
         .map_err(|e| e.to_string())?;
     let finite = |v: &[rkyv::Archived<f32>; 3]| v.iter().all(|x| x.to_native().is_finite());
