@@ -112,9 +112,20 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
         hints,
         ..Default::default()
     };
-    let found = client
-        .detect(&args.camera, &args.objects, &options)
-        .map_err(|e| e.to_string())?;
+    // A camera the daemon has just subscribed to has no frame until its driver's next one:
+    // that is waited for, within the request's timeout, as a frame the daemon has is.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_millis(args.timeout_ms);
+    let found = loop {
+        match client.detect(&args.camera, &args.objects, &options) {
+            Err(ppfd_client::Error::Refused {
+                status: ppfd_client::Status::NoFrame,
+                ..
+            }) if std::time::Instant::now() < deadline => {
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
+            found => break found.map_err(|e| e.to_string())?,
+        }
+    };
     if let (Some((path, models)), Some(viewer)) = (&args.overlay, &viewer) {
         write_overlay(path, models, viewer, &found, &args.objects)?;
     }

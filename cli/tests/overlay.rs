@@ -185,7 +185,14 @@ fn the_camera_overlay_outlines_the_part_on_the_cameras_frame() {
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    // Publish until the command has its answer: both the daemon and the command read frames.
+    // The command asks before the camera's first frame: it waits for that frame rather than
+    // being refused. Then publish until the command has its answer: both the daemon and the
+    // command read frames.
+    std::thread::sleep(std::time::Duration::from_millis(400));
+    assert!(
+        detect.try_wait().unwrap().is_none(),
+        "ppf detect gave up before the camera's first frame"
+    );
     let status = loop {
         camera
             .loan()
