@@ -465,3 +465,97 @@ fn near_outlines_are_measured_coarser_with_the_same_agreement() {
         assert!((f - c).abs() < 0.1, "full {f}, coarse {c}");
     }
 }
+
+/// A part mostly hidden behind a bar in front of it: its outline shows only where the bar ends,
+/// and there it lies on the scene's edges. The silhouette filter judges the outline that is not
+/// hidden, so the true pose passes; judged against the whole outline, as re-scoring ranks poses,
+/// it would not.
+#[test]
+fn a_part_mostly_hidden_behind_a_bar_keeps_its_true_pose_through_the_silhouette_filter() {
+    use nalgebra::Isometry3;
+    use ppfd_models::detect::silhouette::outline_counts;
+    use ppfd_models::synthetic::scene::{Occluder, Placement};
+    let params = DetectParams::new();
+    let part = Part::LBracket;
+    let (mesh, model) = part_model(part);
+    let d = model.diameter_mm();
+    let (centre, radius) = bounding_sphere(&mesh);
+    let pose = Pose::from_parts(
+        Translation3::new(0.0, 0.0, 700.0),
+        UnitQuaternion::from_euler_angles(0.4, -0.3, 0.2),
+    );
+    let c = pose * centre;
+    // An upright bar, between the camera and the part, covering it but for its right edge.
+    let z = c.z - radius - 80.0;
+    let scale = z / c.z;
+    let bar = Occluder::Cylinder {
+        radius_mm: 0.9 * radius * scale,
+        height_mm: 3.0 * radius * scale,
+        pose: Isometry3::from_parts(
+            Translation3::new((c.x - 0.2 * radius) * scale, c.y * scale, z),
+            UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f32::consts::FRAC_PI_2),
+        ),
+    };
+    let scene = SceneSpec::new(3)
+        .table(false)
+        .camera(Isometry3::identity())
+        .object_with(part.object_id(), &mesh, Placement::At(pose))
+        .occluder(bar)
+        .build()
+        .unwrap();
+    let truth = scene.ground_truth[0].1;
+    let image = prepare(&scene.frame.view(), &params.scene).unwrap();
+    let edges = EdgeMap::new(&image, &params.filters);
+    let sphere = bounding_sphere(&mesh);
+    let conflict = params.rescoring.conflict_mm(d);
+    let counts = outline_counts(
+        &mut Renderer::new(),
+        &mesh,
+        &sphere,
+        &truth,
+        &image,
+        &edges,
+        params.filters.max_outline_px,
+        conflict,
+    )
+    .unwrap();
+    eprintln!("outline of the true pose: {counts:?}");
+    assert!(
+        counts.occluded * 2 > counts.total,
+        "the bar must hide most of the outline: {counts:?}"
+    );
+    let min_visible = params.rescoring.min_visible_outline;
+    let whole = counts.fraction_of_at_least(min_visible).unwrap();
+    assert!(
+        whole < params.filters.min_silhouette_fraction,
+        "judged against the whole outline the pose fails ({whole})"
+    );
+    let filter = silhouette_fraction(
+        &mut Renderer::new(),
+        &mesh,
+        &sphere,
+        &truth,
+        &image,
+        &edges,
+        conflict,
+        min_visible,
+    )
+    .unwrap();
+    assert_eq!(
+        Some(filter),
+        counts.fraction_in_view_of_at_least(min_visible)
+    );
+    assert!(
+        filter >= params.filters.min_silhouette_fraction,
+        "the outline that shows lies on edges: {filter}"
+    );
+    let f = fit(
+        &model.surface_points(),
+        &truth,
+        &image,
+        params.rescoring.refined_tolerance_mm(d),
+        conflict,
+        params.rescoring.max_normal_angle_deg,
+    );
+    assert!(is_consistent(&f, &params.filters), "{f:?}");
+}

@@ -784,8 +784,11 @@ impl Detector {
             if is_consistent(&s.fit, &p.filters) {
                 checks.0 |= Checks::CONSISTENT;
             }
-            let silhouette = s.silhouette.or_else(|| {
-                silhouette_fraction(
+            let silhouette = match s.outline {
+                Some(counts) => {
+                    counts.fraction_in_view_of_at_least(p.rescoring.min_visible_outline)
+                }
+                None => silhouette_fraction(
                     &mut renderer,
                     &v.mesh,
                     &v.sphere,
@@ -794,8 +797,8 @@ impl Detector {
                     v.edges,
                     v.conflict_mm,
                     p.rescoring.min_visible_outline,
-                )
-            });
+                ),
+            };
             if silhouette.is_some_and(|f| f >= p.filters.min_silhouette_fraction) {
                 checks.0 |= Checks::SILHOUETTE;
             }

@@ -301,8 +301,9 @@ pub fn diagnose(
 
     // The filters, on the candidate near the target.
     let consistent = is_consistent(&s.fit, &p.filters);
-    let silhouette = s.silhouette.or_else(|| {
-        silhouette_fraction(
+    let silhouette = match s.outline {
+        Some(counts) => counts.fraction_in_view_of_at_least(p.rescoring.min_visible_outline),
+        None => silhouette_fraction(
             &mut Renderer::new(),
             &mesh,
             &sphere,
@@ -311,8 +312,8 @@ pub fn diagnose(
             frame.edges,
             conflict,
             p.rescoring.min_visible_outline,
-        )
-    });
+        ),
+    };
     let outline_ok = silhouette.is_some_and(|f| f >= p.filters.min_silhouette_fraction);
     let silhouette_text = match silhouette {
         Some(f) => format!("{f:.2}"),
@@ -342,8 +343,9 @@ pub fn diagnose(
         {
             continue;
         }
-        let f = o.silhouette.or_else(|| {
-            silhouette_fraction(
+        let f = match o.outline {
+            Some(counts) => counts.fraction_in_view_of_at_least(p.rescoring.min_visible_outline),
+            None => silhouette_fraction(
                 &mut renderer,
                 &mesh,
                 &sphere,
@@ -352,8 +354,8 @@ pub fn diagnose(
                 frame.edges,
                 conflict,
                 p.rescoring.min_visible_outline,
-            )
-        });
+            ),
+        };
         if is_consistent(&o.fit, &p.filters)
             && f.is_some_and(|f| f >= p.filters.min_silhouette_fraction)
         {

@@ -27,7 +27,7 @@ use nalgebra::{Matrix3, Point3, Vector3};
 use rayon::prelude::*;
 
 use crate::detect::scene::SceneImage;
-use crate::detect::silhouette::Fit;
+use crate::detect::silhouette::{Fit, OutlineCounts};
 use crate::geometry::camera::Intrinsics;
 use crate::model::subsample::OrientedPoints;
 use crate::Pose;
@@ -221,8 +221,10 @@ pub struct Scored {
     pub fit_score: f32,
     /// `fit_score` times the support to the power `support_weight`.
     pub support_score: f32,
-    /// Fraction of the unoccluded outline on scene depth edges, once measured.
-    pub silhouette: Option<f32>,
+    /// How the outline meets the scene's depth edges, once measured; re-scoring reads it with
+    /// [`OutlineCounts::fraction_of_at_least`], the silhouette filter with
+    /// [`OutlineCounts::fraction_in_view_of_at_least`].
+    pub outline: Option<OutlineCounts>,
     /// What poses are ranked by: `support_score`, times the silhouette agreement (to the power
     /// `silhouette_weight`) once that is measured.
     pub score: f32,
@@ -258,7 +260,7 @@ pub fn rescore(
                 fit,
                 fit_score,
                 support_score: score,
-                silhouette: None,
+                outline: None,
                 score,
             }
         })
@@ -374,7 +376,7 @@ pub fn with_silhouettes(
         scored[measured..end].par_iter_mut().for_each_init(
             crate::geometry::render::Renderer::new,
             |renderer, s| {
-                let f = crate::detect::silhouette::outline_counts(
+                let counts = crate::detect::silhouette::outline_counts(
                     renderer,
                     outline.mesh,
                     outline.sphere,
@@ -384,9 +386,11 @@ pub fn with_silhouettes(
                     outline.max_outline_px,
                     occlusion_tolerance_mm,
                 )
-                .and_then(|c| c.fraction_of_at_least(params.min_visible_outline))
-                .unwrap_or(0.0);
-                s.silhouette = Some(f);
+                .unwrap_or_default();
+                let f = counts
+                    .fraction_of_at_least(params.min_visible_outline)
+                    .unwrap_or(0.0);
+                s.outline = Some(counts);
                 s.score = s.support_score * f.powf(weight);
             },
         );
@@ -494,7 +498,7 @@ mod tests {
         let all = every.len();
         with_silhouettes(&mut every, &outline, &scene, conflict, &params, all);
         assert_eq!(every.len(), all);
-        assert!(every.iter().all(|s| s.silhouette.is_some()));
+        assert!(every.iter().all(|s| s.outline.is_some()));
         for keep in [1, 10, 50] {
             let mut bounded = scored.clone();
             with_silhouettes(&mut bounded, &outline, &scene, conflict, &params, keep);
