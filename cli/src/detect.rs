@@ -2,6 +2,7 @@
 //! breakdown.
 
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use ppfd_client::{DetectOptions, PoseHint};
 
@@ -112,17 +113,15 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
         hints,
         ..Default::default()
     };
-    // A camera the daemon has just subscribed to has no frame until its driver's next one:
-    // that is waited for, within the request's timeout, as a frame the daemon has is.
-    let deadline = std::time::Instant::now() + std::time::Duration::from_millis(args.timeout_ms);
+    // A camera the daemon has just subscribed to has no frame until its driver's next one;
+    // that frame is worth waiting for within the request's timeout.
+    let deadline = Instant::now() + millis(args.timeout_ms);
     let found = loop {
         match client.detect(&args.camera, &args.objects, &options) {
             Err(ppfd_client::Error::Refused {
                 status: ppfd_client::Status::NoFrame,
                 ..
-            }) if std::time::Instant::now() < deadline => {
-                std::thread::sleep(std::time::Duration::from_millis(20));
-            }
+            }) if Instant::now() < deadline => std::thread::sleep(millis(20)),
             found => break found.map_err(|e| e.to_string())?,
         }
     };

@@ -273,6 +273,7 @@ fn filters_reject_a_planar_impostor_and_keep_the_true_pose() {
             params.rescoring.max_normal_angle_deg,
         );
         let s = silhouette_fraction(
+            None,
             renderer,
             &mesh,
             &sphere,
@@ -531,6 +532,7 @@ fn a_part_mostly_hidden_behind_a_bar_keeps_its_true_pose_through_the_silhouette_
         "judged against the whole outline the pose fails ({whole})"
     );
     let filter = silhouette_fraction(
+        None,
         &mut Renderer::new(),
         &mesh,
         &sphere,

@@ -784,21 +784,17 @@ impl Detector {
             if is_consistent(&s.fit, &p.filters) {
                 checks.0 |= Checks::CONSISTENT;
             }
-            let silhouette = match s.outline {
-                Some(counts) => {
-                    counts.fraction_in_view_of_at_least(p.rescoring.min_visible_outline)
-                }
-                None => silhouette_fraction(
-                    &mut renderer,
-                    &v.mesh,
-                    &v.sphere,
-                    &s.pose,
-                    scene,
-                    v.edges,
-                    v.conflict_mm,
-                    p.rescoring.min_visible_outline,
-                ),
-            };
+            let silhouette = silhouette_fraction(
+                s.outline,
+                &mut renderer,
+                &v.mesh,
+                &v.sphere,
+                &s.pose,
+                scene,
+                v.edges,
+                v.conflict_mm,
+                p.rescoring.min_visible_outline,
+            );
             if silhouette.is_some_and(|f| f >= p.filters.min_silhouette_fraction) {
                 checks.0 |= Checks::SILHOUETTE;
             }

@@ -301,19 +301,17 @@ pub fn diagnose(
 
     // The filters, on the candidate near the target.
     let consistent = is_consistent(&s.fit, &p.filters);
-    let silhouette = match s.outline {
-        Some(counts) => counts.fraction_in_view_of_at_least(p.rescoring.min_visible_outline),
-        None => silhouette_fraction(
-            &mut Renderer::new(),
-            &mesh,
-            &sphere,
-            &s.pose,
-            frame.image,
-            frame.edges,
-            conflict,
-            p.rescoring.min_visible_outline,
-        ),
-    };
+    let silhouette = silhouette_fraction(
+        s.outline,
+        &mut Renderer::new(),
+        &mesh,
+        &sphere,
+        &s.pose,
+        frame.image,
+        frame.edges,
+        conflict,
+        p.rescoring.min_visible_outline,
+    );
     let outline_ok = silhouette.is_some_and(|f| f >= p.filters.min_silhouette_fraction);
     let silhouette_text = match silhouette {
         Some(f) => format!("{f:.2}"),
@@ -343,19 +341,17 @@ pub fn diagnose(
         {
             continue;
         }
-        let f = match o.outline {
-            Some(counts) => counts.fraction_in_view_of_at_least(p.rescoring.min_visible_outline),
-            None => silhouette_fraction(
-                &mut renderer,
-                &mesh,
-                &sphere,
-                &o.pose,
-                frame.image,
-                frame.edges,
-                conflict,
-                p.rescoring.min_visible_outline,
-            ),
-        };
+        let f = silhouette_fraction(
+            o.outline,
+            &mut renderer,
+            &mesh,
+            &sphere,
+            &o.pose,
+            frame.image,
+            frame.edges,
+            conflict,
+            p.rescoring.min_visible_outline,
+        );
         if is_consistent(&o.fit, &p.filters)
             && f.is_some_and(|f| f >= p.filters.min_silhouette_fraction)
         {

@@ -103,7 +103,8 @@ impl OutlineCounts {
 /// the fraction of the outline's visible pixels that lie near a scene edge, out of at least
 /// `min_visible` of the outline not hidden behind the scene
 /// ([`OutlineCounts::fraction_in_view_of_at_least`]; `None` when no outline pixel is visible,
-/// e.g. the pose is outside the view or wholly hidden).
+/// e.g. the pose is outside the view or wholly hidden). `measured` is the outline's counts when
+/// re-scoring has already drawn it at the filter's scale; otherwise it is drawn here.
 ///
 /// `sphere` is the mesh's bounding sphere (model coordinates) that limits rendering to where
 /// the mesh can appear; `occlusion_tolerance_mm` decides when the scene is in front of the
@@ -112,6 +113,7 @@ impl OutlineCounts {
 /// outline pixels count as visible, and a handful of them on an edge must not read as agreement.
 #[allow(clippy::too_many_arguments)]
 pub fn silhouette_fraction(
+    measured: Option<OutlineCounts>,
     renderer: &mut Renderer,
     mesh: &Mesh,
     sphere: &(Point3<f32>, f32),
@@ -121,16 +123,19 @@ pub fn silhouette_fraction(
     occlusion_tolerance_mm: f32,
     min_visible: f32,
 ) -> Option<f32> {
-    outline_counts(
-        renderer,
-        mesh,
-        sphere,
-        pose,
-        scene,
-        edges,
-        edges.max_outline_px,
-        occlusion_tolerance_mm,
-    )?
+    match measured {
+        Some(counts) => counts,
+        None => outline_counts(
+            renderer,
+            mesh,
+            sphere,
+            pose,
+            scene,
+            edges,
+            edges.max_outline_px,
+            occlusion_tolerance_mm,
+        )?,
+    }
     .fraction_in_view_of_at_least(min_visible)
 }
 
