@@ -9,7 +9,9 @@ use std::path::PathBuf;
 
 use ppfd_bop::dataset::BopDataset;
 use ppfd_bop::shared_test_data;
-use ppfd_models::detect::detector::{DetectParams, Detections, Detector, RunOptions};
+use ppfd_models::detect::detector::{
+    DetectParams, Detections, Detector, ObjectDetections, RunOptions,
+};
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_models::Pose;
@@ -41,6 +43,8 @@ struct Outcome {
     objects: usize,
     /// Per object, the pairs formed and the votes cast.
     work: Vec<(u32, u64, u64)>,
+    /// The objects whose hypotheses differ from those of a detection of that object alone.
+    differ_alone: Vec<u32>,
 }
 
 /// Detects the frame's objects with the default parameters and prints the error table.
@@ -59,16 +63,27 @@ fn detect_frame(dir: &PathBuf) -> Outcome {
     let params = DetectParams::new();
     let clusters_kept = params.clusters_kept;
     let refs: Vec<&ObjectModel> = models.iter().collect();
-    let det: Detections = Detector::new(params)
-        .detect(
-            &frame.view(),
-            &refs,
-            &RunOptions {
-                hypotheses_per_object: 1,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+    let detector = Detector::new(params);
+    let opts = RunOptions {
+        hypotheses_per_object: 1,
+        ..Default::default()
+    };
+    let det: Detections = detector.detect(&frame.view(), &refs, &opts).unwrap();
+    // The objects run side by side; each must come out as it does alone. Three objects keep
+    // the test short: the largest, the smallest and one between.
+    let mut differ_alone = Vec::new();
+    for i in [0, 3, 6] {
+        let alone = detector.detect(&frame.view(), &refs[i..=i], &opts).unwrap();
+        let poses = |d: &ObjectDetections| -> Vec<(Pose, u32, u32)> {
+            d.hypotheses
+                .iter()
+                .map(|h| (h.pose, h.votes, h.checks.0))
+                .collect()
+        };
+        if poses(&alone.objects[0]) != poses(&det.objects[i]) {
+            differ_alone.push(det.objects[i].object_id);
+        }
+    }
     assert!(clusters_kept >= 10);
     // Each object's own counts, in request order, add up to the frame's.
     assert_eq!(det.per_object_counts.len(), models.len());
@@ -103,6 +118,7 @@ fn detect_frame(dir: &PathBuf) -> Outcome {
             .zip(&det.per_object_counts)
             .map(|(o, c)| (o.object_id, c.pairs, c.votes))
             .collect(),
+        differ_alone,
     };
     for ((g, info), (o, model)) in truth
         .iter()
@@ -165,6 +181,11 @@ fn lmo_frame_objects_are_found() {
     };
     let o = detect_frame(&dir);
     assert_eq!(o.objects, 8);
+    assert!(
+        o.differ_alone.is_empty(),
+        "objects {:?} come out otherwise than when detected alone",
+        o.differ_alone
+    );
     assert!(
         o.clusters_ok >= 5,
         "{} of 8 in the best clusters",

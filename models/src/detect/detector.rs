@@ -210,7 +210,9 @@ pub struct ObjectDetections {
     pub clusters: Vec<(Pose, u32)>,
 }
 
-/// Wall time per stage, summed over objects.
+/// Wall time per stage, summed over objects. Objects are detected side by side (each stage
+/// also runs in parallel within an object), so an object's stage times include waiting for
+/// the cores the other objects hold, and their sum can exceed the detection's wall time.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StageTimings {
     pub scene_preparation: Duration,
@@ -264,6 +266,9 @@ pub struct Counts {
 pub struct Detections {
     /// One entry per requested object, in request order.
     pub objects: Vec<ObjectDetections>,
+    /// Wall time of the whole detection. The objects' stages run two or more objects at a
+    /// time, so `timings` (summed over objects) may exceed it.
+    pub elapsed: Duration,
     pub timings: StageTimings,
     pub counts: Counts,
     /// Per requested object, its own stage timings (scene preparation is shared and counted once
@@ -464,67 +469,84 @@ impl Detector {
             out.timings.kd_tree += t.elapsed();
 
             let edges = OnceLock::new();
-            for (j, &i) in voters.iter().enumerate() {
-                let model = models[i];
-                check_stop(start)?;
-                let scene = &clouds[cloud_of[j]];
-                let timings = &mut out.per_object_timings[i];
-                let t = Instant::now();
-                let region = opts
-                    .requirements
-                    .region
-                    .as_ref()
-                    .map(|r| (r, &frame.intrinsics));
-                let selection = Selection::within(
-                    scene,
-                    &self.params.voting,
-                    &planes,
-                    model.diameter_mm(),
-                    region,
-                );
-                let (raw, counts) = vote_from(model, scene, &selection, &self.params.voting);
-                timings.voting += t.elapsed();
-                let t = Instant::now();
-                let symmetry = model.symmetry();
-                let clusters = cluster_poses(
-                    &raw,
-                    model.diameter_mm(),
-                    &symmetry,
-                    &self.params.clustering,
-                );
-                timings.clustering += t.elapsed();
-                let own = Counts {
-                    scene_points: scene.points.len() as u32,
-                    reference_points: counts.reference_points,
-                    pairs: counts.pairs,
-                    votes: counts.votes,
-                    hypotheses: raw.len() as u32,
-                };
+            let done: Vec<(usize, ObjectDetections, StageTimings, Counts)> = voters
+                .par_iter()
+                .enumerate()
+                .map(|(j, &i)| {
+                    let model = models[i];
+                    check_stop(start)?;
+                    let scene = &clouds[cloud_of[j]];
+                    let mut timings = out.per_object_timings[i];
+                    let t = Instant::now();
+                    let region = opts
+                        .requirements
+                        .region
+                        .as_ref()
+                        .map(|r| (r, &frame.intrinsics));
+                    let selection = Selection::within(
+                        scene,
+                        &self.params.voting,
+                        &planes,
+                        model.diameter_mm(),
+                        region,
+                    );
+                    let (raw, counts) = vote_from(model, scene, &selection, &self.params.voting);
+                    timings.voting += t.elapsed();
+                    let t = Instant::now();
+                    let symmetry = model.symmetry();
+                    let clusters = cluster_poses(
+                        &raw,
+                        model.diameter_mm(),
+                        &symmetry,
+                        &self.params.clustering,
+                    );
+                    timings.clustering += t.elapsed();
+                    let own = Counts {
+                        scene_points: scene.points.len() as u32,
+                        reference_points: counts.reference_points,
+                        pairs: counts.pairs,
+                        votes: counts.votes,
+                        hypotheses: raw.len() as u32,
+                    };
+                    let clusters = clusters_as_poses(&clusters);
+                    check_stop(start)?;
+                    let kept = kept_hints[i].clone();
+                    let hypotheses = self.after_voting(
+                        model,
+                        &clusters,
+                        kept,
+                        &scene_image,
+                        &edges,
+                        opts,
+                        &mut timings,
+                    );
+                    let detections = ObjectDetections {
+                        object_id: model.object_id(),
+                        hypotheses,
+                        clusters: clusters
+                            .iter()
+                            .take(self.params.clusters_kept)
+                            .map(|&(pose, votes)| (symmetry.canonical(&pose), votes))
+                            .collect(),
+                    };
+                    Ok((i, detections, timings, own))
+                })
+                .collect::<Result<_>>()?;
+            for (i, detections, timings, own) in done {
                 out.counts.reference_points += own.reference_points;
                 out.counts.pairs += own.pairs;
                 out.counts.votes += own.votes;
                 out.counts.hypotheses += own.hypotheses;
                 out.per_object_counts[i] = own;
-                let clusters = clusters_as_poses(&clusters);
-                check_stop(start)?;
-                let kept = std::mem::take(&mut kept_hints[i]);
-                let hypotheses =
-                    self.after_voting(model, &clusters, kept, &scene_image, &edges, opts, timings);
-                objects[i] = Some(ObjectDetections {
-                    object_id: model.object_id(),
-                    hypotheses,
-                    clusters: clusters
-                        .iter()
-                        .take(self.params.clusters_kept)
-                        .map(|&(pose, votes)| (symmetry.canonical(&pose), votes))
-                        .collect(),
-                });
+                out.per_object_timings[i] = timings;
+                objects[i] = Some(detections);
             }
         }
         for t in &out.per_object_timings {
             out.timings.add(t);
         }
         out.objects = objects.into_iter().flatten().collect();
+        out.elapsed = start.elapsed();
         Ok(out)
     }
 
