@@ -137,6 +137,10 @@ class Detections(Sequence[Detection]):
         """Age of that frame when the detection started."""
     @property
     def request_id(self) -> int: ...
+    @property
+    def diagnosis(self) -> str:
+        """With `diagnose=`: per object diagnosed, a heading line ("object 5: lost at voting")
+        and one line per stage; "" otherwise."""
     def __len__(self) -> int: ...
     def __getitem__(self, index: int) -> Detection: ...  # type: ignore[override]
     def __iter__(self) -> Iterator[Detection]: ...
@@ -167,6 +171,7 @@ class Client:
         tilt_direction: Optional[Sequence[float]] = None,
         order: Literal["score", "distance"] = "score",
         hints: Optional[Iterable[Union[Detection, tuple[int, npt.ArrayLike]]]] = None,
+        diagnose: Optional[Iterable[Union[Detection, tuple[int, npt.ArrayLike]]]] = None,
     ) -> Detections:
         """Detects `object_ids` in the newest frame of `camera`, releasing the GIL while the
         daemon works. `hypotheses` per object, 1 to 16; `timeout` in seconds (None: 3 s);
@@ -188,6 +193,11 @@ class Client:
         pair `(object_id, pose)` with a 4×4 pose of one of `object_ids`. A hinted object is
         first refined from its hints (ICP, re-scoring, both filters, the minimum score) and
         goes through voting only when none passes; its pose then has `Checks.HINT`.
+
+        `diagnose`: poses the objects are believed at, given as `hints` are. The detection
+        then runs from scratch (not with `hints` as well), and `Detections.diagnosis` says per
+        object with a pose, after each stage, where the best candidate near it stands and at
+        which stage it was lost; about twice the detection's time.
 
         A value out of its range raises `ProtocolError` with the client library's message
         before the request is sent; a region reaching outside the frame is refused

@@ -227,6 +227,7 @@ mod tests {
             counts: Default::default(),
             frame_sequence: 1,
             frame_age_ns: 0,
+            diagnosis: String::new(),
         };
         let lines = hypothesis_table(&found, &[1, 5, 8, 9]);
         assert_eq!(lines.len(), 1 + 5, "{lines:#?}");

@@ -552,6 +552,7 @@ mod tests {
             counts: Default::default(),
             frame_sequence: 1,
             frame_age_ns: 0,
+            diagnosis: String::new(),
         };
         let truth = [(5, at(0.0)), (8, at(0.0)), (5, at(300.0)), (9, at(0.0))];
         let (lines, correct) = pose_table(&found, &truth);

@@ -28,6 +28,8 @@ pub struct DetectArgs {
     pub overlay: Option<(PathBuf, PathBuf)>,
     /// A JSON file of poses to refine first.
     pub hints: Option<PathBuf>,
+    /// A JSON file of the poses to diagnose against.
+    pub diagnose_against: Option<PathBuf>,
     pub connect: Connect,
 }
 
@@ -97,6 +99,24 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
         Some(path) => read_hints(path)?,
         None => Vec::new(),
     };
+    // A file of a whole scene's poses serves any subset of its objects.
+    let diagnose: Vec<PoseHint> = match &args.diagnose_against {
+        Some(path) => {
+            let poses: Vec<PoseHint> = read_hints(path)?
+                .into_iter()
+                .filter(|p| args.objects.contains(&p.object_id))
+                .collect();
+            if poses.is_empty() {
+                return Err(format!(
+                    "{} has no pose of the objects asked for ({:?}): nothing to diagnose against",
+                    path.display(),
+                    args.objects
+                ));
+            }
+            poses
+        }
+        None => Vec::new(),
+    };
     let client = args.connect.client()?;
     // Subscribed before the request, so that the frame the daemon uses arrives here too.
     let viewer = match &args.overlay {
@@ -111,6 +131,7 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
         timeout: millis(args.timeout_ms),
         requirements: args.requirements,
         hints,
+        diagnose,
         ..Default::default()
     };
     // A camera the daemon has just subscribed to has no frame until its driver's next one;
@@ -156,12 +177,15 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
                 ("overhead_ns".to_owned(), l.overhead_ns().into()),
             ])
             .collect();
-        let out = serde_json::json!({
+        let mut out = serde_json::json!({
             "request_id": found.request_id, "frame_sequence": found.frame_sequence,
             "frame_age_ns": found.frame_age_ns, "hypotheses": hyps, "latency": latency,
             "counts": { "scene_points": found.counts.scene_points, "reference_points": found.counts.reference_points,
                         "pairs": found.counts.pairs, "hypotheses": found.counts.hypotheses },
         });
+        if args.diagnose_against.is_some() {
+            out["diagnosis"] = found.diagnosis.lines().collect::<Vec<_>>().into();
+        }
         println!(
             "{}",
             serde_json::to_string_pretty(&out).map_err(|e| e.to_string())?
@@ -177,6 +201,10 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
         found.counts.pairs
     );
     print_hypotheses(&found, &args.objects);
+    if !found.diagnosis.is_empty() {
+        println!("\ndiagnosis (against the poses of the --diagnose-against file):");
+        print!("{}", found.diagnosis);
+    }
     print_latency(&found);
     Ok(())
 }

@@ -30,8 +30,8 @@ pub struct DetectCommand {
     #[arg(long, default_value_t = 1,
           value_parser = clap::value_parser!(u32).range(1..=crate::common::MAX_HYPOTHESES))]
     pub hypotheses: u32,
-    /// Give up after this long, milliseconds (with --camera; a cluttered VGA frame takes
-    /// seconds per object on a 2-core machine).
+    /// Give up after this long, milliseconds (with --camera; eight objects in a cluttered VGA
+    /// frame take about half a second on a 2-core machine, docs/BENCHMARKS.md).
     #[arg(long, default_value_t = 30_000, conflicts_with = "dataset",
           value_parser = clap::value_parser!(u64).range(1..))]
     pub timeout_ms: u64,
@@ -49,6 +49,12 @@ pub struct DetectCommand {
     /// each stage.
     #[arg(long)]
     pub diagnose: bool,
+    /// With --camera: a JSON file of the poses the objects are believed at (as --hints takes
+    /// them; poses of objects not asked for are left out). The daemon detects from scratch and says, per object with a pose, after each
+    /// stage where the best candidate near it stands and at which stage it was lost; about
+    /// twice the detection's time.
+    #[arg(long, value_name = "POSES.JSON", conflicts_with_all = ["dataset", "hints"])]
+    pub diagnose_against: Option<PathBuf>,
     /// With --dataset, override: every n-th evenly spread candidate is a reference point
     /// (`--set voting.reference_step=N`).
     #[arg(long)]
@@ -194,6 +200,7 @@ impl DetectCommand {
             requirements: self.requirements.wire()?,
             overlay: self.overlay.zip(self.models),
             hints: self.hints,
+            diagnose_against: self.diagnose_against,
             connect: self.connect,
         }))
     }

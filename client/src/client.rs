@@ -128,6 +128,12 @@ pub struct DetectOptions {
     /// hint that fails (or with none) go through voting. Poses from hints carry
     /// [`checks::HINT`](crate::checks::HINT).
     pub hints: Vec<PoseHint>,
+    /// Poses the objects are believed at, to diagnose against (empty: no diagnosis). The
+    /// detection then runs from scratch (a request cannot carry hints as well), and
+    /// [`Detections::diagnosis`] says, per object with such a pose, after each stage where the
+    /// best candidate near it stands and at which stage it was lost. The stages run a second
+    /// time for this: a diagnosing request takes about twice as long.
+    pub diagnose: Vec<PoseHint>,
 }
 
 impl Default for DetectOptions {
@@ -138,6 +144,7 @@ impl Default for DetectOptions {
             max_frame_age: None,
             requirements: Requirements::default(),
             hints: Vec::new(),
+            diagnose: Vec::new(),
         }
     }
 }
@@ -185,6 +192,9 @@ pub struct Detections {
     pub frame_sequence: u64,
     /// Age of that frame when detection started, ns.
     pub frame_age_ns: u64,
+    /// With [`DetectOptions::diagnose`]: per object diagnosed, a heading line ("object 5:
+    /// lost at voting") and one line per stage; empty otherwise.
+    pub diagnosis: String,
 }
 
 impl Detections {
@@ -427,7 +437,13 @@ impl Client {
             ..Default::default()
         };
         header.set_objects(objects)?;
-        header.set_hints(&options.hints)?;
+        if options.diagnose.is_empty() {
+            header.set_hints(&options.hints)?;
+        } else if !options.hints.is_empty() {
+            return Err(ppfd_protocol::ProtocolError::DiagnoseWithHints.into());
+        } else {
+            header.set_diagnosis_poses(&options.diagnose)?;
+        }
         header.max_frame_age_ns = options
             .max_frame_age
             .map(|d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))
@@ -645,6 +661,7 @@ fn decode_detect(
         counts: h.counts,
         frame_sequence: h.frame_sequence,
         frame_age_ns: h.frame_age_ns,
+        diagnosis: h.diagnosis().into_owned(),
     })
 }
 

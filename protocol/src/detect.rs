@@ -6,8 +6,8 @@ use iceoryx2::prelude::ZeroCopySend;
 
 use crate::frame::FrameHeader;
 use crate::{
-    text, ProtocolError, CAMERA_NAME_BYTES, MAX_HINTS_PER_REQUEST, MAX_HYPOTHESES_PER_OBJECT,
-    MAX_OBJECTS_PER_REQUEST, MESSAGE_BYTES, PROTOCOL_VERSION,
+    text, ProtocolError, CAMERA_NAME_BYTES, DIAGNOSIS_BYTES, MAX_HINTS_PER_REQUEST,
+    MAX_HYPOTHESES_PER_OBJECT, MAX_OBJECTS_PER_REQUEST, MESSAGE_BYTES, PROTOCOL_VERSION,
 };
 
 /// Bits of [`DetectRequestHeader::flags`].
@@ -15,8 +15,15 @@ pub mod flags {
     /// The depth frame travels in the request's `[u16]` payload, described by
     /// [`super::DetectRequestHeader::inline_frame`]; the camera name is ignored.
     pub const INLINE_FRAME: u32 = 1 << 0;
+    /// Diagnose: the entries of [`super::DetectRequestHeader::hints`] are not hints but the
+    /// poses the objects are believed at. The detection runs from scratch, and for each object
+    /// with such a pose (the first given for it) the response's
+    /// [`super::DetectResponseHeader::diagnosis`] says after each stage where the best candidate
+    /// near that pose stands, and at which stage it was lost. The stages run a second time,
+    /// one by one, for this: a diagnosing request takes about twice as long.
+    pub const DIAGNOSE: u32 = 1 << 1;
     /// Every bit this protocol version knows; a request with any other bit set is refused.
-    pub const KNOWN: u32 = INLINE_FRAME;
+    pub const KNOWN: u32 = INLINE_FRAME | DIAGNOSE;
 }
 
 /// Bits of [`PoseHypothesis::checks`]: which verification stages a hypothesis passed.
@@ -360,6 +367,17 @@ impl DetectRequestHeader {
         Ok(())
     }
 
+    /// Asks for a diagnosis against `poses` ([`flags::DIAGNOSE`]; after the objects: each a
+    /// pose of one of them), refusing none, too many and any that is not a pose.
+    pub fn set_diagnosis_poses(&mut self, poses: &[PoseHint]) -> Result<(), ProtocolError> {
+        if poses.is_empty() {
+            return Err(ProtocolError::DiagnoseWithoutPoses);
+        }
+        self.set_hints(poses)?;
+        self.flags |= flags::DIAGNOSE;
+        Ok(())
+    }
+
     fn check_hints(&self, hints: &[PoseHint]) -> Result<(), ProtocolError> {
         for (index, h) in hints.iter().enumerate() {
             if !self.objects().contains(&h.object_id) {
@@ -402,6 +420,9 @@ impl DetectRequestHeader {
             return Err(ProtocolError::TooManyHints(self.hint_count as usize));
         }
         self.check_hints(self.hints())?;
+        if self.flags & flags::DIAGNOSE != 0 && self.hint_count == 0 {
+            return Err(ProtocolError::DiagnoseWithoutPoses);
+        }
         if self.flags & flags::INLINE_FRAME != 0 {
             self.inline_frame.validate(payload_len)?;
             Ok(FrameSource::Inline)
@@ -632,6 +653,10 @@ pub struct DetectResponseHeader {
     pub reserved: u32,
     /// Human-readable detail of a refusal, NUL-padded UTF-8.
     pub message: [u8; MESSAGE_BYTES],
+    /// With [`flags::DIAGNOSE`]: per object diagnosed, a heading line and one line per stage,
+    /// NUL-padded UTF-8 (cut at a line's end when longer, with a last line that says so);
+    /// empty otherwise.
+    pub diagnosis: [u8; DIAGNOSIS_BYTES],
 }
 
 impl Default for DetectResponseHeader {
@@ -649,6 +674,7 @@ impl Default for DetectResponseHeader {
             hypothesis_count: 0,
             reserved: 0,
             message: [0; MESSAGE_BYTES],
+            diagnosis: [0; DIAGNOSIS_BYTES],
         }
     }
 }
@@ -657,6 +683,32 @@ impl DetectResponseHeader {
     /// The message as text.
     pub fn message(&self) -> std::borrow::Cow<'_, str> {
         text::decode(&self.message)
+    }
+
+    /// The diagnosis as text (empty when none was asked for).
+    pub fn diagnosis(&self) -> std::borrow::Cow<'_, str> {
+        text::decode(&self.diagnosis)
+    }
+
+    /// Writes `lines` into [`Self::diagnosis`], whole lines only: when they do not all fit, as
+    /// many as fit and a last line that says how many were left out.
+    pub fn set_diagnosis(&mut self, lines: &[String]) {
+        let note = |left: usize| format!("({left} more lines left out: diagnose fewer objects)");
+        // The last byte stays NUL; a line that is not the last leaves room for the note.
+        let capacity = DIAGNOSIS_BYTES - 1;
+        let reserve = note(lines.len()).len() + 1;
+        let mut text = String::new();
+        for (i, line) in lines.iter().enumerate() {
+            let after = if i + 1 == lines.len() { 0 } else { reserve };
+            if text.len() + line.len() + 1 + after > capacity {
+                text.push_str(&note(lines.len() - i));
+                text.push('\n');
+                break;
+            }
+            text.push_str(line);
+            text.push('\n');
+        }
+        self.diagnosis = text::encode_truncated(&text);
     }
 }
 
@@ -681,7 +733,7 @@ mod tests {
         assert_eq!(align_of::<PoseHypothesis>(), 4);
         assert_eq!(size_of::<LatencyBreakdown>(), 88);
         assert_eq!(size_of::<DetectCounts>(), 24);
-        assert_eq!(size_of::<DetectResponseHeader>(), 360);
+        assert_eq!(size_of::<DetectResponseHeader>(), 360 + DIAGNOSIS_BYTES);
         assert_eq!(offset_of!(DetectResponseHeader, protocol_version), 0);
     }
 
@@ -827,6 +879,60 @@ mod tests {
         assert!(r.set_objects(&[1; MAX_OBJECTS_PER_REQUEST + 1]).is_err());
         r.set_objects(&[7, 8, 9]).unwrap();
         assert_eq!(r.objects(), &[7, 8, 9]);
+    }
+
+    /// A diagnosing request needs a pose to diagnose against; with one it passes.
+    #[test]
+    fn a_diagnosis_is_asked_for_with_the_poses_to_diagnose_against() {
+        let mut r = camera_request(&[1, 5]);
+        r.flags = flags::DIAGNOSE;
+        let e = r.validate(0).unwrap_err();
+        assert!(matches!(e, ProtocolError::DiagnoseWithoutPoses), "{e}");
+        assert_eq!(e.status(), Status::InvalidRequest);
+        r.set_hints(&[hint(5)]).unwrap();
+        assert!(r.validate(0).is_ok());
+
+        let mut r = camera_request(&[1, 5]);
+        assert!(matches!(
+            r.set_diagnosis_poses(&[]),
+            Err(ProtocolError::DiagnoseWithoutPoses)
+        ));
+        assert!(matches!(
+            r.set_diagnosis_poses(&[hint(2)]),
+            Err(ProtocolError::HintForUnrequestedObject { object_id: 2, .. })
+        ));
+        r.set_diagnosis_poses(&[hint(1)]).unwrap();
+        assert_eq!(r.flags, flags::DIAGNOSE);
+        assert!(r.validate(0).is_ok());
+    }
+
+    /// The diagnosis keeps whole lines: what fits, then a line that says how many were left
+    /// out; short diagnoses come back as they went in.
+    #[test]
+    fn a_diagnosis_too_long_for_its_field_is_cut_at_a_line() {
+        let mut h = DetectResponseHeader::default();
+        assert_eq!(h.diagnosis(), "");
+        let short = vec!["object 5: found".to_string(), "  voting  ok".to_string()];
+        h.set_diagnosis(&short);
+        assert_eq!(h.diagnosis(), "object 5: found\n  voting  ok\n");
+
+        let long: Vec<String> = (0..400)
+            .map(|i| format!("{i:>3} {}", "x".repeat(60)))
+            .collect();
+        h.set_diagnosis(&long);
+        let text = h.diagnosis().into_owned();
+        assert!(text.len() < DIAGNOSIS_BYTES);
+        let lines: Vec<&str> = text.lines().collect();
+        let kept = lines.len() - 1;
+        assert!(kept > 100, "{kept} lines kept");
+        assert_eq!(&lines[..kept], &long[..kept]);
+        assert_eq!(
+            lines[kept],
+            format!(
+                "({} more lines left out: diagnose fewer objects)",
+                400 - kept
+            )
+        );
     }
 
     fn hint(object_id: u32) -> PoseHint {

@@ -35,11 +35,14 @@ pub mod services;
 pub mod text;
 
 /// Version of this contract; it travels in every header.
-pub const PROTOCOL_VERSION: u32 = 2;
+pub const PROTOCOL_VERSION: u32 = 3;
 /// Bytes of a camera name field (names are at most one less: the last byte stays NUL).
 pub const CAMERA_NAME_BYTES: usize = 32;
 /// Bytes of a message field.
 pub const MESSAGE_BYTES: usize = 192;
+/// Bytes of a detect response's diagnosis ([`detect::flags::DIAGNOSE`]): the lines of about
+/// eight objects.
+pub const DIAGNOSIS_BYTES: usize = 8192;
 /// Bytes of a path field.
 pub const PATH_BYTES: usize = 256;
 /// Bytes of a model name field.
@@ -126,6 +129,10 @@ pub enum ProtocolError {
         object_id: u32,
         reason: String,
     },
+    /// [`detect::flags::DIAGNOSE`] without a pose to diagnose against.
+    DiagnoseWithoutPoses,
+    /// Hints and poses to diagnose against in one request: they share one field.
+    DiagnoseWithHints,
     /// A value of [`detect::Requirements`] out of its range.
     Requirement {
         field: &'static str,
@@ -232,6 +239,16 @@ impl std::fmt::Display for ProtocolError {
                 f,
                 "the request carries {n} hints, at most {MAX_HINTS_PER_REQUEST} allowed (a fixed \
                  field of the request: send the hints of fewer objects, or one per instance)"
+            ),
+            ProtocolError::DiagnoseWithoutPoses => write!(
+                f,
+                "the request asks for a diagnosis but carries no pose to diagnose against (the \
+                 poses the objects are believed at, in the hints field)"
+            ),
+            ProtocolError::DiagnoseWithHints => write!(
+                f,
+                "a request cannot both carry hints and ask for a diagnosis: a diagnosis runs \
+                 the detection from scratch; send the hints in a request of their own"
             ),
             ProtocolError::HintForUnrequestedObject { index, object_id } => write!(
                 f,

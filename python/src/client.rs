@@ -9,7 +9,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::errors::{protocol_error, to_py};
-use crate::requirements::{hints as hint_list, RequirementArgs};
+use crate::requirements::{poses as pose_list, RequirementArgs};
 use crate::thread::ThreadBound;
 
 /// A duration from seconds given in Python; `what` names the argument in the error.
@@ -141,6 +141,9 @@ pub struct Detections {
     /// The request's id.
     #[pyo3(get)]
     request_id: u64,
+    /// With `diagnose=`: per object diagnosed, a heading line and one line per stage; "" otherwise.
+    #[pyo3(get)]
+    diagnosis: String,
 }
 
 #[pymethods]
@@ -237,6 +240,7 @@ fn detections(py: Python<'_>, found: Found) -> PyResult<Detections> {
         frame_sequence: found.frame_sequence,
         frame_age_ns: found.frame_age_ns,
         request_id: found.request_id,
+        diagnosis: found.diagnosis,
     })
 }
 
@@ -335,10 +339,15 @@ impl Client {
     /// pair `(object_id, pose)` with a 4×4 pose; at most 64, each of one of `object_ids`. A
     /// hinted object is first refined from its hints and goes through voting only when none
     /// passes; `Detection.checks` has `Checks.HINT` on a pose that came from a hint.
+    ///
+    /// `diagnose`: poses the objects are believed at, given as `hints` are (None: no
+    /// diagnosis). The detection then runs from scratch (not with `hints` as well), and
+    /// `Detections.diagnosis` says per object, after each stage, where the best candidate near
+    /// its pose stands and at which stage it was lost; about twice the detection's time.
     #[pyo3(signature = (
         camera, object_ids, hypotheses=1, timeout=None, *, max_frame_age=None, min_score=0.0,
         instance_distance=None, roi=None, max_tilt_deg=None, tilt_axis=None,
-        tilt_direction=None, order="score", hints=None
+        tilt_direction=None, order="score", hints=None, diagnose=None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn detect(
@@ -357,6 +366,7 @@ impl Client {
         tilt_direction: Option<&Bound<'_, PyAny>>,
         order: &str,
         hints: Option<&Bound<'_, PyAny>>,
+        diagnose: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Detections> {
         let requirements = RequirementArgs {
             min_score,
@@ -379,7 +389,11 @@ impl Client {
                 .transpose()?,
             requirements,
             hints: match hints {
-                Some(h) => hint_list(py, h)?,
+                Some(h) => pose_list(py, "hints", h)?,
+                None => Vec::new(),
+            },
+            diagnose: match diagnose {
+                Some(d) => pose_list(py, "diagnose", d)?,
                 None => Vec::new(),
             },
         };

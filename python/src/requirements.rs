@@ -109,12 +109,17 @@ fn numbers<'py, T: FromPyObjectOwned<'py>, const N: usize>(
     })
 }
 
-/// The `hints` keyword of `Client.detect` as the protocol's hints: each item is a `Detection`
+/// The `hints` (or `diagnose`, as `name` says) keyword of `Client.detect` as the protocol's
+/// poses: each item is a `Detection`
 /// (a previous answer) or a pair `(object_id, pose)` with `pose` a 4×4 (or 3×4) array-like
 /// `[[R, t], [0, 0, 0, 1]]` in millimetres. A value of the wrong form raises `ProtocolError`
 /// naming the item; whether the pose is a rotation, and its object one of the request's, is the
 /// client library's to check.
-pub fn hints<'py>(py: Python<'py>, value: &Bound<'py, PyAny>) -> PyResult<Vec<PoseHint>> {
+pub fn poses<'py>(
+    py: Python<'py>,
+    name: &str,
+    value: &Bound<'py, PyAny>,
+) -> PyResult<Vec<PoseHint>> {
     let mut out = Vec::new();
     for (index, item) in value.try_iter()?.enumerate() {
         let item = item?;
@@ -129,7 +134,7 @@ pub fn hints<'py>(py: Python<'py>, value: &Bound<'py, PyAny>) -> PyResult<Vec<Po
             protocol_error(
                 py,
                 format!(
-                    "hints[{index}] must be a Detection or (object_id, 4×4 pose){what}; got {got}"
+                    "{name}[{index}] must be a Detection or (object_id, 4×4 pose){what}; got {got}"
                 ),
             )
         };

@@ -308,6 +308,28 @@ def test_hints_from_an_answer_or_the_truth_come_back_refined(client, camera, sce
     assert found.latency["voting_ns"] > 0
 
 
+def test_a_diagnosis_says_where_each_object_is_lost(client, camera, scene):
+    # Against the truth every part is found; against a pose far from the first part, that
+    # part is lost at some stage. A request with hints as well is refused before sending.
+    far_id, far_truth = scene.truth[0]
+    moved = far_truth.copy()
+    moved[:3, 3] += [0.0, 0.0, 600.0]
+    poses = [(far_id, moved)] + [(i, t) for i, t in scene.truth[1:]]
+    found = detect_when_subscribed(
+        client, camera, scene.depth, scene.object_ids, diagnose=poses
+    )
+    heads = [line for line in found.diagnosis.splitlines() if not line.startswith(" ")]
+    assert heads[0].startswith(f"object {far_id}: lost at "), found.diagnosis
+    assert heads[1:] == [f"object {i}: found" for i, _ in scene.truth[1:]], found.diagnosis
+    assert len(found) >= len(scene.object_ids)
+    plain = detect_when_subscribed(client, camera, scene.depth, scene.object_ids[:1])
+    assert plain.diagnosis == ""
+    with pytest.raises(ppfd.ProtocolError, match="hints"):
+        client.detect("parts", [far_id], hints=[(far_id, far_truth)], diagnose=[(far_id, far_truth)])
+    with pytest.raises(ppfd.ProtocolError, match=r"diagnose\[0\]"):
+        client.detect("parts", [far_id], diagnose=[(far_id, far_truth[:2])])
+
+
 def test_malformed_hints_are_refused_before_sending(client, camera, scene):
     object_id, truth = scene.truth[0]
     sheared = truth.copy()

@@ -64,6 +64,9 @@ pub struct EngineOptions {
     pub cancel: Arc<AtomicBool>,
     /// The request's hints, checked against the contract (each a pose of a requested object).
     pub hints: Vec<PoseHint>,
+    /// Poses to diagnose against ([`ppfd_protocol::detect::flags::DIAGNOSE`]), checked as hints
+    /// are; the detection then runs from scratch, without hints.
+    pub diagnose: Vec<PoseHint>,
 }
 
 /// What one detection found, in wire types.
@@ -75,6 +78,9 @@ pub struct EngineOutput {
     pub stages: LatencyBreakdown,
     /// Sizes of the work (`returned` is filled by the daemon).
     pub counts: DetectCounts,
+    /// When [`EngineOptions::diagnose`] is not empty: per object with a pose, a heading line
+    /// and one line per stage (an engine that cannot diagnose says so in one line).
+    pub diagnosis: Vec<String>,
 }
 
 /// A refusal or failure of the engine, with the status the client gets.

@@ -4,6 +4,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use ppfd_models::detect::detector::{Detector, Hint, RunOptions};
+use ppfd_models::detect::diagnosis::diagnose_targets;
 use ppfd_models::detect::requirements::{Order, PixelRegion, PoseRestriction, Requirements};
 use ppfd_models::geometry::camera::{DepthFrame, Intrinsics};
 use ppfd_models::model::store;
@@ -297,6 +298,22 @@ impl DetectionEngine for PpfEngine {
             .detector
             .detect(&depth_frame, &object_models, &opts)
             .map_err(model_error)?;
+        let diagnosis = if options.diagnose.is_empty() {
+            Vec::new()
+        } else {
+            let targets: Vec<Hint> = options.diagnose.iter().map(hint_of).collect();
+            diagnose_targets(
+                self.detector.params(),
+                &depth_frame,
+                &object_models,
+                &targets,
+                options.hypotheses_per_object,
+            )
+            .map_err(model_error)?
+            .iter()
+            .flat_map(|d| d.lines())
+            .collect()
+        };
 
         let mut hypotheses = Vec::new();
         for object in &found.objects {
@@ -351,6 +368,7 @@ impl DetectionEngine for PpfEngine {
                 hypotheses: found.counts.hypotheses,
                 returned: 0,
             },
+            diagnosis,
         })
     }
 }

@@ -147,6 +147,9 @@ impl Responder {
             counts: output.counts,
             ..Default::default()
         };
+        if !output.diagnosis.is_empty() {
+            response.set_diagnosis(&output.diagnosis);
+        }
         let send_ns = job.header.send_time_ns;
         response.latency.transport_ns = if send_ns != 0 {
             job.received_ns.saturating_sub(send_ns)

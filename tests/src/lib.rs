@@ -184,6 +184,11 @@ impl DetectionEngine for FakeEngine {
                 scene_points: valid.len() as u32,
                 ..Default::default()
             },
+            diagnosis: if options.diagnose.is_empty() {
+                Vec::new()
+            } else {
+                vec!["the transport-only engine has no stages to diagnose".into()]
+            },
         })
     }
 }

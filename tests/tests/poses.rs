@@ -262,9 +262,31 @@ fn generated_scene_poses_through_the_whole_path_match_the_ground_truth() {
 /// part 3, hinted 0.8 of its diameter off, fails its hint and is found by voting. Hints below
 /// the request's minimum score fail. A hint with a NaN, or one for an object not asked for, is
 /// refused with what is wrong, and the daemon serves on.
+/// `pose` of object `id` as the wire carries it.
+fn hint(id: u32, pose: Pose) -> ppfd_client::PoseHint {
+    let r = pose.rotation.to_rotation_matrix();
+    let m = r.matrix();
+    let t = pose.translation.vector;
+    ppfd_client::PoseHint {
+        object_id: id,
+        rotation: [
+            m[(0, 0)],
+            m[(0, 1)],
+            m[(0, 2)],
+            m[(1, 0)],
+            m[(1, 1)],
+            m[(1, 2)],
+            m[(2, 0)],
+            m[(2, 1)],
+            m[(2, 2)],
+        ],
+        translation_mm: [t.x, t.y, t.z],
+    }
+}
+
 #[test]
 fn hinted_parts_come_back_from_their_hints_and_a_wrong_hint_from_voting() {
-    use ppfd_client::{checks, PoseHint};
+    use ppfd_client::checks;
     let test = "gen_hints";
     let scene = parts_scene(SEED, true);
     let prefix = Prefix::new(test);
@@ -283,26 +305,6 @@ fn hinted_parts_come_back_from_their_hints_and_a_wrong_hint_from_voting() {
         ..Default::default()
     };
     let truth = |id: u32| scene.ground_truth.iter().find(|g| g.0 == id).unwrap().1;
-    let hint = |id: u32, pose: Pose| {
-        let r = pose.rotation.to_rotation_matrix();
-        let m = r.matrix();
-        let t = pose.translation.vector;
-        PoseHint {
-            object_id: id,
-            rotation: [
-                m[(0, 0)],
-                m[(0, 1)],
-                m[(0, 2)],
-                m[(1, 0)],
-                m[(1, 1)],
-                m[(1, 2)],
-                m[(2, 0)],
-                m[(2, 1)],
-                m[(2, 2)],
-            ],
-            translation_mm: [t.x, t.y, t.z],
-        }
-    };
     let d3 = diameters[2];
     let mut off = truth(3);
     off.translation.vector.x += 0.8 * d3;
@@ -787,5 +789,129 @@ fn request_requirements_are_checked_by_the_daemon_and_served() {
             })
             .collect();
         eprintln!("object {id}: distances {distances:.0?}");
+    }
+}
+
+/// A diagnosing request through the daemon: per object with a pose, the stages one by one
+/// against it. Parts 1 and 2 against their true poses are found, with a line per stage; part 3
+/// against a pose where it is not is lost at a stage; an object without a pose is not
+/// diagnosed. A request with hints as well is refused by the client, and one with the flag
+/// but no pose by the daemon.
+#[test]
+fn a_diagnosis_through_the_daemon_says_where_each_object_is_lost() {
+    let test = "gen_diagnose";
+    let scene = parts_scene(SEED, true);
+    let prefix = Prefix::new(test);
+    let work = WorkDir::new(test);
+    let diameters = write_part_models(&work.join("models"));
+    let _daemon = start_daemon(&prefix, &work.join("models"), &work.join("cache"), &[]);
+    let mut cam = parts_camera(&prefix, SEED, true);
+    cam.wait_line("camera ready", STARTUP);
+    let client = ppfd_client::Client::connect_with(&ppfd_client::ClientOptions {
+        prefix: Some(prefix.0.clone()),
+        ..Default::default()
+    })
+    .unwrap();
+    let truth = |id: u32| scene.ground_truth.iter().find(|g| g.0 == id).unwrap().1;
+    let mut away = truth(3);
+    away.translation.vector.z += 3.0 * diameters[2];
+    let options = ppfd_client::DetectOptions {
+        timeout: DETECTION,
+        diagnose: vec![hint(1, truth(1)), hint(2, truth(2)), hint(3, away)],
+        ..Default::default()
+    };
+    let found = loop {
+        match client.detect("parts", &[1, 2, 3, 4], &options) {
+            Err(ppfd_client::Error::Refused {
+                status: ppfd_client::Status::NoFrame | ppfd_client::Status::UnknownCamera,
+                ..
+            }) => std::thread::sleep(Duration::from_millis(50)),
+            answer => break answer.expect("detections"),
+        }
+    };
+    let text = found.diagnosis.clone();
+    eprintln!("{text}");
+    let lines: Vec<&str> = text.lines().collect();
+    let section = |id: u32| -> Vec<&str> {
+        let head = format!("object {id}:");
+        let Some(start) = lines.iter().position(|l| l.starts_with(&head)) else {
+            return Vec::new();
+        };
+        lines[start..]
+            .iter()
+            .enumerate()
+            .take_while(|(i, l)| *i == 0 || l.starts_with("  "))
+            .map(|(_, l)| *l)
+            .collect()
+    };
+    for id in [1, 2] {
+        let s = section(id);
+        assert_eq!(
+            s.first(),
+            Some(&format!("object {id}: found").as_str()),
+            "{text}"
+        );
+        for stage in [
+            "voting",
+            "clustering",
+            "re-scoring",
+            "ICP",
+            "filters",
+            "result",
+        ] {
+            assert!(
+                s.iter().any(|l| l.trim_start().starts_with(stage)),
+                "no {stage} line for part {id}:\n{text}"
+            );
+        }
+    }
+    let s3 = section(3);
+    assert!(
+        s3.first()
+            .is_some_and(|l| l.starts_with("object 3: lost at ")),
+        "{text}"
+    );
+    assert!(section(4).is_empty(), "{text}");
+    // The detection itself ran from scratch and answered every object.
+    for id in [1, 2, 3, 4] {
+        assert!(found.best(id).is_some(), "no pose of part {id}");
+    }
+    let plain = client.detect("parts", &[1], &plain_options()).unwrap();
+    assert_eq!(plain.diagnosis, "");
+
+    let both = ppfd_client::DetectOptions {
+        hints: vec![hint(1, truth(1))],
+        ..options.clone()
+    };
+    match client.detect("parts", &[1, 2, 3], &both) {
+        Err(ppfd_client::Error::Protocol(e)) => assert!(
+            e.to_string()
+                .contains("cannot both carry hints and ask for a diagnosis"),
+            "{e}"
+        ),
+        other => panic!("expected the client to refuse, got {other:?}"),
+    }
+    let mut header = ppfd_client::protocol::detect::DetectRequestHeader {
+        camera_name: ppfd_client::protocol::text::encode_name("camera", "parts").unwrap(),
+        flags: ppfd_client::protocol::detect::flags::DIAGNOSE,
+        ..Default::default()
+    };
+    header.set_objects(&[1]).unwrap();
+    match client.send_raw(&header, &[], DETECTION) {
+        Err(ppfd_client::Error::Refused {
+            status, message, ..
+        }) => {
+            assert_eq!(status, ppfd_client::Status::InvalidRequest);
+            assert!(message.contains("no pose to diagnose against"), "{message}");
+        }
+        other => panic!("expected a refusal, got {other:?}"),
+    }
+    assert!(client.detect("parts", &[1], &plain_options()).is_ok());
+}
+
+fn plain_options() -> ppfd_client::DetectOptions {
+    ppfd_client::DetectOptions {
+        timeout: DETECTION,
+        ..Default::default()
     }
 }

@@ -11,17 +11,18 @@
 //! are known too.
 
 use crate::detect::clustering::cluster_poses;
-use crate::detect::detector::DetectParams;
+use crate::detect::detector::{DetectParams, Hint};
 use crate::detect::filters::is_consistent;
 use crate::detect::icp::refine;
 use crate::detect::plane::SupportingPlane;
 use crate::detect::rescoring::{score_poses, sparse_ranking, Outline, Scored};
-use crate::detect::scene::{PreparedScene, SceneImage};
+use crate::detect::scene::{prepare, PreparedScene, SceneImage};
 use crate::detect::silhouette::{silhouette_fraction, EdgeMap};
 use crate::detect::voting::{vote_from, Selection};
+use crate::geometry::camera::DepthFrame;
 use crate::geometry::render::{bounding_sphere, Renderer};
 use crate::model::ObjectModel;
-use crate::Pose;
+use crate::{Error, Pose, Result};
 use rayon::prelude::*;
 
 /// A pose counts as near the target within this fraction of the diameter and these degrees.
@@ -91,6 +92,66 @@ pub struct PreparedFrame<'a> {
     pub image: &'a SceneImage,
     pub planes: &'a [SupportingPlane],
     pub edges: &'a EdgeMap,
+}
+
+/// Translation (mm) and rotation (degrees) errors of `pose` against `target`, through the
+/// model's symmetry: the equivalent of `pose` closest to the target is compared.
+pub fn pose_errors(model: &ObjectModel, pose: &Pose, target: &Pose) -> (f32, f32) {
+    let pose = model.symmetry().closest_equivalent(pose, &target.rotation);
+    (
+        (pose.translation.vector - target.translation.vector).norm(),
+        pose.rotation.angle_to(&target.rotation).to_degrees(),
+    )
+}
+
+/// Diagnoses a whole frame as the detector sees it: the scene prepared once, the clouds the
+/// detector would build for `models` together, and for each target (the first pose given per
+/// object; `targets` name only objects of `models`) the stages one by one ([`diagnose`]),
+/// against that pose through the object's symmetry. In the order of `models`, objects without
+/// a target left out.
+pub fn diagnose_targets(
+    params: &DetectParams,
+    frame: &DepthFrame,
+    models: &[&ObjectModel],
+    targets: &[Hint],
+    hypotheses: usize,
+) -> Result<Vec<Diagnosis>> {
+    if let Some(t) = targets
+        .iter()
+        .find(|t| !models.iter().any(|m| m.object_id() == t.object_id))
+    {
+        return Err(Error::InvalidParameter(format!(
+            "a pose to diagnose against names object {}, which the request does not ask for",
+            t.object_id
+        )));
+    }
+    let image = prepare(frame, &params.scene)?;
+    let points = image.oriented_points();
+    let planes = SupportingPlane::find_all(&points, &params.plane);
+    let edges = EdgeMap::new(&image, &params.filters);
+    let prepared = PreparedFrame {
+        image: &image,
+        planes: &planes,
+        edges: &edges,
+    };
+    let (groups, cloud_of) = params.scene_clouds(models);
+    let clouds = params.prepare_clouds(&points, &groups)?;
+    Ok(models
+        .iter()
+        .zip(&cloud_of)
+        .filter_map(|(model, &group)| {
+            let target = targets.iter().find(|t| t.object_id == model.object_id())?;
+            let errors = |pose: &Pose| pose_errors(model, pose, &target.pose);
+            Some(diagnose(
+                params,
+                &prepared,
+                &clouds[group],
+                model,
+                &errors,
+                hypotheses,
+            ))
+        })
+        .collect())
 }
 
 /// Runs the detector's stages on `cloud` (the object's subsampled scene) for `model`, and says

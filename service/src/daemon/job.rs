@@ -8,7 +8,7 @@ use std::sync::Arc;
 
 use iceoryx2::identifiers::UniqueClientId;
 use ppfd_protocol::clock::{instant_of, monotonic_now_ns};
-use ppfd_protocol::detect::{DetectRequestHeader, FrameSource, Status};
+use ppfd_protocol::detect::{flags, DetectRequestHeader, FrameSource, Status};
 use ppfd_protocol::frame::FrameHeader;
 
 use crate::engine::{EngineError, EngineOptions, FrameView};
@@ -146,12 +146,23 @@ impl Daemon {
         let engine = self.engine.clone();
         let models = q.models;
         let cancel = Arc::new(AtomicBool::new(false));
+        let diagnosing = q.header.flags & flags::DIAGNOSE != 0;
         let options = EngineOptions {
             hypotheses_per_object: q.header.hypotheses_per_object as usize,
             requirements: q.header.requirements,
             deadline: (q.header.deadline_ns != 0).then(|| instant_of(q.header.deadline_ns)),
             cancel: cancel.clone(),
-            hints: q.header.hints().to_vec(),
+            // With DIAGNOSE the hints field carries the poses to diagnose against.
+            hints: if diagnosing {
+                Vec::new()
+            } else {
+                q.header.hints().to_vec()
+            },
+            diagnose: if diagnosing {
+                q.header.hints().to_vec()
+            } else {
+                Vec::new()
+            },
         };
         let done = self.done_tx.clone();
         let signaller = self.signaller;
