@@ -112,9 +112,9 @@ pub struct DetectOptions {
     /// Best hypotheses wanted per object (1 to 16).
     pub hypotheses_per_object: u32,
     /// How long to wait for the answer; also sent as the request's deadline. The default, 3 s,
-    /// is about three times what eight objects in a cluttered VGA frame take on two cores
-    /// (0.94 s on the LM-O frame, docs/BENCHMARKS.md): room for a busy host, and a hung cycle
-    /// still ends within a picking cycle or two.
+    /// is about six times what eight objects in a cluttered VGA frame take on two cores
+    /// (0.52 s on the LM-O frame, docs/BENCHMARKS.md): room for a busy host, larger frames and
+    /// a diagnosis (twice the time), and a hung cycle still ends within a few picking cycles.
     pub timeout: Duration,
     /// Oldest acceptable camera frame (`None`: the daemon's limit).
     pub max_frame_age: Option<Duration>,
