@@ -262,6 +262,44 @@ fn generated_scene_poses_through_the_whole_path_match_the_ground_truth() {
 /// part 3, hinted 0.8 of its diameter off, fails its hint and is found by voting. Hints below
 /// the request's minimum score fail. A hint with a NaN, or one for an object not asked for, is
 /// refused with what is wrong, and the daemon serves on.
+/// The generated scene served: a daemon over the parts' models, a camera publishing the scene,
+/// and a client, under a prefix of their own.
+struct PartsServed {
+    scene: ppfd_models::synthetic::scene::SyntheticScene,
+    diameters: Vec<f32>,
+    client: ppfd_client::Client,
+    _camera: Proc,
+    _daemon: Proc,
+    _work: WorkDir,
+    _prefix: Prefix,
+}
+
+impl PartsServed {
+    fn start(test: &str) -> PartsServed {
+        let scene = parts_scene(SEED, true);
+        let prefix = Prefix::new(test);
+        let work = WorkDir::new(test);
+        let diameters = write_part_models(&work.join("models"));
+        let daemon = start_daemon(&prefix, &work.join("models"), &work.join("cache"), &[]);
+        let mut camera = parts_camera(&prefix, SEED, true);
+        camera.wait_line("camera ready", STARTUP);
+        let client = ppfd_client::Client::connect_with(&ppfd_client::ClientOptions {
+            prefix: Some(prefix.0.clone()),
+            ..Default::default()
+        })
+        .unwrap();
+        PartsServed {
+            scene,
+            diameters,
+            client,
+            _camera: camera,
+            _daemon: daemon,
+            _work: work,
+            _prefix: prefix,
+        }
+    }
+}
+
 /// `pose` of object `id` as the wire carries it.
 fn hint(id: u32, pose: Pose) -> ppfd_client::PoseHint {
     let r = pose.rotation.to_rotation_matrix();
@@ -287,19 +325,8 @@ fn hint(id: u32, pose: Pose) -> ppfd_client::PoseHint {
 #[test]
 fn hinted_parts_come_back_from_their_hints_and_a_wrong_hint_from_voting() {
     use ppfd_client::checks;
-    let test = "gen_hints";
-    let scene = parts_scene(SEED, true);
-    let prefix = Prefix::new(test);
-    let work = WorkDir::new(test);
-    let diameters = write_part_models(&work.join("models"));
-    let _daemon = start_daemon(&prefix, &work.join("models"), &work.join("cache"), &[]);
-    let mut cam = parts_camera(&prefix, SEED, true);
-    cam.wait_line("camera ready", STARTUP);
-    let client = ppfd_client::Client::connect_with(&ppfd_client::ClientOptions {
-        prefix: Some(prefix.0.clone()),
-        ..Default::default()
-    })
-    .unwrap();
+    let served = PartsServed::start("gen_hints");
+    let (scene, diameters, client) = (&served.scene, &served.diameters, &served.client);
     let options = ppfd_client::DetectOptions {
         timeout: DETECTION,
         ..Default::default()
@@ -799,19 +826,8 @@ fn request_requirements_are_checked_by_the_daemon_and_served() {
 /// but no pose by the daemon.
 #[test]
 fn a_diagnosis_through_the_daemon_says_where_each_object_is_lost() {
-    let test = "gen_diagnose";
-    let scene = parts_scene(SEED, true);
-    let prefix = Prefix::new(test);
-    let work = WorkDir::new(test);
-    let diameters = write_part_models(&work.join("models"));
-    let _daemon = start_daemon(&prefix, &work.join("models"), &work.join("cache"), &[]);
-    let mut cam = parts_camera(&prefix, SEED, true);
-    cam.wait_line("camera ready", STARTUP);
-    let client = ppfd_client::Client::connect_with(&ppfd_client::ClientOptions {
-        prefix: Some(prefix.0.clone()),
-        ..Default::default()
-    })
-    .unwrap();
+    let served = PartsServed::start("gen_diagnose");
+    let (scene, diameters, client) = (&served.scene, &served.diameters, &served.client);
     let truth = |id: u32| scene.ground_truth.iter().find(|g| g.0 == id).unwrap().1;
     let mut away = truth(3);
     away.translation.vector.z += 3.0 * diameters[2];
