@@ -3,8 +3,13 @@
 //! rank the object's right pose reaches. Reads `../shared/data/lmo`; runs whenever the data is
 //! there, and always under `CI=true`.
 
+mod common;
+
 use std::path::Path;
 use std::process::{Command, Output};
+
+use common::{Scratch, ServedPart};
+use ppfd_models::synthetic::parts::Part;
 
 use ppfd_bop::shared_test_data;
 
@@ -123,4 +128,82 @@ fn diagnose_refuses_an_object_without_ground_truth_before_building_models() {
         "{stderr}"
     );
     assert!(!cache.exists(), "no model was built before the refusal");
+}
+
+/// `ppf detect --camera … --diagnose-against POSES.JSON --json`: the daemon diagnoses against
+/// the poses of the file that are of the objects asked for, and the JSON carries its lines; a
+/// file without such a pose is refused before anything is sent.
+#[test]
+fn a_camera_detection_is_diagnosed_against_the_poses_of_a_file() {
+    let scratch = Scratch::new("camera-diagnosis");
+    let mut served = ServedPart::start(&scratch, "diagnosis", Part::LBracket, 3);
+    let id = served.part.object_id();
+    let truth = served.scene.ground_truth[0].1;
+    let r = truth.rotation.to_rotation_matrix();
+    let m = r.matrix();
+    let t = truth.translation.vector;
+    let pose = |object_id: u32| {
+        format!(
+            r#"{{"object_id": {object_id}, "rotation": [{}], "translation_mm": [{}, {}, {}]}}"#,
+            (0..3)
+                .flat_map(|i| (0..3).map(move |j| (i, j)))
+                .map(|(i, j)| m[(i, j)].to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+            t.x,
+            t.y,
+            t.z
+        )
+    };
+    // The file holds the part's pose and one of an object the request does not ask for.
+    let poses = scratch.join("believed.json");
+    std::fs::write(&poses, format!("[{}, {}]", pose(id), pose(id + 40))).unwrap();
+    let prefix = served.prefix.clone();
+    let detect = |file: &Path| {
+        Command::new(env!("CARGO_BIN_EXE_ppf"))
+            .args(["detect", "--prefix", &prefix, "--camera", "cam", "--json"])
+            .args(["--timeout-ms", "60000", "--objects"])
+            .arg(id.to_string())
+            .arg("--diagnose-against")
+            .arg(file)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let out = served.publish_until_done(detect(&poses));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let answer: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let lines: Vec<&str> = answer["diagnosis"]
+        .as_array()
+        .unwrap_or_else(|| panic!("no diagnosis in {stdout}"))
+        .iter()
+        .map(|l| l.as_str().unwrap())
+        .collect();
+    assert_eq!(
+        lines.first(),
+        Some(&format!("object {id}: found").as_str()),
+        "{stdout}"
+    );
+    for stage in ["voting", "clustering", "ICP", "filters", "result"] {
+        assert!(
+            lines.iter().any(|l| l.trim_start().starts_with(stage)),
+            "no {stage} line: {stdout}"
+        );
+    }
+    assert!(!lines
+        .iter()
+        .any(|l| l.contains(&format!("object {}", id + 40))));
+
+    let others = scratch.join("others.json");
+    std::fs::write(&others, format!("[{}]", pose(id + 40))).unwrap();
+    let out = served.publish_until_done(detect(&others));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("nothing to diagnose against"), "{stderr}");
 }

@@ -5,7 +5,7 @@ mod common;
 
 use std::process::Command;
 
-use common::Scratch;
+use common::{Scratch, ServedPart};
 use ppfd_models::geometry::render::render_depth;
 use ppfd_models::synthetic::parts::Part;
 use ppfd_models::synthetic::scene::{NoiseModel, SceneSpec};
@@ -119,68 +119,23 @@ fn the_demo_overlay_outlines_each_part_where_it_lies() {
 /// the models folder's mesh, outlines the part where it lies.
 #[test]
 fn the_camera_overlay_outlines_the_part_on_the_cameras_frame() {
-    use std::io::BufRead;
     let scratch = Scratch::new("camera-overlay");
-    let models = scratch.join("models");
-    std::fs::create_dir_all(&models).unwrap();
-    let part = Part::TPipe;
-    let mesh = part.mesh();
-    std::fs::write(
-        models.join(format!("obj_{:06}.ply", part.object_id())),
-        mesh.to_ply_ascii(),
-    )
-    .unwrap();
-    let scene = SceneSpec::new(5)
-        .object(part.object_id(), &mesh)
-        .noise(Some(NoiseModel::kinect()))
-        .build()
-        .unwrap();
-    let prefix = format!("ppf_overlay_{}", std::process::id());
-    let mut daemon = Command::new(env!("CARGO_BIN_EXE_ppf"))
-        .args(["serve", "--prefix", &prefix, "--models"])
-        .arg(&models)
-        .arg("--model-cache")
-        .arg(scratch.join("cache"))
-        .stdout(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let ready = std::io::BufReader::new(daemon.stdout.take().unwrap())
-        .lines()
-        .map_while(Result::ok)
-        .any(|l| l.starts_with("ppfd ready"));
-    assert!(ready, "the daemon never came up");
-    let f = &scene.frame;
-    let k = f.intrinsics;
-    let mut camera = ppfd_client::CameraPublisher::new(
-        Some(&prefix),
-        "cam",
-        1,
-        f.width,
-        f.height,
-        ppfd_client::Intrinsics {
-            fx: k.fx,
-            fy: k.fy,
-            cx: k.cx,
-            cy: k.cy,
-        },
-        f.depth_scale_mm,
-    )
-    .unwrap();
+    let mut served = ServedPart::start(&scratch, "overlay", Part::TPipe, 5);
     let png_path = scratch.join("camera.png");
     let mut detect = Command::new(env!("CARGO_BIN_EXE_ppf"))
         .args([
             "detect",
             "--prefix",
-            &prefix,
+            &served.prefix,
             "--camera",
             "cam",
             "--objects",
         ])
-        .arg(part.object_id().to_string())
+        .arg(served.part.object_id().to_string())
         .arg("--overlay")
         .arg(&png_path)
         .arg("--models")
-        .arg(&models)
+        .arg(&served.models)
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
         .spawn()
@@ -193,29 +148,18 @@ fn the_camera_overlay_outlines_the_part_on_the_cameras_frame() {
         detect.try_wait().unwrap().is_none(),
         "ppf detect gave up before the camera's first frame"
     );
-    let status = loop {
-        camera
-            .loan()
-            .and_then(|l| l.write_from_slice(&f.depth))
-            .and_then(|r| r.send(ppfd_client::monotonic_now_ns()))
-            .unwrap();
-        if let Some(status) = detect.try_wait().unwrap() {
-            break status;
-        }
-        camera.idle(std::time::Duration::from_millis(100)).unwrap();
-    };
-    let out = detect.wait_with_output().unwrap();
-    // SAFETY: signals our own child, the daemon.
-    unsafe { libc::kill(daemon.id() as i32, libc::SIGTERM) };
-    let _ = daemon.wait();
+    let out = served.publish_until_done(detect);
+    let status = out.status;
     eprintln!(
         "{status:?}\n{}\n{}",
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
     );
+    let (f, mesh, scene) = (&served.scene.frame, &served.mesh, &served.scene);
+    let k = f.intrinsics;
     assert!(status.success());
     let picture = read_rgb(&png_path);
-    let mask = render_depth(&mesh, &scene.ground_truth[0].1, &k, f.width, f.height).unwrap();
+    let mask = render_depth(mesh, &scene.ground_truth[0].1, &k, f.width, f.height).unwrap();
     let (per_part, on, off) = outline_pixels(&picture, &[mask]);
     eprintln!("outline pixels on the part {per_part:?}, elsewhere {off}");
     assert!(

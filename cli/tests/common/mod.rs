@@ -37,3 +37,111 @@ pub fn show(command: &std::process::Command, out: &std::process::Output) {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// A daemon (`ppf serve`) over one generated part's mesh, and a camera `cam` that publishes a
+/// generated scene of that part, under a prefix of their own; the daemon is stopped when
+/// dropped.
+#[allow(dead_code)] // not every test file serves a camera
+pub struct ServedPart {
+    pub part: ppfd_models::synthetic::parts::Part,
+    pub mesh: ppfd_models::geometry::mesh::Mesh,
+    pub scene: ppfd_models::synthetic::scene::SyntheticScene,
+    pub prefix: String,
+    pub models: PathBuf,
+    daemon: std::process::Child,
+    camera: ppfd_client::CameraPublisher,
+}
+
+#[allow(dead_code)]
+impl ServedPart {
+    /// Serves `part` in a scene of `seed`, with files under `scratch`.
+    pub fn start(
+        scratch: &Scratch,
+        name: &str,
+        part: ppfd_models::synthetic::parts::Part,
+        seed: u64,
+    ) -> ServedPart {
+        use ppfd_models::synthetic::scene::{NoiseModel, SceneSpec};
+        use std::io::BufRead;
+        let models = scratch.join("models");
+        std::fs::create_dir_all(&models).unwrap();
+        let mesh = part.mesh();
+        std::fs::write(
+            models.join(format!("obj_{:06}.ply", part.object_id())),
+            mesh.to_ply_ascii(),
+        )
+        .unwrap();
+        let scene = SceneSpec::new(seed)
+            .object(part.object_id(), &mesh)
+            .noise(Some(NoiseModel::kinect()))
+            .build()
+            .unwrap();
+        let prefix = format!("ppf_{name}_{}", std::process::id());
+        let mut daemon = std::process::Command::new(env!("CARGO_BIN_EXE_ppf"))
+            .args(["serve", "--prefix", &prefix, "--models"])
+            .arg(&models)
+            .arg("--model-cache")
+            .arg(scratch.join("cache"))
+            .stdout(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let ready = std::io::BufReader::new(daemon.stdout.take().unwrap())
+            .lines()
+            .map_while(Result::ok)
+            .any(|l| l.starts_with("ppfd ready"));
+        assert!(ready, "the daemon never came up");
+        let f = &scene.frame;
+        let k = f.intrinsics;
+        let camera = ppfd_client::CameraPublisher::new(
+            Some(&prefix),
+            "cam",
+            1,
+            f.width,
+            f.height,
+            ppfd_client::Intrinsics {
+                fx: k.fx,
+                fy: k.fy,
+                cx: k.cx,
+                cy: k.cy,
+            },
+            f.depth_scale_mm,
+        )
+        .unwrap();
+        ServedPart {
+            part,
+            mesh,
+            scene,
+            prefix,
+            models,
+            daemon,
+            camera,
+        }
+    }
+
+    /// Publishes the scene's frame every 100 ms until `command` (started with its output
+    /// piped) ends; its output.
+    pub fn publish_until_done(&mut self, mut command: std::process::Child) -> std::process::Output {
+        loop {
+            self.camera
+                .loan()
+                .and_then(|l| l.write_from_slice(&self.scene.frame.depth))
+                .and_then(|r| r.send(ppfd_client::monotonic_now_ns()))
+                .unwrap();
+            if command.try_wait().unwrap().is_some() {
+                break;
+            }
+            self.camera
+                .idle(std::time::Duration::from_millis(100))
+                .unwrap();
+        }
+        command.wait_with_output().unwrap()
+    }
+}
+
+impl Drop for ServedPart {
+    fn drop(&mut self) {
+        // SAFETY: signals our own child, the daemon.
+        unsafe { libc::kill(self.daemon.id() as i32, libc::SIGTERM) };
+        let _ = self.daemon.wait();
+    }
+}
