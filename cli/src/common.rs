@@ -57,7 +57,7 @@ pub fn ms(ns: u64) -> String {
 
 /// Prints one request's latency breakdown.
 pub fn print_latency(d: &Detections) {
-    println!("latency (ms):");
+    println!("latency (ms; the stages are summed over the objects, which run side by side, so they can add up to more than the detection):");
     for (name, ns) in stages(&d.latency.daemon) {
         println!("  {name:<18} {:>10}", ms(ns));
     }

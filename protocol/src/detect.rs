@@ -478,7 +478,9 @@ pub struct PoseHypothesis {
 }
 
 /// Where the time of one request went, in nanoseconds. All instants are `CLOCK_MONOTONIC` of the
-/// same machine, so client and daemon timestamps compare directly.
+/// same machine, so client and daemon timestamps compare directly. The stages from voting to
+/// the filters are summed over the requested objects, which the daemon detects side by side:
+/// together they can exceed `detection_ns`, the wall time.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
 #[type_name("ppfd::LatencyBreakdown")]
 #[repr(C)]
