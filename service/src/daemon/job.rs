@@ -146,23 +146,20 @@ impl Daemon {
         let engine = self.engine.clone();
         let models = q.models;
         let cancel = Arc::new(AtomicBool::new(false));
-        let diagnosing = q.header.flags & flags::DIAGNOSE != 0;
+        // With DIAGNOSE the hints field carries the poses to diagnose against.
+        let poses = q.header.hints().to_vec();
+        let (hints, diagnose) = if q.header.flags & flags::DIAGNOSE != 0 {
+            (Vec::new(), poses)
+        } else {
+            (poses, Vec::new())
+        };
         let options = EngineOptions {
             hypotheses_per_object: q.header.hypotheses_per_object as usize,
             requirements: q.header.requirements,
             deadline: (q.header.deadline_ns != 0).then(|| instant_of(q.header.deadline_ns)),
             cancel: cancel.clone(),
-            // With DIAGNOSE the hints field carries the poses to diagnose against.
-            hints: if diagnosing {
-                Vec::new()
-            } else {
-                q.header.hints().to_vec()
-            },
-            diagnose: if diagnosing {
-                q.header.hints().to_vec()
-            } else {
-                Vec::new()
-            },
+            hints,
+            diagnose,
         };
         let done = self.done_tx.clone();
         let signaller = self.signaller;
