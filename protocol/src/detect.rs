@@ -357,10 +357,16 @@ impl DetectRequestHeader {
     /// Sets the hints (after the objects: each must be for one of them), refusing too many and
     /// any that is not a pose.
     pub fn set_hints(&mut self, hints: &[PoseHint]) -> Result<(), ProtocolError> {
+        self.store_poses(hints, false)
+    }
+
+    /// The hints field's poses, checked as hints or (with `diagnosis`) as poses to diagnose
+    /// against.
+    fn store_poses(&mut self, hints: &[PoseHint], diagnosis: bool) -> Result<(), ProtocolError> {
         if hints.len() > MAX_HINTS_PER_REQUEST {
             return Err(ProtocolError::TooManyHints(hints.len()));
         }
-        self.check_hints(hints)?;
+        self.check_hints(hints, diagnosis)?;
         self.hints = [PoseHint::default(); MAX_HINTS_PER_REQUEST];
         self.hints[..hints.len()].copy_from_slice(hints);
         self.hint_count = hints.len() as u32;
@@ -373,17 +379,18 @@ impl DetectRequestHeader {
         if poses.is_empty() {
             return Err(ProtocolError::DiagnoseWithoutPoses);
         }
-        self.set_hints(poses)?;
+        self.store_poses(poses, true)?;
         self.flags |= flags::DIAGNOSE;
         Ok(())
     }
 
-    fn check_hints(&self, hints: &[PoseHint]) -> Result<(), ProtocolError> {
+    fn check_hints(&self, hints: &[PoseHint], diagnosis: bool) -> Result<(), ProtocolError> {
         for (index, h) in hints.iter().enumerate() {
             if !self.objects().contains(&h.object_id) {
                 return Err(ProtocolError::HintForUnrequestedObject {
                     index,
                     object_id: h.object_id,
+                    diagnosis,
                 });
             }
             if let Some(reason) = h.problem() {
@@ -391,6 +398,7 @@ impl DetectRequestHeader {
                     index,
                     object_id: h.object_id,
                     reason,
+                    diagnosis,
                 });
             }
         }
@@ -419,7 +427,7 @@ impl DetectRequestHeader {
         if self.hint_count as usize > MAX_HINTS_PER_REQUEST {
             return Err(ProtocolError::TooManyHints(self.hint_count as usize));
         }
-        self.check_hints(self.hints())?;
+        self.check_hints(self.hints(), self.flags & flags::DIAGNOSE != 0)?;
         if self.flags & flags::DIAGNOSE != 0 && self.hint_count == 0 {
             return Err(ProtocolError::DiagnoseWithoutPoses);
         }
@@ -906,6 +914,51 @@ mod tests {
         r.set_diagnosis_poses(&[hint(1)]).unwrap();
         assert_eq!(r.flags, flags::DIAGNOSE);
         assert!(r.validate(0).is_ok());
+    }
+
+    /// A bad pose is named as what it is for: a hint, or a pose to diagnose against, whether
+    /// the client or the daemon finds it.
+    #[test]
+    fn a_bad_pose_is_named_as_a_hint_or_a_pose_to_diagnose_against() {
+        let mut nan = hint(1);
+        nan.translation_mm[0] = f32::NAN;
+        let mut r = camera_request(&[1, 5]);
+        let e = r.set_diagnosis_poses(&[hint(5), nan]).unwrap_err();
+        assert!(matches!(
+            e,
+            ProtocolError::InvalidHint {
+                index: 1,
+                diagnosis: true,
+                ..
+            }
+        ));
+        assert!(
+            e.to_string()
+                .starts_with("pose 1 to diagnose against for object 1 "),
+            "{e}"
+        );
+        let e = r.set_diagnosis_poses(&[hint(2)]).unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("pose 0 to diagnose against is for object 2"),
+            "{e}"
+        );
+        let e = r.set_hints(&[nan]).unwrap_err();
+        assert!(e.to_string().starts_with("hint 0 for object 1 "), "{e}");
+
+        // The daemon's check of a request put together by hand.
+        r.hints[0] = nan;
+        r.hint_count = 1;
+        r.flags = flags::DIAGNOSE;
+        let e = r.validate(0).unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("pose 0 to diagnose against for object 1 "),
+            "{e}"
+        );
+        r.flags = 0;
+        let e = r.validate(0).unwrap_err();
+        assert!(e.to_string().starts_with("hint 0 for object 1 "), "{e}");
     }
 
     /// The diagnosis keeps whole lines: what fits, then a line that says how many were left

@@ -121,13 +121,20 @@ pub enum ProtocolError {
     UnexpectedPayload(usize),
     /// More hints than [`MAX_HINTS_PER_REQUEST`].
     TooManyHints(usize),
-    /// A hint for an object the request does not ask for.
-    HintForUnrequestedObject { index: usize, object_id: u32 },
-    /// A hint that is not a pose: a value not finite, or a matrix that is not a rotation.
+    /// A hint (or, with `diagnosis`, a pose to diagnose against) for an object the request
+    /// does not ask for.
+    HintForUnrequestedObject {
+        index: usize,
+        object_id: u32,
+        diagnosis: bool,
+    },
+    /// A hint (or, with `diagnosis`, a pose to diagnose against) that is not a pose: a value
+    /// not finite, or a matrix that is not a rotation.
     InvalidHint {
         index: usize,
         object_id: u32,
         reason: String,
+        diagnosis: bool,
     },
     /// [`detect::flags::DIAGNOSE`] without a pose to diagnose against.
     DiagnoseWithoutPoses,
@@ -250,20 +257,40 @@ impl std::fmt::Display for ProtocolError {
                 "a request cannot both carry hints and ask for a diagnosis: a diagnosis runs \
                  the detection from scratch; send the hints in a request of their own"
             ),
-            ProtocolError::HintForUnrequestedObject { index, object_id } => write!(
+            ProtocolError::HintForUnrequestedObject {
+                index,
+                object_id,
+                diagnosis,
+            } => write!(
                 f,
-                "hint {index} is for object {object_id}, which the request does not ask for"
+                "{} is for object {object_id}, which the request does not ask for",
+                pose_name(*index, *diagnosis)
             ),
             ProtocolError::InvalidHint {
                 index,
                 object_id,
                 reason,
-            } => write!(f, "hint {index} for object {object_id} {reason}"),
+                diagnosis,
+            } => write!(
+                f,
+                "{} for object {object_id} {reason}",
+                pose_name(*index, *diagnosis)
+            ),
         }
     }
 }
 
 impl std::error::Error for ProtocolError {}
+
+/// How an error names the `index`-th pose of the hints field: a hint, or with
+/// [`detect::flags::DIAGNOSE`] a pose to diagnose against.
+fn pose_name(index: usize, diagnosis: bool) -> String {
+    if diagnosis {
+        format!("pose {index} to diagnose against")
+    } else {
+        format!("hint {index}")
+    }
+}
 
 #[cfg(test)]
 mod tests {

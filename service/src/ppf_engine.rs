@@ -307,7 +307,7 @@ impl DetectionEngine for PpfEngine {
                 &depth_frame,
                 &object_models,
                 &targets,
-                options.hypotheses_per_object,
+                &opts,
             )
             .map_err(model_error)?
             .iter()

@@ -146,6 +146,28 @@ pub struct RunOptions {
     pub hints: Vec<Hint>,
 }
 
+impl RunOptions {
+    /// [`Error::Cancelled`] once [`RunOptions::cancel`] is set, [`Error::DeadlineExceeded`]
+    /// once [`RunOptions::deadline`] has passed, each with the time since `start`.
+    pub fn check_stop(&self, start: Instant) -> Result<()> {
+        if self
+            .cancel
+            .as_ref()
+            .is_some_and(|c| c.load(Ordering::Relaxed))
+        {
+            return Err(Error::Cancelled {
+                elapsed: start.elapsed(),
+            });
+        }
+        match self.deadline {
+            Some(d) if Instant::now() > d => Err(Error::DeadlineExceeded {
+                elapsed: start.elapsed(),
+            }),
+            _ => Ok(()),
+        }
+    }
+}
+
 impl Default for RunOptions {
     fn default() -> Self {
         Self {
@@ -389,23 +411,7 @@ impl Detector {
         frame.validate()?;
         opts.requirements.check(frame.width, frame.height)?;
         check_hints(models, opts)?;
-        let check_stop = |start: Instant| {
-            if opts
-                .cancel
-                .as_ref()
-                .is_some_and(|c| c.load(Ordering::Relaxed))
-            {
-                return Err(Error::Cancelled {
-                    elapsed: start.elapsed(),
-                });
-            }
-            match opts.deadline {
-                Some(d) if Instant::now() > d => Err(Error::DeadlineExceeded {
-                    elapsed: start.elapsed(),
-                }),
-                _ => Ok(()),
-            }
-        };
+        let check_stop = |start: Instant| opts.check_stop(start);
         let start = Instant::now();
         let n = models.len();
         let mut out = Detections {

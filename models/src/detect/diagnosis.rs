@@ -11,7 +11,7 @@
 //! are known too.
 
 use crate::detect::clustering::cluster_poses;
-use crate::detect::detector::{DetectParams, Hint};
+use crate::detect::detector::{DetectParams, Hint, RunOptions};
 use crate::detect::filters::is_consistent;
 use crate::detect::icp::refine;
 use crate::detect::plane::SupportingPlane;
@@ -24,6 +24,7 @@ use crate::geometry::render::{bounding_sphere, Renderer};
 use crate::model::ObjectModel;
 use crate::{Error, Pose, Result};
 use rayon::prelude::*;
+use std::time::Instant;
 
 /// A pose counts as near the target within this fraction of the diameter and these degrees.
 pub const NEAR_TRANSLATION_FRACTION: f32 = 0.1;
@@ -108,14 +109,17 @@ pub fn pose_errors(model: &ObjectModel, pose: &Pose, target: &Pose) -> (f32, f32
 /// detector would build for `models` together, and for each target (the first pose given per
 /// object; `targets` name only objects of `models`) the stages one by one ([`diagnose`]),
 /// against that pose through the object's symmetry. In the order of `models`, objects without
-/// a target left out.
+/// a target left out. `opts` gives the hypotheses per object, and the deadline and
+/// cancellation, looked at before the scene is prepared and before each object as the
+/// detector does: a diagnosis runs every stage again, about as long as a detection.
 pub fn diagnose_targets(
     params: &DetectParams,
     frame: &DepthFrame,
     models: &[&ObjectModel],
     targets: &[Hint],
-    hypotheses: usize,
+    opts: &RunOptions,
 ) -> Result<Vec<Diagnosis>> {
+    let start = Instant::now();
     if let Some(t) = targets
         .iter()
         .find(|t| !models.iter().any(|m| m.object_id() == t.object_id))
@@ -125,6 +129,7 @@ pub fn diagnose_targets(
             t.object_id
         )));
     }
+    opts.check_stop(start)?;
     let image = prepare(frame, &params.scene)?;
     let points = image.oriented_points();
     let planes = SupportingPlane::find_all(&points, &params.plane);
@@ -136,22 +141,23 @@ pub fn diagnose_targets(
     };
     let (groups, cloud_of) = params.scene_clouds(models);
     let clouds = params.prepare_clouds(&points, &groups)?;
-    Ok(models
-        .iter()
-        .zip(&cloud_of)
-        .filter_map(|(model, &group)| {
-            let target = targets.iter().find(|t| t.object_id == model.object_id())?;
-            let errors = |pose: &Pose| pose_errors(model, pose, &target.pose);
-            Some(diagnose(
-                params,
-                &prepared,
-                &clouds[group],
-                model,
-                &errors,
-                hypotheses,
-            ))
-        })
-        .collect())
+    let mut out = Vec::new();
+    for (model, &group) in models.iter().zip(&cloud_of) {
+        let Some(target) = targets.iter().find(|t| t.object_id == model.object_id()) else {
+            continue;
+        };
+        opts.check_stop(start)?;
+        let errors = |pose: &Pose| pose_errors(model, pose, &target.pose);
+        out.push(diagnose(
+            params,
+            &prepared,
+            &clouds[group],
+            model,
+            &errors,
+            opts.hypotheses_per_object,
+        ));
+    }
+    Ok(out)
 }
 
 /// Runs the detector's stages on `cloud` (the object's subsampled scene) for `model`, and says
@@ -577,5 +583,63 @@ mod tests {
             format!("object {}: lost at voting", part.object_id())
         );
         assert!(lines[1].contains("none of"), "{lines:?}");
+    }
+
+    /// A diagnosis gives up as a detection does: with the request cancelled, or its deadline
+    /// passed, before any stage runs again; otherwise it diagnoses each target.
+    #[test]
+    fn a_diagnosis_stops_at_the_deadline_and_when_cancelled() {
+        use std::sync::atomic::{AtomicBool, Ordering};
+        use std::sync::Arc;
+        let part = Part::LBracket;
+        let model = ObjectModel::build(
+            &part.mesh(),
+            part.object_id(),
+            part.name(),
+            &ModelParams::default(),
+        )
+        .unwrap();
+        let pose = Pose::from_parts(
+            nalgebra::Translation3::new(0.0, 0.0, 700.0),
+            nalgebra::UnitQuaternion::identity(),
+        );
+        let scene = crate::synthetic::scene::SyntheticScene::single(
+            &part.mesh(),
+            part.object_id(),
+            pose,
+            None,
+            1,
+        )
+        .unwrap();
+        let frame = scene.frame.view();
+        let targets = [Hint {
+            object_id: part.object_id(),
+            pose,
+        }];
+        let params = DetectParams::default();
+        let cancel = Arc::new(AtomicBool::new(true));
+        let cancelled = RunOptions {
+            cancel: Some(cancel.clone()),
+            ..Default::default()
+        };
+        match diagnose_targets(&params, &frame, &[&model], &targets, &cancelled) {
+            Err(Error::Cancelled { .. }) => {}
+            other => panic!("expected Cancelled, got {other:?}"),
+        }
+        let late = RunOptions {
+            deadline: Some(Instant::now()),
+            ..Default::default()
+        };
+        std::thread::sleep(std::time::Duration::from_millis(1));
+        match diagnose_targets(&params, &frame, &[&model], &targets, &late) {
+            Err(Error::DeadlineExceeded { .. }) => {}
+            other => panic!("expected DeadlineExceeded, got {other:?}"),
+        }
+        cancel.store(false, Ordering::Relaxed);
+        let diagnosed = diagnose_targets(&params, &frame, &[&model], &targets, &cancelled).unwrap();
+        assert_eq!(diagnosed.len(), 1);
+        let lines = diagnosed[0].lines();
+        assert!(lines[0].starts_with("object 1: "), "{lines:?}");
+        assert!(lines.len() > 2, "a line per stage it reached: {lines:?}");
     }
 }
