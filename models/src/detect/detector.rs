@@ -411,7 +411,6 @@ impl Detector {
         frame.validate()?;
         opts.requirements.check(frame.width, frame.height)?;
         check_hints(models, opts)?;
-        let check_stop = |start: Instant| opts.check_stop(start);
         let start = Instant::now();
         let n = models.len();
         let mut out = Detections {
@@ -441,7 +440,7 @@ impl Detector {
                 if hints.is_empty() {
                     continue;
                 }
-                check_stop(start)?;
+                opts.check_stop(start)?;
                 let timings = &mut out.per_object_timings[i];
                 let kept = self.refine_hints(model, &hints, &image, &edges, opts, timings);
                 if kept.len() >= hints.len().min(opts.hypotheses_per_object) {
@@ -458,7 +457,7 @@ impl Detector {
 
         let voters: Vec<usize> = (0..n).filter(|&i| objects[i].is_none()).collect();
         if !voters.is_empty() {
-            check_stop(start)?;
+            opts.check_stop(start)?;
             let t = Instant::now();
             let scene_image = prepare(frame, &self.params.scene)?;
             let points = scene_image.oriented_points();
@@ -469,7 +468,7 @@ impl Detector {
             let voting_models: Vec<&ObjectModel> = voters.iter().map(|&i| models[i]).collect();
             let (groups, cloud_of) = self.params.scene_clouds(&voting_models);
             // The groups' clouds are independent: build them side by side.
-            check_stop(start)?;
+            opts.check_stop(start)?;
             let t = Instant::now();
             let clouds = self.params.prepare_clouds(&points, &groups)?;
             out.timings.kd_tree += t.elapsed();
@@ -480,7 +479,7 @@ impl Detector {
                 .enumerate()
                 .map(|(j, &i)| {
                     let model = models[i];
-                    check_stop(start)?;
+                    opts.check_stop(start)?;
                     let scene = &clouds[cloud_of[j]];
                     let mut timings = out.per_object_timings[i];
                     let t = Instant::now();
@@ -515,7 +514,7 @@ impl Detector {
                         hypotheses: raw.len() as u32,
                     };
                     let clusters = clusters_as_poses(&clusters);
-                    check_stop(start)?;
+                    opts.check_stop(start)?;
                     let kept = kept_hints[i].clone();
                     let hypotheses = self.after_voting(
                         model,

@@ -476,6 +476,16 @@ mod tests {
     use crate::synthetic::parts::Part;
     use crate::synthetic::scene::{NoiseModel, SceneSpec};
 
+    fn model_of(part: Part) -> ObjectModel {
+        ObjectModel::build(
+            &part.mesh(),
+            part.object_id(),
+            part.name(),
+            &ModelParams::default(),
+        )
+        .unwrap()
+    }
+
     fn errors_to(target: Pose) -> impl Fn(&Pose) -> (f32, f32) {
         move |p: &Pose| {
             (
@@ -498,13 +508,7 @@ mod tests {
         }
         let scene = spec.build().unwrap();
         let part = parts[0];
-        let model = ObjectModel::build(
-            &part.mesh(),
-            part.object_id(),
-            part.name(),
-            &ModelParams::default(),
-        )
-        .unwrap();
+        let model = model_of(part);
         let truth = scene
             .ground_truth
             .iter()
@@ -592,13 +596,7 @@ mod tests {
         use std::sync::atomic::{AtomicBool, Ordering};
         use std::sync::Arc;
         let part = Part::LBracket;
-        let model = ObjectModel::build(
-            &part.mesh(),
-            part.object_id(),
-            part.name(),
-            &ModelParams::default(),
-        )
-        .unwrap();
+        let model = model_of(part);
         let pose = Pose::from_parts(
             nalgebra::Translation3::new(0.0, 0.0, 700.0),
             nalgebra::UnitQuaternion::identity(),
