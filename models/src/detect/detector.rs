@@ -21,7 +21,7 @@ use crate::detect::filters::{is_consistent, FilterParams};
 use crate::detect::icp::{refine, IcpParams};
 use crate::detect::plane::{PlaneParams, SupportingPlane};
 use crate::detect::requirements::{Order, Requirements};
-use crate::detect::rescoring::{prescreen, score_poses, Outline, RescoringParams};
+use crate::detect::rescoring::{prescreen, score_poses, FitPoints, Outline, RescoringParams};
 use crate::detect::scene::{prepare, prepare_within, PreparedScene, SceneImage, SceneParams};
 use crate::detect::silhouette::{silhouette_fraction, EdgeMap};
 use crate::detect::voting::{vote_from, Selection, VotingParams};
@@ -622,8 +622,10 @@ impl Detector {
         timings.filters += t.elapsed();
         let d = model.diameter_mm();
         let symmetry = model.symmetry();
+        let surface = model.surface_points();
         Verification {
-            surface: model.surface_points(),
+            fit_points: FitPoints::new(&surface, &self.params.rescoring, d),
+            surface,
             mesh,
             centre: symmetry.fixed_point(&sphere.0),
             sphere,
@@ -673,7 +675,7 @@ impl Detector {
         let top = &clusters[..clusters.len().min(p.rescoring.top_clusters)];
         let top = prescreen(
             top,
-            &v.surface,
+            &v.fit_points,
             scene,
             p.rescoring.tolerance_mm(d),
             v.conflict_mm,
@@ -682,7 +684,7 @@ impl Detector {
         // Only the best `top_poses` go on to ICP.
         let scored = score_poses(
             &top,
-            &v.surface,
+            &v.fit_points.all,
             scene,
             p.rescoring.tolerance_mm(d),
             v.conflict_mm,
@@ -776,7 +778,7 @@ impl Detector {
         // Only the best `max_candidates` go through the filters.
         let rescored = score_poses(
             &refined,
-            &v.surface,
+            &v.fit_points.all,
             scene,
             p.rescoring.refined_tolerance_mm(d),
             v.conflict_mm,
@@ -844,7 +846,10 @@ impl Detector {
 
 /// One object's share of the stages after voting ([`Detector::verification`]).
 struct Verification<'a> {
+    /// The surface points in the model's order: what ICP fits and the region test reads.
     surface: OrientedPoints,
+    /// The same points as re-scoring counts them.
+    fit_points: FitPoints,
     mesh: Arc<Mesh>,
     sphere: (Point3<f32>, f32),
     /// The bounding sphere's centre moved onto what the object's symmetries leave in place

@@ -15,7 +15,7 @@ use crate::detect::detector::{DetectParams, Hint, RunOptions};
 use crate::detect::filters::is_consistent;
 use crate::detect::icp::refine;
 use crate::detect::plane::SupportingPlane;
-use crate::detect::rescoring::{score_poses, sparse_ranking, Outline, Scored};
+use crate::detect::rescoring::{score_poses, sparse_ranking, FitPoints, Outline, Scored};
 use crate::detect::scene::{prepare, PreparedScene, SceneImage};
 use crate::detect::silhouette::{silhouette_fraction, EdgeMap};
 use crate::detect::voting::{vote_from, Selection};
@@ -236,6 +236,7 @@ pub fn diagnose(
     }
 
     let surface = model.surface_points();
+    let fit_points = FitPoints::new(&surface, &p.rescoring, d);
     let mesh = model.silhouette_mesh(p.rescoring.silhouette_mesh_cell_fraction * d);
     let sphere = bounding_sphere(&mesh);
     let outline = Outline {
@@ -263,7 +264,7 @@ pub fn diagnose(
     {
         let sparse = sparse_ranking(
             &top,
-            &surface,
+            &fit_points.sparse,
             frame.image,
             p.rescoring.tolerance_mm(d),
             conflict,
@@ -292,7 +293,7 @@ pub fn diagnose(
     // Re-scoring with coarse outlines, and the cut to ICP.
     let scored = score_poses(
         &chosen,
-        &surface,
+        &fit_points.all,
         frame.image,
         p.rescoring.tolerance_mm(d),
         conflict,
@@ -334,7 +335,7 @@ pub fn diagnose(
         .collect();
     let rescored = score_poses(
         &refined,
-        &surface,
+        &fit_points.all,
         frame.image,
         p.rescoring.refined_tolerance_mm(d),
         conflict,
