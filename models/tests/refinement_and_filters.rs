@@ -8,9 +8,10 @@ use ppfd_models::detect::filters::is_consistent;
 use ppfd_models::detect::icp::refine;
 use ppfd_models::detect::rescoring::fit;
 use ppfd_models::detect::scene::{prepare, SceneImage};
-use ppfd_models::detect::silhouette::{silhouette_fraction, EdgeMap};
+use ppfd_models::detect::silhouette::{EdgeMap, SilhouetteFilter};
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::geometry::render::{bounding_sphere, Renderer};
+use ppfd_models::model::subsample::OrientedPoints;
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_models::synthetic::parts::Part;
 use ppfd_models::synthetic::scene::{NoiseModel, Rng, SceneSpec};
@@ -34,6 +35,29 @@ fn part_model(part: Part) -> (Mesh, ObjectModel) {
     )
     .unwrap();
     (mesh, model)
+}
+
+/// The silhouette filter of the default parameters for a model of diameter `d`.
+fn silhouette_filter<'a>(
+    params: &DetectParams,
+    mesh: &'a Mesh,
+    sphere: &'a (nalgebra::Point3<f32>, f32),
+    surface: &'a OrientedPoints,
+    image: &'a SceneImage,
+    edges: &'a EdgeMap,
+    d: f32,
+) -> SilhouetteFilter<'a> {
+    SilhouetteFilter {
+        mesh,
+        sphere,
+        surface,
+        scene: image,
+        edges,
+        occlusion_tolerance_mm: params.rescoring.conflict_mm(d),
+        surface_tolerance_mm: params.rescoring.refined_tolerance_mm(d),
+        min_visible: params.rescoring.min_visible_outline,
+        min_fraction: params.filters.min_silhouette_fraction,
+    }
 }
 
 /// `truth` moved by `shift` (mm) and turned by `degrees` about `axis` through the object's own
@@ -272,17 +296,8 @@ fn filters_reject_a_planar_impostor_and_keep_the_true_pose() {
             params.rescoring.conflict_mm(d),
             params.rescoring.max_normal_angle_deg,
         );
-        let s = silhouette_fraction(
-            None,
-            renderer,
-            &mesh,
-            &sphere,
-            pose,
-            &image,
-            &edges,
-            params.rescoring.conflict_mm(d),
-            params.rescoring.min_visible_outline,
-        );
+        let s = silhouette_filter(&params, &mesh, &sphere, &surface, &image, &edges, d)
+            .fraction(None, renderer, pose);
         (f, is_consistent(&f, &params.filters), s)
     };
     let (f, consistent, silhouette) = check(&truth, &mut renderer);
@@ -338,6 +353,106 @@ fn filters_reject_a_planar_impostor_and_keep_the_true_pose() {
         assert!(!passes, "a planar impostor passed both filters");
     }
     assert!(tested >= 1, "no impostor placement fitted the table top");
+}
+
+/// A planar impostor laid flush in the table top where the table ends: along the table's border
+/// its outline meets the drop to the floor, so the few outline pixels where an edge shows all
+/// lie on one, and the rest of its outline meets the table at its own depth. Judged on the
+/// outline that shows alone it would pass; it lies in the surface its outline meets, so that
+/// outline counts, and the filter rejects it. (A part resting on the table rises out of it, and
+/// is judged on what shows: `every_true_pose_of_the_frame_comes_back_from_its_hint` in
+/// `lmo_frame.rs`.)
+#[test]
+fn an_impostor_flush_in_the_table_at_its_border_fails_the_silhouette_filter() {
+    use nalgebra::Isometry3;
+    use ppfd_models::detect::silhouette::outline_counts;
+    use ppfd_models::synthetic::scene::Placement;
+    let params = DetectParams::new();
+    let part = Part::LBracket;
+    let (mesh, model) = part_model(part);
+    let d = model.diameter_mm();
+    let surface = model.surface_points();
+    let sphere = bounding_sphere(&mesh);
+    // The camera 900 mm above the table's right border (x = 700 mm in the world, table top
+    // z = 0), looking straight down; the part itself far out of view.
+    let down = UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f32::consts::PI);
+    let eye = Vector3::new(690.0, 0.0, 900.0);
+    let world_to_camera = Isometry3::from_parts(Translation3::from(-(down * eye)), down);
+    let away = Pose::from_parts(
+        Translation3::new(-600.0, -400.0, 40.0),
+        UnitQuaternion::identity(),
+    );
+    let scene = SceneSpec::new(5)
+        .camera(world_to_camera)
+        .object_with(part.object_id(), &mesh, Placement::At(away))
+        .build()
+        .unwrap();
+    let image = prepare(&scene.frame.view(), &params.scene).unwrap();
+    let edges = EdgeMap::new(&image, &params.filters);
+    let filter = silhouette_filter(&params, &mesh, &sphere, &surface, &image, &edges, d);
+    // The part's largest flat face in the table top, facing up, its body under the table.
+    let (face_normal, face_point) = mesh
+        .faces
+        .iter()
+        .map(|f| {
+            let [a, b, c] = f.map(|i| mesh.positions[i as usize]);
+            let cross = (b - a).cross(&(c - a));
+            (cross.norm(), cross.normalize(), a)
+        })
+        .max_by(|x, y| x.0.total_cmp(&y.0))
+        .map(|(_, n, a)| (n, a))
+        .unwrap();
+    let up = UnitQuaternion::rotation_between(&face_normal, &Vector3::z()).unwrap();
+    let lifted = up * face_point.coords;
+    let mut renderer = Renderer::new();
+    let mut tested = 0;
+    for step in 0..40 {
+        for turn in [0.0f32, 0.8, 1.6, 2.4] {
+            // Slid towards the border 5 mm at a time, turned about the vertical.
+            let yaw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), turn);
+            let rotation = yaw * up;
+            let at = Vector3::new(560.0 + 5.0 * step as f32, 0.0, 0.0) - yaw * lifted;
+            let impostor = world_to_camera * Pose::from_parts(Translation3::from(at), rotation);
+            let f = fit(
+                &surface,
+                &impostor,
+                &image,
+                params.rescoring.refined_tolerance_mm(d),
+                params.rescoring.conflict_mm(d),
+                params.rescoring.max_normal_angle_deg,
+            );
+            let Some(counts) = outline_counts(
+                &mut renderer,
+                &mesh,
+                &sphere,
+                &impostor,
+                &image,
+                &edges,
+                params.filters.max_outline_px,
+                params.rescoring.conflict_mm(d),
+            ) else {
+                continue;
+            };
+            // A fair case: the face fits the table top, the consistency filter passes it, and
+            // the outline that shows lies on edges.
+            let fits = f.inliers >= 30 && f.inliers * 2 >= f.visible();
+            let shown = counts.visible > 0 && counts.matched * 2 >= counts.visible;
+            if !(fits && is_consistent(&f, &params.filters) && shown) {
+                continue;
+            }
+            tested += 1;
+            let fraction = filter.fraction(None, &mut renderer, &impostor);
+            eprintln!("impostor {step} {turn}: {f:?} {counts:?} -> {fraction:?}");
+            assert!(
+                !filter.passes(fraction),
+                "a planar impostor at the table's border passed: {counts:?}, {fraction:?}"
+            );
+        }
+    }
+    assert!(
+        tested >= 1,
+        "no impostor placement showed its outline on the border"
+    );
 }
 
 /// The image's border is where the view ends, not a depth edge. A box 200 mm in front of a
@@ -531,18 +646,10 @@ fn a_part_mostly_hidden_behind_a_bar_keeps_its_true_pose_through_the_silhouette_
         whole < params.filters.min_silhouette_fraction,
         "judged against the whole outline the pose fails ({whole})"
     );
-    let filter = silhouette_fraction(
-        None,
-        &mut Renderer::new(),
-        &mesh,
-        &sphere,
-        &truth,
-        &image,
-        &edges,
-        conflict,
-        min_visible,
-    )
-    .unwrap();
+    let surface = model.surface_points();
+    let filter = silhouette_filter(&params, &mesh, &sphere, &surface, &image, &edges, d)
+        .fraction(None, &mut Renderer::new(), &truth)
+        .unwrap();
     assert_eq!(
         Some(filter),
         counts.fraction_in_view_of_at_least(min_visible)

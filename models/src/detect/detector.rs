@@ -23,7 +23,7 @@ use crate::detect::plane::{PlaneParams, SupportingPlane};
 use crate::detect::requirements::{Order, Requirements};
 use crate::detect::rescoring::{prescreen, score_poses, FitPoints, Outline, RescoringParams};
 use crate::detect::scene::{prepare, prepare_within, PreparedScene, SceneImage, SceneParams};
-use crate::detect::silhouette::{silhouette_fraction, EdgeMap};
+use crate::detect::silhouette::{EdgeMap, SilhouetteFilter};
 use crate::detect::voting::{vote_from, Selection, VotingParams};
 use crate::geometry::mesh::Mesh;
 use crate::geometry::render::{bounding_sphere, Renderer, Roi};
@@ -790,6 +790,17 @@ impl Detector {
 
         let t = Instant::now();
         let mut renderer = Renderer::new();
+        let silhouette = SilhouetteFilter {
+            mesh: &v.mesh,
+            sphere: &v.sphere,
+            surface: &v.surface,
+            scene,
+            edges: v.edges,
+            occlusion_tolerance_mm: v.conflict_mm,
+            surface_tolerance_mm: p.rescoring.refined_tolerance_mm(d),
+            min_visible: p.rescoring.min_visible_outline,
+            min_fraction: p.filters.min_silhouette_fraction,
+        };
         let wanted = &opts.requirements;
         let nms = self.instance_distance_mm(opts, d);
         let mut failed: Vec<Hypothesis> = Vec::new();
@@ -813,18 +824,7 @@ impl Detector {
             if is_consistent(&s.fit, &p.filters) {
                 checks.0 |= Checks::CONSISTENT;
             }
-            let silhouette = silhouette_fraction(
-                s.outline,
-                &mut renderer,
-                &v.mesh,
-                &v.sphere,
-                &s.pose,
-                scene,
-                v.edges,
-                v.conflict_mm,
-                p.rescoring.min_visible_outline,
-            );
-            if silhouette.is_some_and(|f| f >= p.filters.min_silhouette_fraction) {
+            if silhouette.passes(silhouette.fraction(s.outline, &mut renderer, &s.pose)) {
                 checks.0 |= Checks::SILHOUETTE;
             }
             let h = Hypothesis {

@@ -17,7 +17,7 @@ use crate::detect::icp::refine;
 use crate::detect::plane::SupportingPlane;
 use crate::detect::rescoring::{score_poses, sparse_ranking, FitPoints, Outline, Scored};
 use crate::detect::scene::{prepare, PreparedScene, SceneImage};
-use crate::detect::silhouette::{silhouette_fraction, EdgeMap};
+use crate::detect::silhouette::{EdgeMap, SilhouetteFilter};
 use crate::detect::voting::{vote_from, Selection};
 use crate::geometry::camera::DepthFrame;
 use crate::geometry::render::{bounding_sphere, Renderer};
@@ -369,18 +369,20 @@ pub fn diagnose(
 
     // The filters, on the candidate near the target.
     let consistent = is_consistent(&s.fit, &p.filters);
-    let silhouette = silhouette_fraction(
-        s.outline,
-        &mut Renderer::new(),
-        &mesh,
-        &sphere,
-        &s.pose,
-        frame.image,
-        frame.edges,
-        conflict,
-        p.rescoring.min_visible_outline,
-    );
-    let outline_ok = silhouette.is_some_and(|f| f >= p.filters.min_silhouette_fraction);
+    let filter = SilhouetteFilter {
+        mesh: &mesh,
+        sphere: &sphere,
+        surface: &surface,
+        scene: frame.image,
+        edges: frame.edges,
+        occlusion_tolerance_mm: conflict,
+        surface_tolerance_mm: p.rescoring.refined_tolerance_mm(d),
+        min_visible: p.rescoring.min_visible_outline,
+        min_fraction: p.filters.min_silhouette_fraction,
+    };
+    let mut renderer = Renderer::new();
+    let silhouette = filter.fraction(s.outline, &mut renderer, &s.pose);
+    let outline_ok = filter.passes(silhouette);
     let silhouette_text = match silhouette {
         Some(f) => format!("{f:.2}"),
         None => "not measurable (too little outline in view)".into(),
@@ -399,7 +401,6 @@ pub fn diagnose(
     // What is returned: the poses that pass come first, in score order, one per instance (a
     // pose whose centre is near a better one's is the same instance).
     let nms = p.nms_distance_fraction * d;
-    let mut renderer = Renderer::new();
     let mut passed_ahead: Vec<Pose> = Vec::new();
     for o in rescored[..rank - 1].iter().take(p.filters.max_candidates) {
         let centre = o.pose * sphere.0;
@@ -409,19 +410,8 @@ pub fn diagnose(
         {
             continue;
         }
-        let f = silhouette_fraction(
-            o.outline,
-            &mut renderer,
-            &mesh,
-            &sphere,
-            &o.pose,
-            frame.image,
-            frame.edges,
-            conflict,
-            p.rescoring.min_visible_outline,
-        );
         if is_consistent(&o.fit, &p.filters)
-            && f.is_some_and(|f| f >= p.filters.min_silhouette_fraction)
+            && filter.passes(filter.fraction(o.outline, &mut renderer, &o.pose))
         {
             passed_ahead.push(o.pose);
         }
