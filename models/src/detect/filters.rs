@@ -27,10 +27,11 @@ pub struct FilterParams {
     pub edge_jump_fraction: f32,
     /// A silhouette pixel matches when a scene edge lies within this many pixels.
     pub edge_radius_px: u32,
-    /// Drop a pose when fewer than this fraction of its visible silhouette pixels match (out
-    /// of at least the re-scoring's `min_visible_outline` of the whole outline). Measured: a
-    /// generated part laid flush in the table top scores 0.40, its true pose 1.0; on
-    /// synth-lmo-dev, 0.5 leaves the recall where 0.3 had it (0.926).
+    /// Drop a pose when fewer than this fraction of its visible silhouette pixels match (as
+    /// [`SilhouetteFilter::fraction`](crate::detect::silhouette::SilhouetteFilter::fraction)
+    /// counts them). Measured: a generated part laid flush in the table top scores 0 away from
+    /// the table's border and 0.26 at it, its true pose 1.0; on synth-lmo-dev, 0.5 leaves the
+    /// recall where 0.3 had it (0.926).
     pub min_silhouette_fraction: f32,
     /// An outline pixel expects a scene edge only where the scene this many pixels outside the
     /// outline lies farther than the model by a depth jump (or has no depth): where an object
