@@ -497,9 +497,10 @@ pub struct LatencyBreakdown {
     pub transport_ns: u64,
     /// Daemon takes the request → detection starts on a worker, ns.
     pub queue_wait_ns: u64,
-    /// Depth → oriented, subsampled scene points, ns.
+    /// Depth → oriented scene points (a normal per pixel) and the large planes, ns.
     pub scene_preparation_ns: u64,
-    /// Building the scene kd-tree, ns.
+    /// Subsampling the scene clouds (one per group of objects of similar size) and building
+    /// their kd-trees, side by side, ns.
     pub kd_tree_ns: u64,
     /// Point pair voting, ns.
     pub voting_ns: u64,
