@@ -60,6 +60,25 @@ fn silhouette_filter<'a>(
     }
 }
 
+/// The turn that puts `mesh`'s largest flat face facing up (world z), and where a point of that
+/// face lands under it: shifted by minus that, the face lies in the plane z = 0, the table top
+/// of the generated scenes, with the body under it.
+fn largest_face_up(mesh: &Mesh) -> (UnitQuaternion<f32>, Vector3<f32>) {
+    let (face_normal, face_point) = mesh
+        .faces
+        .iter()
+        .map(|f| {
+            let [a, b, c] = f.map(|i| mesh.positions[i as usize]);
+            let cross = (b - a).cross(&(c - a));
+            (cross.norm(), cross.normalize(), a)
+        })
+        .max_by(|x, y| x.0.total_cmp(&y.0))
+        .map(|(_, n, a)| (n, a))
+        .unwrap();
+    let up = UnitQuaternion::rotation_between(&face_normal, &Vector3::z()).unwrap();
+    (up, up * face_point.coords)
+}
+
 /// `truth` moved by `shift` (mm) and turned by `degrees` about `axis` through the object's own
 /// centre, so that the translation error is the shift.
 fn perturbed(truth: &Pose, mesh: &Mesh, shift: [f32; 3], axis: [f32; 3], degrees: f32) -> Pose {
@@ -311,19 +330,7 @@ fn filters_reject_a_planar_impostor_and_keep_the_true_pose() {
     // The impostor: the part's largest flat face laid in the table top (z = 0 in the world),
     // facing up, so the face fits the table and the body hides under it; moved along the table.
     let world = scene.world_to_camera.inverse() * truth;
-    let (face_normal, face_point) = mesh
-        .faces
-        .iter()
-        .map(|f| {
-            let [a, b, c] = f.map(|i| mesh.positions[i as usize]);
-            let cross = (b - a).cross(&(c - a));
-            (cross.norm(), cross.normalize(), a)
-        })
-        .max_by(|x, y| x.0.total_cmp(&y.0))
-        .map(|(_, n, a)| (n, a))
-        .unwrap();
-    let up = UnitQuaternion::rotation_between(&face_normal, &Vector3::z()).unwrap();
-    let lifted = up * face_point.coords;
+    let (up, lifted) = largest_face_up(&mesh);
     let lay = |dx: f32, dy: f32| {
         let t = Vector3::new(world.translation.x + dx, world.translation.y + dy, 0.0) - lifted;
         scene.world_to_camera * Pose::from_parts(Translation3::from(t), up)
@@ -391,19 +398,7 @@ fn an_impostor_flush_in_the_table_at_its_border_fails_the_silhouette_filter() {
     let edges = EdgeMap::new(&image, &params.filters);
     let filter = silhouette_filter(&params, &mesh, &sphere, &surface, &image, &edges, d);
     // The part's largest flat face in the table top, facing up, its body under the table.
-    let (face_normal, face_point) = mesh
-        .faces
-        .iter()
-        .map(|f| {
-            let [a, b, c] = f.map(|i| mesh.positions[i as usize]);
-            let cross = (b - a).cross(&(c - a));
-            (cross.norm(), cross.normalize(), a)
-        })
-        .max_by(|x, y| x.0.total_cmp(&y.0))
-        .map(|(_, n, a)| (n, a))
-        .unwrap();
-    let up = UnitQuaternion::rotation_between(&face_normal, &Vector3::z()).unwrap();
-    let lifted = up * face_point.coords;
+    let (up, lifted) = largest_face_up(&mesh);
     let mut renderer = Renderer::new();
     let mut tested = 0;
     for step in 0..40 {

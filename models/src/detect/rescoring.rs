@@ -470,6 +470,18 @@ mod tests {
     use crate::synthetic::scene::SceneSpec;
     use nalgebra::{Translation3, UnitQuaternion};
 
+    /// The L-bracket's model, a generated scene of it on a table (prepared), and its true pose
+    /// there.
+    fn bracket_on_table() -> (ObjectModel, SceneImage, Pose) {
+        let mesh = Part::LBracket.mesh();
+        let id = Part::LBracket.object_id();
+        let model = ObjectModel::build(&mesh, id, "l", &ModelParams::default()).unwrap();
+        let generated = SceneSpec::new(3).object(id, &mesh).build().unwrap();
+        let truth = generated.ground_truth[0].1;
+        let scene = prepare(&generated.frame.view(), &SceneParams::default()).unwrap();
+        (model, scene, truth)
+    }
+
     #[test]
     fn support_is_confirmed_over_visible() {
         let f = Fit {
@@ -500,12 +512,7 @@ mod tests {
     /// the sparse set holds the same points as every `prescore_stride`-th of the model's.
     #[test]
     fn fit_points_count_as_the_model_order_does() {
-        let mesh = Part::LBracket.mesh();
-        let id = Part::LBracket.object_id();
-        let model = ObjectModel::build(&mesh, id, "l", &ModelParams::default()).unwrap();
-        let generated = SceneSpec::new(3).object(id, &mesh).build().unwrap();
-        let truth = generated.ground_truth[0].1;
-        let scene = prepare(&generated.frame.view(), &SceneParams::default()).unwrap();
+        let (model, scene, truth) = bracket_on_table();
         let d = model.diameter_mm();
         let params = RescoringParams::default();
         let surface = model.surface_points();
@@ -561,12 +568,7 @@ mod tests {
 
     #[test]
     fn bounded_silhouettes_keep_the_same_best_poses() {
-        let mesh = Part::LBracket.mesh();
-        let id = Part::LBracket.object_id();
-        let model = ObjectModel::build(&mesh, id, "l", &ModelParams::default()).unwrap();
-        let generated = SceneSpec::new(3).object(id, &mesh).build().unwrap();
-        let truth = generated.ground_truth[0].1;
-        let scene = prepare(&generated.frame.view(), &SceneParams::default()).unwrap();
+        let (model, scene, truth) = bracket_on_table();
         let d = model.diameter_mm();
         // Poses around the truth, from close to far off.
         let mut rng = Rng::new(11);
