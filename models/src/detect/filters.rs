@@ -7,6 +7,8 @@
 //!   depth discontinuities of the scene at a sufficient rate. A model slid along a table top
 //!   fits the plane well but its outline crosses no edge.
 
+use rayon::prelude::*;
+
 use crate::detect::scene::SceneImage;
 use crate::detect::silhouette::{EdgeMap, Fit};
 
@@ -80,42 +82,55 @@ pub fn is_consistent(fit: &Fit, params: &FilterParams) -> bool {
 impl EdgeMap {
     pub fn new(scene: &SceneImage, params: &FilterParams) -> Self {
         let (w, h) = (scene.width as i64, scene.height as i64);
+        // Each pass writes one row from rows of the one before: the rows go side by side.
         let mut edge = vec![false; (w * h) as usize];
-        for v in 0..h {
-            for u in 0..w {
-                let Some(z) = scene.depth(u, v) else { continue };
-                let jump = params.edge_jump_mm.max(params.edge_jump_fraction * z);
-                let mut is_edge = false;
-                for (du, dv) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
-                    let (un, vn) = (u + du, v + dv);
-                    // The image's border is where the view ends, not a depth edge.
-                    if un < 0 || vn < 0 || un >= w || vn >= h {
-                        continue;
+        edge.par_chunks_mut(w as usize)
+            .enumerate()
+            .for_each(|(v, row)| {
+                let v = v as i64;
+                for (u, out) in row.iter_mut().enumerate() {
+                    let u = u as i64;
+                    let Some(z) = scene.depth(u, v) else { continue };
+                    let jump = params.edge_jump_mm.max(params.edge_jump_fraction * z);
+                    let mut is_edge = false;
+                    for (du, dv) in [(1, 0), (-1, 0), (0, 1), (0, -1)] {
+                        let (un, vn) = (u + du, v + dv);
+                        // The image's border is where the view ends, not a depth edge.
+                        if un < 0 || vn < 0 || un >= w || vn >= h {
+                            continue;
+                        }
+                        match scene.depth(un, vn) {
+                            Some(zn) if (zn - z).abs() <= jump => {}
+                            _ => is_edge = true,
+                        }
                     }
-                    match scene.depth(un, vn) {
-                        Some(zn) if (zn - z).abs() <= jump => {}
-                        _ => is_edge = true,
-                    }
+                    *out = is_edge;
                 }
-                edge[(v * w + u) as usize] = is_edge;
-            }
-        }
+            });
         // Dilate with a square of radius r: rows, then columns.
         let r = params.edge_radius_px as i64;
         let mut rows = vec![false; edge.len()];
-        for v in 0..h {
-            for u in 0..w {
-                rows[(v * w + u) as usize] = (u.saturating_sub(r).max(0)..=(u + r).min(w - 1))
-                    .any(|x| edge[(v * w + x) as usize]);
-            }
-        }
+        rows.par_chunks_mut(w as usize)
+            .enumerate()
+            .for_each(|(v, row)| {
+                let line = &edge[v * w as usize..(v + 1) * w as usize];
+                for (u, out) in row.iter_mut().enumerate() {
+                    let u = u as i64;
+                    *out =
+                        (u.saturating_sub(r).max(0)..=(u + r).min(w - 1)).any(|x| line[x as usize]);
+                }
+            });
         let mut near_edge = vec![false; edge.len()];
-        for v in 0..h {
-            for u in 0..w {
-                near_edge[(v * w + u) as usize] =
-                    ((v - r).max(0)..=(v + r).min(h - 1)).any(|y| rows[(y * w + u) as usize]);
-            }
-        }
+        near_edge
+            .par_chunks_mut(w as usize)
+            .enumerate()
+            .for_each(|(v, row)| {
+                let v = v as i64;
+                for (u, out) in row.iter_mut().enumerate() {
+                    *out =
+                        ((v - r).max(0)..=(v + r).min(h - 1)).any(|y| rows[(y * w) as usize + u]);
+                }
+            });
         Self {
             width: scene.width,
             height: scene.height,
