@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use ppfd::engine::{
     DetectionEngine, EngineError, EngineOptions, EngineOutput, FrameView, LoadedModel,
 };
-use ppfd_models::model::{ModelParams, ObjectModel};
+use ppfd_models::model::ObjectModel;
 use ppfd_models::synthetic::parts::Part;
 use ppfd_models::synthetic::scene::{NoiseModel, SceneSpec, SyntheticScene};
 use ppfd_protocol::control::ModelInfo;
@@ -355,13 +355,7 @@ pub fn parts_scene(seed: u64, noisy: bool) -> SyntheticScene {
 
 /// The model of a generated part, built with the default parameters.
 pub fn part_model(part: Part) -> ObjectModel {
-    ObjectModel::build(
-        &part.mesh(),
-        part.object_id(),
-        part.name(),
-        &ModelParams::default(),
-    )
-    .unwrap()
+    part.model().unwrap()
 }
 
 /// Builds the model of every generated part ([`part_model`]) and saves it in `dir` as

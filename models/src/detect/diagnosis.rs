@@ -463,19 +463,8 @@ mod tests {
     use super::*;
     use crate::detect::detector::{Detector, RunOptions};
     use crate::detect::scene::prepare;
-    use crate::model::{ModelParams, ObjectModel};
     use crate::synthetic::parts::Part;
     use crate::synthetic::scene::{NoiseModel, SceneSpec};
-
-    fn model_of(part: Part) -> ObjectModel {
-        ObjectModel::build(
-            &part.mesh(),
-            part.object_id(),
-            part.name(),
-            &ModelParams::default(),
-        )
-        .unwrap()
-    }
 
     fn errors_to(target: Pose) -> impl Fn(&Pose) -> (f32, f32) {
         move |p: &Pose| {
@@ -499,7 +488,7 @@ mod tests {
         }
         let scene = spec.build().unwrap();
         let part = parts[0];
-        let model = model_of(part);
+        let model = part.model().unwrap();
         let truth = scene
             .ground_truth
             .iter()
@@ -587,7 +576,7 @@ mod tests {
         use std::sync::atomic::{AtomicBool, Ordering};
         use std::sync::Arc;
         let part = Part::LBracket;
-        let model = model_of(part);
+        let model = part.model().unwrap();
         let pose = Pose::from_parts(
             nalgebra::Translation3::new(0.0, 0.0, 700.0),
             nalgebra::UnitQuaternion::identity(),

@@ -465,7 +465,7 @@ mod tests {
     use crate::geometry::render::bounding_sphere;
     use crate::geometry::rng::Rng;
     use crate::geometry::simplify::simplified_mesh;
-    use crate::model::{ModelParams, ObjectModel};
+    use crate::model::ObjectModel;
     use crate::synthetic::parts::Part;
     use crate::synthetic::scene::SceneSpec;
     use nalgebra::{Translation3, UnitQuaternion};
@@ -473,10 +473,12 @@ mod tests {
     /// The L-bracket's model, a generated scene of it on a table (prepared), and its true pose
     /// there.
     fn bracket_on_table() -> (ObjectModel, SceneImage, Pose) {
-        let mesh = Part::LBracket.mesh();
-        let id = Part::LBracket.object_id();
-        let model = ObjectModel::build(&mesh, id, "l", &ModelParams::default()).unwrap();
-        let generated = SceneSpec::new(3).object(id, &mesh).build().unwrap();
+        let part = Part::LBracket;
+        let model = part.model().unwrap();
+        let generated = SceneSpec::new(3)
+            .object(part.object_id(), &part.mesh())
+            .build()
+            .unwrap();
         let truth = generated.ground_truth[0].1;
         let scene = prepare(&generated.frame.view(), &SceneParams::default()).unwrap();
         (model, scene, truth)

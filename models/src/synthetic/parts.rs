@@ -24,6 +24,7 @@ use nalgebra::{Point3, Vector2, Vector3};
 
 use crate::geometry::mesh::{split_creases, Mesh};
 use crate::model::symmetry::{Symmetry, SymmetryElement};
+use crate::model::{ModelParams, ObjectModel};
 
 /// Edges whose faces meet at a larger angle than this keep one normal per side.
 pub const CREASE_ANGLE_DEG: f64 = 35.0;
@@ -77,6 +78,16 @@ impl Part {
     /// The part with this object id, if any.
     pub fn from_object_id(object_id: u32) -> Option<Part> {
         Part::ALL.into_iter().find(|p| p.object_id() == object_id)
+    }
+
+    /// The part's model under its own id and name, built with the default parameters.
+    pub fn model(&self) -> crate::Result<ObjectModel> {
+        ObjectModel::build(
+            &self.mesh(),
+            self.object_id(),
+            self.name(),
+            &ModelParams::default(),
+        )
     }
 
     /// Builds the part's mesh (a few thousand triangles; takes well under a millisecond).
