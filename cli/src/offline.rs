@@ -7,27 +7,31 @@ use ppfd_bop::dataset::BopDataset;
 use ppfd_models::model::store;
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_models::Pose;
+use rayon::prelude::*;
 
 /// The models of `ids` in `dataset`, with a progress bar when there are several to build.
 pub fn dataset_models(dataset: &BopDataset, ids: &[u32]) -> Result<Vec<ObjectModel>, String> {
     let params = ModelParams::default();
     let bar = ProgressBar::new(ids.len() as u64);
-    bar.set_style(ProgressStyle::with_template("models {bar:30} {pos}/{len} {msg}").unwrap());
-    let mut out = Vec::new();
-    for &id in ids {
-        bar.set_message(format!("object {id}"));
-        let path = dataset.model_path(id).map_err(|e| e.to_string())?;
-        // In the daemon's default cache, on the daemon's terms.
-        let files = ModelFiles::of_mesh(&path, Some(&store::default_cache_dir()));
-        let cached = load_or_build(MeshSource::File(&path), id, &params, &files)
-            .map_err(|e| e.to_string())?;
-        // With the symmetry of the models_info.json beside the mesh, as the daemon's.
-        if let Some(why) = &cached.symmetry_left_out {
-            bar.suspend(|| eprintln!("warning: {why}"));
-        }
-        out.push(cached.model);
-        bar.inc(1);
-    }
+    bar.set_style(ProgressStyle::with_template("models {bar:30} {pos}/{len}").unwrap());
+    // Loading checks each file against its mesh, and a missing one is built: the objects are
+    // independent, so they load side by side, in the order asked for.
+    let out = ids
+        .par_iter()
+        .map(|&id| {
+            let path = dataset.model_path(id).map_err(|e| e.to_string())?;
+            // In the daemon's default cache, on the daemon's terms.
+            let files = ModelFiles::of_mesh(&path, Some(&store::default_cache_dir()));
+            let cached = load_or_build(MeshSource::File(&path), id, &params, &files)
+                .map_err(|e| e.to_string())?;
+            // With the symmetry of the models_info.json beside the mesh, as the daemon's.
+            if let Some(why) = &cached.symmetry_left_out {
+                bar.suspend(|| eprintln!("warning: {why}"));
+            }
+            bar.inc(1);
+            Ok(cached.model)
+        })
+        .collect::<Result<Vec<ObjectModel>, String>>()?;
     bar.finish_and_clear();
     Ok(out)
 }
