@@ -14,10 +14,8 @@ use crate::detect::requirements::PixelRegion;
 use crate::detect::scene::PreparedScene;
 use crate::geometry::camera::Intrinsics;
 use crate::geometry::grid::{cell_of, CellMap};
-use crate::model::feature::{
-    alpha_of_bin, pose_from_alignment, LocalFrame, PointPairFeature, MAX_KEYS,
-};
-use crate::model::table::{alpha_to_fixed, fixed_difference_bin};
+use crate::model::feature::{alpha_of_bin, pose_from_alignment, LocalFrame, PairBatch, MAX_KEYS};
+use crate::model::table::fixed_difference_bin;
 use crate::model::ObjectModel;
 use crate::Pose;
 
@@ -260,7 +258,7 @@ impl Accumulator {
 }
 
 /// One key's votes for one scene pair: the key's range of table entries and the pair's
-/// `α_s` in fixed point (see [`alpha_to_fixed`]).
+/// `α_s` in fixed point (see [`crate::model::table::alpha_to_fixed`]).
 #[derive(Clone, Copy, Debug)]
 struct Cast {
     start: u32,
@@ -326,7 +324,8 @@ struct Scratch {
     casts: Vec<Cast>,
     flags: Vec<u32>,
     touched_keys: Vec<u32>,
-    neighbours: Vec<usize>,
+    /// The reference point's partners.
+    pairs: PairBatch,
 }
 
 /// Votes with every reference point of `scene` against `model`; returns the hypotheses of all
@@ -463,7 +462,7 @@ pub fn vote_from(
                 casts: Vec::new(),
                 flags: vec![0; key_count],
                 touched_keys: Vec::new(),
-                neighbours: Vec::new(),
+                pairs: PairBatch::default(),
             };
             let s = &mut scratch;
             let mut out = Vec::new();
@@ -472,22 +471,24 @@ pub fn vote_from(
             for &r in chunk {
                 let (sr, nr) = (scene.points.positions[r], scene.points.normals[r]);
                 let frame = LocalFrame::new(&sr, &nr);
-                s.neighbours.clear();
-                scene.within(&sr, diameter, |i| s.neighbours.push(i));
+                s.pairs.clear();
+                let points = &scene.points;
+                scene.within(&sr, diameter, |i| {
+                    if i != r && !skip_partner(i) {
+                        s.pairs.push(&points.positions[i], &points.normals[i]);
+                    }
+                });
+                s.pairs.compute(&sr, &nr, &frame, &quantizer);
                 let mut keys = [0u32; MAX_KEYS];
-                for &i in &s.neighbours {
-                    if i == r || skip_partner(i) {
+                for (c, &alpha_s_fixed) in s.pairs.coordinates.iter().zip(&s.pairs.alpha_fixed) {
+                    if *c == PairBatch::COINCIDENT {
                         continue;
                     }
-                    let (si, ni) = (scene.points.positions[i], scene.points.normals[i]);
-                    let Some(f) = PointPairFeature::compute(&sr, &nr, &si, &ni) else {
-                        continue;
-                    };
                     pairs += 1;
                     let n_keys = if params.neighbour_keys {
-                        quantizer.keys_with_neighbours(&f, &mut keys)
+                        quantizer.keys_with_neighbours_at(*c, &mut keys)
                     } else {
-                        match quantizer.key(&f) {
+                        match quantizer.key_at(*c) {
                             Some(k) => {
                                 keys[0] = k;
                                 1
@@ -495,7 +496,6 @@ pub fn vote_from(
                             None => 0,
                         }
                     };
-                    let alpha_s_fixed = alpha_to_fixed(frame.alpha(&si));
                     let bit = 1u32 << fixed_bin(alpha_s_fixed, alpha_bins);
                     for &key in &keys[..n_keys] {
                         let k = key as usize;
@@ -572,7 +572,7 @@ pub fn vote_from(
     (hypotheses, counts)
 }
 
-/// The bin of an angle given in fixed point (as [`alpha_to_fixed`] makes it) among `bins`:
+/// The bin of an angle given in fixed point (as [`crate::model::table::alpha_to_fixed`] makes it) among `bins`:
 /// the same bins as [`crate::model::feature::alpha_bin`] (both start at −π).
 #[inline]
 fn fixed_bin(alpha_fixed: u16, bins: u32) -> u32 {
@@ -733,6 +733,7 @@ mod tests {
     fn votes_match_a_plain_count() {
         use crate::model::feature::PointPairFeature;
         use crate::model::subsample::OrientedPoints;
+        use crate::model::table::alpha_to_fixed;
         use crate::model::{ModelParams, ObjectModel};
         use nalgebra::{Translation3, UnitQuaternion};
         use std::collections::HashSet;

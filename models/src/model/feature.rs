@@ -88,18 +88,120 @@ impl PointPairFeature {
         p2: &Point3<f32>,
         n2: &Vector3<f32>,
     ) -> Option<Self> {
+        let f = Self::compute_any(p1, n1, p2, n2);
+        (f.distance_mm > f32::EPSILON).then_some(f)
+    }
+
+    /// [`PointPairFeature::compute`] without the check: for coincident points the angles are
+    /// NaN. No branch, so that a loop over many pairs vectorises.
+    #[inline(always)]
+    fn compute_any(
+        p1: &Point3<f32>,
+        n1: &Vector3<f32>,
+        p2: &Point3<f32>,
+        n2: &Vector3<f32>,
+    ) -> Self {
         let d = p2 - p1;
         let distance_mm = d.norm();
-        if distance_mm <= f32::EPSILON {
-            return None;
-        }
         let d = d / distance_mm;
-        Some(Self {
+        Self {
             distance_mm,
             angle_n1_d: angle_between_unit(n1, &d),
             angle_n2_d: angle_between_unit(n2, &d),
             angle_n1_n2: angle_between_unit(n1, n2),
-        })
+        }
+    }
+}
+
+/// One reference point's partners, coordinate by coordinate, and what the voting loop needs of
+/// each pair: the feature's continuous bin coordinates ([`Quantizer::coordinates_of`]) and
+/// `α_s` in fixed point.
+///
+/// The pairs' features are computed in one loop over these arrays, which the compiler turns
+/// into SIMD lanes (four or eight pairs at a time); the keys, which branch on the table, come
+/// after. The values are those of [`PointPairFeature::compute`], [`Quantizer`] and
+/// [`LocalFrame::alpha`] pair by pair, to the bit: the same operations in the same order.
+#[derive(Clone, Debug, Default)]
+pub struct PairBatch {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    z: Vec<f32>,
+    nx: Vec<f32>,
+    ny: Vec<f32>,
+    nz: Vec<f32>,
+    /// Per partner, the feature's bin coordinates; [`PairBatch::COINCIDENT`] when the points
+    /// coincide.
+    pub coordinates: Vec<[f32; 4]>,
+    /// Per partner, `α_s` as [`crate::model::table::alpha_to_fixed`] gives it.
+    pub alpha_fixed: Vec<u16>,
+}
+
+impl PairBatch {
+    /// The coordinates of a partner that coincides with the reference point: it has no
+    /// feature, and a distance past every bin gives it no key.
+    pub const COINCIDENT: [f32; 4] = [f32::INFINITY, 0.0, 0.0, 0.0];
+
+    /// Starts over with no partners.
+    pub fn clear(&mut self) {
+        for v in [
+            &mut self.x,
+            &mut self.y,
+            &mut self.z,
+            &mut self.nx,
+            &mut self.ny,
+            &mut self.nz,
+        ] {
+            v.clear();
+        }
+    }
+
+    /// Adds the partner `(p, n)`.
+    #[inline]
+    pub fn push(&mut self, p: &Point3<f32>, n: &Vector3<f32>) {
+        self.x.push(p.x);
+        self.y.push(p.y);
+        self.z.push(p.z);
+        self.nx.push(n.x);
+        self.ny.push(n.y);
+        self.nz.push(n.z);
+    }
+
+    pub fn len(&self) -> usize {
+        self.x.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.x.is_empty()
+    }
+
+    /// Fills [`PairBatch::coordinates`] and [`PairBatch::alpha_fixed`] for the pairs of the
+    /// reference point `(p, n)`, whose frame is `frame`, with every partner.
+    pub fn compute(
+        &mut self,
+        p: &Point3<f32>,
+        n: &Vector3<f32>,
+        frame: &LocalFrame,
+        q: &Quantizer,
+    ) {
+        let len = self.len();
+        self.coordinates.resize(len, [0.0; 4]);
+        self.alpha_fixed.resize(len, 0);
+        let (x, y, z) = (&self.x[..len], &self.y[..len], &self.z[..len]);
+        let (nx, ny, nz) = (&self.nx[..len], &self.ny[..len], &self.nz[..len]);
+        let coordinates = &mut self.coordinates[..len];
+        let alpha_fixed = &mut self.alpha_fixed[..len];
+        for j in 0..len {
+            let pi = Point3::new(x[j], y[j], z[j]);
+            let ni = Vector3::new(nx[j], ny[j], nz[j]);
+            let f = PointPairFeature::compute_any(p, n, &pi, &ni);
+            let c = q.coordinates_of(&f);
+            coordinates[j] = if f.distance_mm > f32::EPSILON {
+                c
+            } else {
+                Self::COINCIDENT
+            };
+            alpha_fixed[j] = crate::model::table::alpha_to_fixed(frame.alpha(&pi));
+        }
     }
 }
 
@@ -141,8 +243,8 @@ impl Quantizer {
     ///
     /// Multiplied by the bins per unit rather than divided by the bin width: the voting loop
     /// computes these for every pair, and the reciprocals are the same for all of them.
-    #[inline]
-    fn coordinates(&self, f: &PointPairFeature) -> [f32; 4] {
+    #[inline(always)]
+    pub fn coordinates_of(&self, f: &PointPairFeature) -> [f32; 4] {
         let per_mm = 1.0 / self.distance_step_mm;
         let per_radian = self.angle_bins as f32 * std::f32::consts::FRAC_1_PI;
         [
@@ -189,7 +291,12 @@ impl Quantizer {
     /// The key of the cell the feature falls in; `None` if its distance is beyond the last bin.
     #[inline]
     pub fn key(&self, f: &PointPairFeature) -> Option<u32> {
-        let c = self.coordinates(f);
+        self.key_at(self.coordinates_of(f))
+    }
+
+    /// [`Quantizer::key`] of the feature whose bin coordinates are `c`.
+    #[inline]
+    pub fn key_at(&self, c: [f32; 4]) -> Option<u32> {
         let n = self.bins();
         let mut b = [0u32; 4];
         for i in 0..4 {
@@ -209,7 +316,13 @@ impl Quantizer {
     /// `out` are written; those past the returned count hold repeats of the exact key.
     #[inline]
     pub fn keys_with_neighbours(&self, f: &PointPairFeature, out: &mut [u32; MAX_KEYS]) -> usize {
-        let c = self.coordinates(f);
+        self.keys_with_neighbours_at(self.coordinates_of(f), out)
+    }
+
+    /// [`Quantizer::keys_with_neighbours`] of the feature whose bin coordinates are `c`
+    /// ([`Quantizer::coordinates_of`]).
+    #[inline]
+    pub fn keys_with_neighbours_at(&self, c: [f32; 4], out: &mut [u32; MAX_KEYS]) -> usize {
         let n = self.bins();
         let a = self.angle_bins;
         // A key's stride per dimension, distance first (as `pack`).
@@ -627,6 +740,51 @@ mod tests {
         assert_eq!(alpha_bin(0.01, 30), 15);
         for b in 0..30 {
             assert_eq!(alpha_bin(alpha_of_bin(b, 30), 30), b);
+        }
+    }
+
+    #[test]
+    fn a_batch_of_pairs_gives_each_pairs_values_to_the_bit() {
+        let mut rng = crate::geometry::rng::Rng::new(11);
+        let q = Quantizer::new(120.0, 20, 15);
+        let (p, n) = oriented([3.0, -7.0, 640.0], [0.2, -0.4, -0.9]);
+        let frame = LocalFrame::new(&p, &n);
+        let mut batch = PairBatch::default();
+        let mut partners = vec![(p, n)]; // the reference point itself: no feature
+        for _ in 0..257 {
+            partners.push(oriented(
+                [
+                    p.x + rng.range(-120.0, 120.0),
+                    p.y + rng.range(-120.0, 120.0),
+                    p.z + rng.range(-60.0, 60.0),
+                ],
+                [
+                    rng.range(-1.0, 1.0),
+                    rng.range(-1.0, 1.0),
+                    rng.range(-1.0, 0.1),
+                ],
+            ));
+        }
+        for (pi, ni) in &partners {
+            batch.push(pi, ni);
+        }
+        batch.compute(&p, &n, &frame, &q);
+        assert_eq!(batch.coordinates.len(), partners.len());
+        assert_eq!(batch.coordinates[0], PairBatch::COINCIDENT);
+        assert_eq!(q.key_at(PairBatch::COINCIDENT), None);
+        for (j, (pi, ni)) in partners.iter().enumerate().skip(1) {
+            let f = PointPairFeature::compute(&p, &n, pi, ni).unwrap();
+            let bits = |c: [f32; 4]| c.map(f32::to_bits);
+            assert_eq!(
+                bits(batch.coordinates[j]),
+                bits(q.coordinates_of(&f)),
+                "pair {j}"
+            );
+            assert_eq!(
+                batch.alpha_fixed[j],
+                crate::model::table::alpha_to_fixed(frame.alpha(pi)),
+                "pair {j}"
+            );
         }
     }
 }
