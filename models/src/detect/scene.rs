@@ -118,15 +118,17 @@ impl SceneImage {
         z.is_finite().then_some(z)
     }
 
-    /// The oriented points of every pixel that has both.
+    /// The oriented points of every pixel that has both, in pixel order. Gathered on every
+    /// core: a VGA frame's pass is 8–10 ms, which the frame's other cores would spend waiting.
     pub fn oriented_points(&self) -> OrientedPoints {
-        let mut out = OrientedPoints::default();
-        for (p, n) in self.points.iter().zip(&self.normals) {
-            if n.x.is_finite() {
-                out.push(*p, *n);
-            }
-        }
-        out
+        let (positions, normals) = self
+            .points
+            .par_iter()
+            .zip(&self.normals)
+            .filter(|(_, n)| n.x.is_finite())
+            .map(|(p, n)| (*p, *n))
+            .unzip();
+        OrientedPoints { positions, normals }
     }
 }
 
