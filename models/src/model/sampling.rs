@@ -76,30 +76,7 @@ pub fn diameter(points: &[Point3<f32>]) -> f32 {
     if points.len() < 2 {
         return 0.0;
     }
-    let mut candidates: Vec<usize> = Vec::new();
-    let dirs = 64;
-    for i in 0..dirs {
-        // Fibonacci sphere.
-        let z = 1.0 - 2.0 * (i as f32 + 0.5) / dirs as f32;
-        let r = (1.0 - z * z).sqrt();
-        let phi = i as f32 * 2.399_963;
-        let d = Vector3::new(r * phi.cos(), r * phi.sin(), z);
-        let (mut lo, mut hi) = (0, 0);
-        let (mut lo_v, mut hi_v) = (f32::MAX, f32::MIN);
-        for (k, p) in points.iter().enumerate() {
-            let s = p.coords.dot(&d);
-            if s < lo_v {
-                (lo_v, lo) = (s, k);
-            }
-            if s > hi_v {
-                (hi_v, hi) = (s, k);
-            }
-        }
-        candidates.push(lo);
-        candidates.push(hi);
-    }
-    candidates.sort_unstable();
-    candidates.dedup();
+    let candidates = extreme_points(points);
     let blocks: Vec<(Vector3<f32>, Vector3<f32>)> = points
         .chunks(DIAMETER_BLOCK)
         .map(|block| {
@@ -129,6 +106,35 @@ pub fn diameter(points: &[Point3<f32>]) -> f32 {
 
 /// Points per bounding box in [`diameter`].
 const DIAMETER_BLOCK: usize = 64;
+
+/// The indices of the points extreme along 64 directions spread over the sphere (a Fibonacci
+/// sphere), each once, in increasing order: [`diameter`]'s candidate endpoints.
+fn extreme_points(points: &[Point3<f32>]) -> Vec<usize> {
+    let mut candidates: Vec<usize> = Vec::new();
+    let dirs = 64;
+    for i in 0..dirs {
+        let z = 1.0 - 2.0 * (i as f32 + 0.5) / dirs as f32;
+        let r = (1.0 - z * z).sqrt();
+        let phi = i as f32 * 2.399_963;
+        let d = Vector3::new(r * phi.cos(), r * phi.sin(), z);
+        let (mut lo, mut hi) = (0, 0);
+        let (mut lo_v, mut hi_v) = (f32::MAX, f32::MIN);
+        for (k, p) in points.iter().enumerate() {
+            let s = p.coords.dot(&d);
+            if s < lo_v {
+                (lo_v, lo) = (s, k);
+            }
+            if s > hi_v {
+                (hi_v, hi) = (s, k);
+            }
+        }
+        candidates.push(lo);
+        candidates.push(hi);
+    }
+    candidates.sort_unstable();
+    candidates.dedup();
+    candidates
+}
 
 #[cfg(test)]
 mod tests {
@@ -253,27 +259,8 @@ mod tests {
 
     /// The candidates of [`diameter`] against every point, without skipping a block.
     fn diameter_without_blocks(points: &[Point3<f32>]) -> f32 {
-        let mut candidates: Vec<usize> = Vec::new();
-        for i in 0..64 {
-            let z = 1.0 - 2.0 * (i as f32 + 0.5) / 64.0;
-            let r = (1.0 - z * z).sqrt();
-            let phi = i as f32 * 2.399_963;
-            let d = Vector3::new(r * phi.cos(), r * phi.sin(), z);
-            let (mut lo, mut hi) = (0, 0);
-            let (mut lo_v, mut hi_v) = (f32::MAX, f32::MIN);
-            for (k, p) in points.iter().enumerate() {
-                let s = p.coords.dot(&d);
-                if s < lo_v {
-                    (lo_v, lo) = (s, k);
-                }
-                if s > hi_v {
-                    (hi_v, hi) = (s, k);
-                }
-            }
-            candidates.extend([lo, hi]);
-        }
         let mut best = 0f32;
-        for &c in &candidates {
+        for c in extreme_points(points) {
             for p in points {
                 best = best.max((p - points[c]).norm_squared());
             }
