@@ -17,6 +17,7 @@ use crate::geometry::camera::{DepthFrame, Intrinsics};
 use rayon::prelude::*;
 
 use crate::detect::clustering::{cluster_poses, ClusteringParams};
+use crate::detect::exclusion::{Claim, ExclusionParams};
 use crate::detect::filters::{is_consistent, FilterParams};
 use crate::detect::icp::{refine, IcpParams};
 use crate::detect::plane::{PlaneParams, SupportingPlane};
@@ -45,6 +46,8 @@ pub struct DetectParams {
     pub rescoring: RescoringParams,
     pub icp: IcpParams,
     pub filters: FilterParams,
+    /// Across objects: a pose on another object's surface gives way (METHOD.md §3.5).
+    pub exclusion: ExclusionParams,
     /// Multi-instance output: a hypothesis that puts the model's centre (of its bounding
     /// sphere) within this fraction of the diameter of where a better one puts it is the same
     /// instance and suppressed. Two instances cannot overlap, so their centres lie farther
@@ -117,6 +120,7 @@ impl DetectParams {
             rescoring: RescoringParams::default(),
             icp: IcpParams::default(),
             filters: FilterParams::default(),
+            exclusion: ExclusionParams::default(),
         }
     }
 }
@@ -344,6 +348,35 @@ fn check_hints(models: &[&ObjectModel], opts: &RunOptions) -> Result<()> {
 /// that the scene supports: re-scoring, ICP and the filters fit the model there. The canonical
 /// pose (METHOD.md §1.8) is only what is reported and what the request's pose restriction
 /// judges: a real part is symmetric only nearly, and ICP from an equivalent pose fits it worse.
+/// One object's first answer and the poses that may stand in for it (its further answers that
+/// passed the filters, then spares beyond them), with the scene cells each confirms
+/// ([`crate::detect::exclusion`]).
+struct Contest {
+    first: Claim,
+    spare: Vec<(Hypothesis, Claim)>,
+}
+
+/// Per object (by index) whose first answer another object's first explains away, the first of
+/// its spares that no other object's first explains away. Every first is judged against the
+/// others' firsts as they came out, so the outcome does not depend on the objects' order.
+fn stand_ins(contests: &[(usize, &Contest)], min_shared_fraction: f32) -> Vec<(usize, Hypothesis)> {
+    let explained = |i: usize, claim: &Claim| {
+        contests
+            .iter()
+            .any(|(j, other)| *j != i && claim.explained_by(&other.first, min_shared_fraction))
+    };
+    contests
+        .iter()
+        .filter(|(i, c)| explained(*i, &c.first))
+        .filter_map(|(i, c)| {
+            c.spare
+                .iter()
+                .find(|(_, claim)| !explained(*i, claim))
+                .map(|(h, _)| (*i, *h))
+        })
+        .collect()
+}
+
 fn clusters_as_poses(clusters: &[crate::detect::clustering::PoseCluster]) -> Vec<(Pose, u32)> {
     clusters.iter().map(|c| (c.pose, c.votes)).collect()
 }
@@ -474,7 +507,14 @@ impl Detector {
             out.timings.kd_tree += t.elapsed();
 
             let edges = OnceLock::new();
-            let done: Vec<(usize, ObjectDetections, StageTimings, Counts)> = voters
+            #[allow(clippy::type_complexity)]
+            let done: Vec<(
+                usize,
+                ObjectDetections,
+                StageTimings,
+                Counts,
+                Option<Contest>,
+            )> = voters
                 .par_iter()
                 .enumerate()
                 .map(|(j, &i)| {
@@ -516,7 +556,7 @@ impl Detector {
                     let clusters = clusters_as_poses(&clusters);
                     opts.check_stop(start)?;
                     let kept = kept_hints[i].clone();
-                    let hypotheses = self.after_voting(
+                    let (hypotheses, contest) = self.after_voting(
                         model,
                         &clusters,
                         kept,
@@ -534,10 +574,22 @@ impl Detector {
                             .map(|&(pose, votes)| (symmetry.canonical(&pose), votes))
                             .collect(),
                     };
-                    Ok((i, detections, timings, own))
+                    Ok((i, detections, timings, own, contest))
                 })
                 .collect::<Result<_>>()?;
-            for (i, detections, timings, own) in done {
+            let contests: Vec<(usize, &Contest)> = done
+                .iter()
+                .filter_map(|(i, _, _, _, c)| c.as_ref().map(|c| (*i, c)))
+                .collect();
+            let stand_ins = stand_ins(&contests, self.params.exclusion.min_shared_fraction);
+            for (i, mut detections, timings, own, _) in done {
+                if let Some(h) = stand_ins.iter().find(|(j, _)| *j == i).map(|(_, h)| *h) {
+                    // The stand-in leads; the pose that gave way stays next, as the others do.
+                    let list = &mut detections.hypotheses;
+                    list.retain(|o| o.pose != h.pose);
+                    list.insert(0, h);
+                    list.truncate(opts.hypotheses_per_object);
+                }
                 out.counts.reference_points += own.reference_points;
                 out.counts.pairs += own.pairs;
                 out.counts.votes += own.votes;
@@ -595,7 +647,7 @@ impl Detector {
         timings: &mut StageTimings,
     ) -> Vec<Hypothesis> {
         let v = self.verification(model, scene, edges, timings);
-        let (kept, _) = self.refine_and_filter(&v, hints, Vec::new(), scene, opts, timings);
+        let (kept, _) = self.refine_and_filter(&v, hints, Vec::new(), scene, opts, timings, 0);
         let t = Instant::now();
         let mut kept = self.answer(kept, Vec::new(), &v, opts);
         timings.filters += t.elapsed();
@@ -649,7 +701,7 @@ impl Detector {
         edges: &OnceLock<EdgeMap>,
         opts: &RunOptions,
         timings: &mut StageTimings,
-    ) -> Vec<Hypothesis> {
+    ) -> (Vec<Hypothesis>, Option<Contest>) {
         let p = &self.params;
         let v = self.verification(model, scene, edges, timings);
         let d = v.diameter_mm;
@@ -697,12 +749,41 @@ impl Detector {
             .iter()
             .map(|s| (s.pose, s.votes))
             .collect();
-        let (passed, failed) =
-            self.refine_and_filter(&v, &candidates, leading, scene, opts, timings);
+        // Spare poses that passed, to stand in for the first should it give way to another
+        // object's (exclusion, in score order only).
+        let exclusion = p.exclusion.enabled() && opts.requirements.order == Order::Score;
+        let spares = if exclusion { p.exclusion.alternates } else { 0 };
+        let (mut passed, failed) =
+            self.refine_and_filter(&v, &candidates, leading, scene, opts, timings, spares);
         let t = Instant::now();
+        let spare = passed.split_off(passed.len().min(opts.hypotheses_per_object));
         let out = self.answer(passed, failed, &v, opts);
+        let all = Checks::CONSISTENT | Checks::SILHOUETTE;
+        let contest = out
+            .first()
+            .filter(|h| exclusion && h.checks.0 & all == all && h.checks.0 & Checks::HINT == 0)
+            .map(|h| {
+                let claim = |pose: &Pose| {
+                    Claim::new(
+                        &v.surface,
+                        pose,
+                        scene,
+                        p.rescoring.refined_tolerance_mm(d),
+                        p.rescoring.max_normal_angle_deg,
+                    )
+                };
+                Contest {
+                    first: claim(&h.pose),
+                    spare: out[1..]
+                        .iter()
+                        .filter(|s| s.checks.0 & all == all)
+                        .chain(&spare)
+                        .map(|s| (*s, claim(&s.pose)))
+                        .collect(),
+                }
+            });
         timings.filters += t.elapsed();
-        out
+        (out, contest)
     }
 
     /// Two hypotheses of an object of `diameter_mm` whose centres lie closer than this are one
@@ -756,6 +837,7 @@ impl Detector {
     /// [`RunOptions::hypotheses_per_object`]), and those that do not. The stages a voted pose
     /// goes through after its first re-scoring, and all a hint goes through. Poses are fitted as
     /// given, and each hypothesis holds the canonical one of its refined pose (METHOD.md §1.8).
+    #[allow(clippy::too_many_arguments)]
     fn refine_and_filter(
         &self,
         v: &Verification,
@@ -764,6 +846,7 @@ impl Detector {
         scene: &SceneImage,
         opts: &RunOptions,
         timings: &mut StageTimings,
+        spares: usize,
     ) -> (Vec<Hypothesis>, Vec<Hypothesis>) {
         let p = &self.params;
         let d = v.diameter_mm;
@@ -807,7 +890,7 @@ impl Detector {
         let all = Checks::CONSISTENT | Checks::SILHOUETTE;
         for s in rescored.iter().take(p.filters.max_candidates) {
             // Nearest first needs every instance that passes, not the first `n`.
-            if passed.len() >= opts.hypotheses_per_object && wanted.order == Order::Score {
+            if passed.len() >= opts.hypotheses_per_object + spares && wanted.order == Order::Score {
                 break;
             }
             // Fitted where the scene supports it, reported canonical (METHOD.md §1.8); the

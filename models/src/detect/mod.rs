@@ -9,6 +9,7 @@
 pub mod clustering;
 pub mod detector;
 pub mod diagnosis;
+pub mod exclusion;
 pub mod filters;
 pub mod icp;
 pub mod plane;

@@ -179,6 +179,8 @@ settings! {
     "filters.contour_probe_px" => filters.contour_probe_px in 0..=64;
     "filters.max_outline_px" => filters.max_outline_px in 0..=100000;
     "filters.max_candidates" => filters.max_candidates in 1..=100000;
+    "exclusion.min_shared_fraction" => exclusion.min_shared_fraction in 0.0..=1.0;
+    "exclusion.alternates" => exclusion.alternates in 0..=100;
     "nms_distance_fraction" => nms_distance_fraction in 0.0..=10.0;
     "shared_cloud_diameter_ratio" => shared_cloud_diameter_ratio in 1.0..=100.0;
     "scene_leaf_ratio" => scene_leaf_ratio in 0.5..=4.0;
