@@ -344,10 +344,6 @@ fn check_hints(models: &[&ObjectModel], opts: &RunOptions) -> Result<()> {
     Ok(())
 }
 
-/// The clusters' poses as they were averaged, each the equivalent of its seed's (a voted pose)
-/// that the scene supports: re-scoring, ICP and the filters fit the model there. The canonical
-/// pose (METHOD.md §1.8) is only what is reported and what the request's pose restriction
-/// judges: a real part is symmetric only nearly, and ICP from an equivalent pose fits it worse.
 /// One object's first answer and the poses that may stand in for it (its further answers that
 /// passed the filters, then spares beyond them), with the scene cells each confirms
 /// ([`crate::detect::exclusion`]).
@@ -377,6 +373,10 @@ fn stand_ins(contests: &[(usize, &Contest)], min_shared_fraction: f32) -> Vec<(u
         .collect()
 }
 
+/// The clusters' poses as they were averaged, each the equivalent of its seed's (a voted pose)
+/// that the scene supports: re-scoring, ICP and the filters fit the model there. The canonical
+/// pose (METHOD.md §1.8) is only what is reported and what the request's pose restriction
+/// judges: a real part is symmetric only nearly, and ICP from an equivalent pose fits it worse.
 fn clusters_as_poses(clusters: &[crate::detect::clustering::PoseCluster]) -> Vec<(Pose, u32)> {
     clusters.iter().map(|c| (c.pose, c.votes)).collect()
 }
