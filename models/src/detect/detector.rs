@@ -756,7 +756,12 @@ impl Detector {
         let (mut passed, failed) =
             self.refine_and_filter(&v, &candidates, leading, scene, opts, timings, spares);
         let t = Instant::now();
-        let spare = passed.split_off(passed.len().min(opts.hypotheses_per_object));
+        // Nearest first sorts every pose that passed before it keeps the number asked for.
+        let spare = if exclusion {
+            passed.split_off(passed.len().min(opts.hypotheses_per_object))
+        } else {
+            Vec::new()
+        };
         let out = self.answer(passed, failed, &v, opts);
         let all = Checks::CONSISTENT | Checks::SILHOUETTE;
         let contest = out
