@@ -563,6 +563,7 @@ impl Detector {
                         &scene_image,
                         &edges,
                         opts,
+                        voters.len() > 1,
                         &mut timings,
                     );
                     let detections = ObjectDetections {
@@ -690,7 +691,9 @@ impl Detector {
 
     /// Re-scoring of the best clusters, then ICP on the best of those, scoring again, the
     /// filters and non-maximum suppression (METHOD.md §3.2–3.5). `leading` (hints the object
-    /// kept) come first, and the voted poses of their instances are suppressed.
+    /// kept) come first, and the voted poses of their instances are suppressed. With
+    /// `contested` (other objects voted too), the answer comes with its contest for the
+    /// exclusion across objects.
     #[allow(clippy::too_many_arguments)]
     fn after_voting(
         &self,
@@ -700,6 +703,7 @@ impl Detector {
         scene: &SceneImage,
         edges: &OnceLock<EdgeMap>,
         opts: &RunOptions,
+        contested: bool,
         timings: &mut StageTimings,
     ) -> (Vec<Hypothesis>, Option<Contest>) {
         let p = &self.params;
@@ -750,8 +754,9 @@ impl Detector {
             .map(|s| (s.pose, s.votes))
             .collect();
         // Spare poses that passed, to stand in for the first should it give way to another
-        // object's (exclusion, in score order only).
-        let exclusion = p.exclusion.enabled() && opts.requirements.order == Order::Score;
+        // object's (exclusion, among several objects and in score order only).
+        let exclusion =
+            contested && p.exclusion.enabled() && opts.requirements.order == Order::Score;
         let spares = if exclusion { p.exclusion.alternates } else { 0 };
         let (mut passed, failed) =
             self.refine_and_filter(&v, &candidates, leading, scene, opts, timings, spares);
@@ -774,6 +779,7 @@ impl Detector {
                         pose,
                         scene,
                         p.rescoring.refined_tolerance_mm(d),
+                        v.conflict_mm,
                         p.rescoring.max_normal_angle_deg,
                     )
                 };

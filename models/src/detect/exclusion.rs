@@ -3,7 +3,7 @@
 //! more is an impostor on that object's surface (a flat side of the glue on the egg box's lid),
 //! and gives way to the object's next pose that passed the filters.
 
-use crate::detect::rescoring::{facing_projection, PoseMatrix};
+use crate::detect::rescoring::{judge_point, Judgement, PoseMatrix};
 use crate::detect::scene::SceneImage;
 use crate::model::subsample::OrientedPoints;
 use crate::Pose;
@@ -39,9 +39,8 @@ impl ExclusionParams {
     }
 }
 
-/// The scene cells whose depth confirms a pose: where a surface point facing the camera
-/// projects onto measured depth within `tolerance_mm` of its own, with the scene's normal within
-/// `max_normal_angle_deg` of the point's.
+/// The scene cells whose depth confirms a pose: where a surface point is an inlier as
+/// re-scoring counts it ([`judge_point`]).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Claim {
     /// Cell indices, sorted, each once.
@@ -54,24 +53,25 @@ impl Claim {
         pose: &Pose,
         scene: &SceneImage,
         tolerance_mm: f32,
+        conflict_mm: f32,
         max_normal_angle_deg: f32,
     ) -> Claim {
-        let k = &scene.intrinsics;
         let cos_max = max_normal_angle_deg.to_radians().cos();
         let pose = PoseMatrix::new(pose);
         let columns = scene.width.div_ceil(CELL_PX as u32) as i64;
-        let mut cells = Vec::new();
-        for (p, n) in surface.positions.iter().zip(&surface.normals) {
-            let Some((pc, nc, u, v)) = facing_projection(&pose, p, n, k) else {
-                continue;
-            };
-            let Some((sp, sn)) = scene.at(u, v) else {
-                continue;
-            };
-            if (sp.z - pc.z).abs() <= tolerance_mm && sn.dot(&nc) >= cos_max {
-                cells.push(((v / CELL_PX) * columns + u / CELL_PX) as u32);
-            }
-        }
+        let mut cells: Vec<u32> = surface
+            .positions
+            .iter()
+            .zip(&surface.normals)
+            .filter_map(|(p, n)| {
+                match judge_point(&pose, p, n, scene, tolerance_mm, conflict_mm, cos_max) {
+                    Some((Judgement::Inlier, u, v)) => {
+                        Some(((v / CELL_PX) * columns + u / CELL_PX) as u32)
+                    }
+                    _ => None,
+                }
+            })
+            .collect();
         cells.sort_unstable();
         cells.dedup();
         Claim { cells }

@@ -173,6 +173,60 @@ pub fn facing_projection(
     Some((pc, nc, u, v))
 }
 
+/// How the scene judges one surface point at its pixel (see [`judge_point`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Judgement {
+    /// No depth there.
+    Unmeasured,
+    /// The scene lies more than the conflict distance in front: something hides the point.
+    Occluded,
+    /// The scene lies more than the conflict distance behind: the sensor sees through it.
+    SeeThrough,
+    /// Neither, but farther than the tolerance, or with the normals too far apart.
+    Missed,
+    /// Within the tolerance, with the normals within the angle: the scene confirms the point.
+    Inlier,
+}
+
+/// The model point `(p, n)` at `pose` against `scene`: `None` when its normal faces away from
+/// the camera or it projects outside the image; otherwise its pixel and the scene's judgement,
+/// with inlier tolerance `tolerance_mm`, conflict distance `conflict_mm` and normals within
+/// the angle whose cosine is `cos_max`. What [`fit`] counts and an exclusion claim
+/// ([`crate::detect::exclusion::Claim`]) collects. Always inlined: [`fit`] calls it for every
+/// surface point of hundreds of poses, and as a call re-scoring on the LM-O frame took about
+/// 7 % longer (`RAYON_NUM_THREADS=1 ppf profile`, alternately three times).
+#[inline(always)]
+pub fn judge_point(
+    pose: &PoseMatrix,
+    p: &Point3<f32>,
+    n: &Vector3<f32>,
+    scene: &SceneImage,
+    tolerance_mm: f32,
+    conflict_mm: f32,
+    cos_max: f32,
+) -> Option<(Judgement, i64, i64)> {
+    let (pc, nc, u, v) = facing_projection(pose, p, n, &scene.intrinsics)?;
+    if u < 0 || v < 0 || u >= scene.width as i64 || v >= scene.height as i64 {
+        return None;
+    }
+    let Some(z) = scene.depth(u, v) else {
+        return Some((Judgement::Unmeasured, u, v));
+    };
+    let dz = z - pc.z;
+    let judgement = if dz < -conflict_mm {
+        Judgement::Occluded
+    } else if dz > conflict_mm {
+        Judgement::SeeThrough
+    } else if dz.abs() > tolerance_mm {
+        Judgement::Missed
+    } else if scene.at(u, v).is_some_and(|(_, sn)| sn.dot(&nc) >= cos_max) {
+        Judgement::Inlier
+    } else {
+        Judgement::Missed
+    };
+    Some((judgement, u, v))
+}
+
 /// Measures the fit of `surface` (model coordinates) at `pose` against `scene`.
 pub fn fit(
     surface: &OrientedPoints,
@@ -182,32 +236,24 @@ pub fn fit(
     conflict_mm: f32,
     max_normal_angle_deg: f32,
 ) -> Fit {
-    let k = &scene.intrinsics;
     let cos_max = max_normal_angle_deg.to_radians().cos();
     let pose = PoseMatrix::new(pose);
     let mut f = Fit::default();
     for (p, n) in surface.positions.iter().zip(&surface.normals) {
-        let Some((pc, nc, u, v)) = facing_projection(&pose, p, n, k) else {
+        let Some((judgement, _, _)) =
+            judge_point(&pose, p, n, scene, tolerance_mm, conflict_mm, cos_max)
+        else {
             continue;
         };
-        if u < 0 || v < 0 || u >= scene.width as i64 || v >= scene.height as i64 {
-            continue;
-        }
         f.facing += 1;
-        let Some(z) = scene.depth(u, v) else { continue };
-        f.measured += 1;
-        let dz = z - pc.z;
-        if dz < -conflict_mm {
-            f.occluded += 1;
-        } else if dz > conflict_mm {
-            f.see_through += 1;
-        } else if dz.abs() > tolerance_mm {
-            continue;
-        } else if let Some((_, sn)) = scene.at(u, v) {
-            if sn.dot(&nc) >= cos_max {
-                f.inliers += 1;
-            }
+        match judgement {
+            Judgement::Unmeasured => continue,
+            Judgement::Occluded => f.occluded += 1,
+            Judgement::SeeThrough => f.see_through += 1,
+            Judgement::Missed => {}
+            Judgement::Inlier => f.inliers += 1,
         }
+        f.measured += 1;
     }
     f
 }
