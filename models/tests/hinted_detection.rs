@@ -128,13 +128,7 @@ fn hints_follow_nudged_parts_and_the_picked_parts_hint_falls_back_to_voting() {
         .collect();
     let hinted = detect(&detector, &refs, &s.second, hints);
     let scratch = detect(&detector, &refs, &s.second, Vec::new());
-    let truth_of = |id: u32| {
-        s.second
-            .ground_truth
-            .iter()
-            .find(|(g, _)| *g == id)
-            .map(|g| g.1)
-    };
+    let truth_of = |id: u32| s.second.truth_of(id);
 
     for (i, model) in s.models.iter().enumerate() {
         let id = model.object_id();

@@ -489,12 +489,7 @@ mod tests {
         let scene = spec.build().unwrap();
         let part = parts[0];
         let model = part.model().unwrap();
-        let truth = scene
-            .ground_truth
-            .iter()
-            .find(|(id, _)| *id == part.object_id())
-            .unwrap()
-            .1;
+        let truth = scene.truth_of(part.object_id()).unwrap();
         let params = DetectParams::default();
         let detections = Detector::new(params.clone())
             .detect(

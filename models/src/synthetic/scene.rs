@@ -594,6 +594,14 @@ pub struct SyntheticScene {
 }
 
 impl SyntheticScene {
+    /// The ground-truth pose of the first object with `object_id`.
+    pub fn truth_of(&self, object_id: u32) -> Option<Pose> {
+        self.ground_truth
+            .iter()
+            .find(|(id, _)| *id == object_id)
+            .map(|&(_, pose)| pose)
+    }
+
     /// One object at `pose` (model → camera) in front of the LM-O camera at 640×480, nothing else
     /// in view; `noise` as for [`SceneSpec::noise`], drawn from `seed`.
     pub fn single(
