@@ -440,8 +440,8 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
     };
     // The clouds the detector would build for these objects together.
     let model_refs: Vec<&ppfd_models::model::ObjectModel> = models.iter().collect();
-    let (groups, cloud_of) = p.scene_clouds(&model_refs);
-    let clouds: Vec<PreparedScene> = p.prepare_clouds(&points, &groups)?;
+    let (clouds, cloud_of): (Vec<PreparedScene>, _) =
+        p.prepare_clouds(&points, &planes, &model_refs)?;
     println!("| object | cloud points | on object | normal error (median °) | reference points on object | lost at |");
     println!("|---:|---:|---:|---:|---:|---|");
     let mut lines = Vec::new();

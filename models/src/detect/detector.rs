@@ -93,17 +93,24 @@ impl DetectParams {
         (groups, cloud_of)
     }
 
-    /// The subsampled clouds with their kd-trees, one per group of
-    /// [`DetectParams::scene_clouds`], built side by side.
+    /// The subsampled clouds of a detection of `models`, with their kd-trees, and which one
+    /// each model votes on ([`DetectParams::scene_clouds`]); built side by side from the
+    /// points that `planes` hide from none of the models ([`SupportingPlane::drop_hidden`]).
     pub fn prepare_clouds(
         &self,
         points: &OrientedPoints,
-        groups: &[SubsampleParams],
-    ) -> Result<Vec<PreparedScene>> {
-        groups
+        planes: &[SupportingPlane],
+        models: &[&ObjectModel],
+    ) -> Result<(Vec<PreparedScene>, Vec<usize>)> {
+        let (groups, cloud_of) = self.scene_clouds(models);
+        let largest = models.iter().map(|m| m.diameter_mm()).fold(0.0, f32::max);
+        let in_front = SupportingPlane::drop_hidden(points, planes, largest);
+        let points = in_front.as_ref().unwrap_or(points);
+        let clouds = groups
             .par_iter()
             .map(|sub| PreparedScene::new(points, sub))
-            .collect()
+            .collect::<Result<_>>()?;
+        Ok((clouds, cloud_of))
     }
 
     /// The paper's settings and this project's measured defaults.
@@ -499,11 +506,11 @@ impl Detector {
             out.counts.scene_points = points.len() as u32;
 
             let voting_models: Vec<&ObjectModel> = voters.iter().map(|&i| models[i]).collect();
-            let (groups, cloud_of) = self.params.scene_clouds(&voting_models);
-            // The groups' clouds are independent: build them side by side.
             opts.check_stop(start)?;
             let t = Instant::now();
-            let clouds = self.params.prepare_clouds(&points, &groups)?;
+            let (clouds, cloud_of) =
+                self.params
+                    .prepare_clouds(&points, &planes, &voting_models)?;
             out.timings.kd_tree += t.elapsed();
 
             let edges = OnceLock::new();

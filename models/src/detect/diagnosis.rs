@@ -139,8 +139,7 @@ pub fn diagnose_targets(
         planes: &planes,
         edges: &edges,
     };
-    let (groups, cloud_of) = params.scene_clouds(models);
-    let clouds = params.prepare_clouds(&points, &groups)?;
+    let (clouds, cloud_of) = params.prepare_clouds(&points, &planes, models)?;
     let mut out = Vec::new();
     for (model, &group) in models.iter().zip(&cloud_of) {
         let Some(target) = targets.iter().find(|t| t.object_id == model.object_id()) else {
@@ -517,8 +516,10 @@ mod tests {
             planes: &planes,
             edges: &edges,
         };
-        let (groups, _) = params.scene_clouds(&[&model]);
-        let cloud = &params.prepare_clouds(&points, &groups).unwrap()[0];
+        let cloud = &params
+            .prepare_clouds(&points, &planes, &[&model])
+            .unwrap()
+            .0[0];
 
         let found = diagnose(&params, &frame, cloud, &model, &errors_to(truth), 1);
         assert_eq!(found.lost_at(), None, "{:#?}", found.lines());

@@ -30,6 +30,7 @@
 //! plane: such cells should disable this ([`PlaneParams::enabled`]).
 
 use nalgebra::{Matrix3, Point3, SymmetricEigen, Vector3};
+use rayon::prelude::*;
 
 use crate::geometry::rng::Rng;
 use crate::model::subsample::OrientedPoints;
@@ -127,6 +128,34 @@ impl SupportingPlane {
     pub fn hides(&self, p: &Point3<f32>) -> bool {
         self.excludes_behind
             && self.distance(p) < -(self.tolerance_mm + self.tolerance_fraction * p.z.abs())
+    }
+
+    /// The points of `points` that no plane of `planes` hides from an object of diameter
+    /// `diameter_mm` (see [`SupportingPlane::hides`] and [`SupportingPlane::excludes_for`]), in
+    /// their order; `None` when no plane hides any. Given the largest diameter of a request's
+    /// objects, what it keeps is what every object may vote with, so the scene clouds are
+    /// subsampled from it: a hidden point would only be skipped by each object's voting, and a
+    /// voxel that mixed it with points in front would average them into a point between.
+    pub fn drop_hidden(
+        points: &OrientedPoints,
+        planes: &[SupportingPlane],
+        diameter_mm: f32,
+    ) -> Option<OrientedPoints> {
+        let hiding: Vec<&SupportingPlane> = planes
+            .iter()
+            .filter(|pl| pl.excludes_behind && pl.excludes_for(diameter_mm))
+            .collect();
+        if hiding.is_empty() {
+            return None;
+        }
+        let (positions, normals) = points
+            .positions
+            .par_iter()
+            .zip(&points.normals)
+            .filter(|(p, _)| !hiding.iter().any(|pl| pl.hides(p)))
+            .map(|(p, n)| (*p, *n))
+            .unzip();
+        Some(OrientedPoints { positions, normals })
     }
 
     /// The dominant plane of `points`, or `None` when no plane holds `min_inlier_fraction` of
@@ -410,12 +439,19 @@ mod tests {
             // Only the dominant plane hides.
             assert!(planes[1..].iter().all(|pl| !pl.hides(p)));
         }
+        // The clouds are subsampled from the points in front, in their order; for an object
+        // wider than the table nothing is hidden (its points may be the object's own face).
+        let kept = SupportingPlane::drop_hidden(&points, &planes, 100.0).unwrap();
+        assert_eq!(kept.positions, points.positions[..in_front]);
+        assert_eq!(kept.normals, points.normals[..in_front]);
+        assert!(SupportingPlane::drop_hidden(&points, &planes, table.extent_mm + 1.0).is_none());
         let keep = PlaneParams {
             exclude_behind: false,
             ..Default::default()
         };
         let planes = SupportingPlane::find_all(&points, &keep);
         assert!(points.positions.iter().all(|p| !planes[0].hides(p)));
+        assert!(SupportingPlane::drop_hidden(&points, &planes, 100.0).is_none());
     }
 
     #[test]
