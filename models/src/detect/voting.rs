@@ -108,9 +108,11 @@ const ROW: usize = 1 << ROW_SHIFT;
 
 /// Copies of the accumulator that take turns at a key's votes. Consecutive entries of a key
 /// often name the same cell; with one accumulator each increment waits for the one before it
-/// (a load behind a store to the same address). Measured on the LM-O frame (duck, hole
-/// puncher): voting in 0.74–0.78 of the time with 2 copies, 0.62–0.69 with 4 (16-bit cells).
-const LANES: usize = 4;
+/// (a load behind a store to the same address). With byte cells, two copies are the fastest:
+/// the eight objects of the LM-O frame voted in 626–633 ms with 2, 638–648 ms with 4 and
+/// 685 ms with 1 (`RAYON_NUM_THREADS=1 ppf profile`, three alternating runs, the sum of the
+/// objects' voting).
+const LANES: usize = 2;
 
 /// One reference point's votes per (model point, α bin), kept small enough to stay in the
 /// first-level cache: each of the [`LANES`] copies holds the low byte of its count, and a
@@ -213,31 +215,23 @@ impl Accumulator {
     /// cells apart.
     fn merge(&mut self) {
         let n = self.totals.len();
-        let row_max = &mut self.row_max[..];
-        let (l0, rest) = self.lanes.split_at_mut(n);
-        let (l1, rest) = rest.split_at_mut(n);
-        let (l2, l3) = rest.split_at_mut(n);
-        debug_assert_eq!(LANES, 4);
-        for (((((t, a), b), c), d), m) in self
+        let lanes = &mut self.lanes[..];
+        for (row, (t, m)) in self
             .totals
             .chunks_exact_mut(ROW)
-            .zip(l0.chunks_exact_mut(ROW))
-            .zip(l1.chunks_exact_mut(ROW))
-            .zip(l2.chunks_exact_mut(ROW))
-            .zip(l3.chunks_exact_mut(ROW))
-            .zip(row_max.iter_mut())
+            .zip(self.row_max.iter_mut())
+            .enumerate()
         {
-            let mut best = 0u16;
-            for i in 0..ROW {
-                let v = a[i] as u16 + b[i] as u16 + c[i] as u16 + d[i] as u16;
-                t[i] = v;
-                best = best.max(v);
+            let mut sum = [0u16; ROW];
+            for l in 0..LANES {
+                let lane = &mut lanes[l * n + row * ROW..][..ROW];
+                for i in 0..ROW {
+                    sum[i] += lane[i] as u16;
+                }
+                lane.fill(0);
             }
-            a.fill(0);
-            b.fill(0);
-            c.fill(0);
-            d.fill(0);
-            *m = best;
+            t.copy_from_slice(&sum);
+            *m = sum.iter().copied().max().unwrap_or(0);
         }
         if self.carried {
             for ((t, c), m) in self
@@ -446,9 +440,19 @@ pub fn vote_from(
         "a table entry names a model point past the model's {n_model}"
     );
     assert!(nb <= ROW, "{nb} α bins, at most {ROW}");
+    // Per key: all bits set when it holds no entries, so that it never votes.
+    let empty_flags: Vec<u32> = (0..key_count)
+        .map(|k| {
+            if offsets[k] == offsets[k + 1] {
+                u32::MAX
+            } else {
+                0
+            }
+        })
+        .collect();
     // A few blocks per thread, each with its own scratch: enough to balance the load, few
-    // enough that the scratch (270 KB of flags, and 256 bytes per model point for the
-    // accumulator: four copies of its low bytes, its carries and its totals) is set up only a
+    // enough that the scratch (270 KB of flags, and 192 bytes per model point for the
+    // accumulator: its copies' low bytes, its carries and its totals) is set up only a
     // handful of times.
     let block = references
         .len()
@@ -460,7 +464,7 @@ pub fn vote_from(
             let mut scratch = Scratch {
                 accumulator: Accumulator::new(n_model * ROW),
                 casts: Vec::new(),
-                flags: vec![0; key_count],
+                flags: empty_flags.clone(),
                 touched_keys: Vec::new(),
                 pairs: PairBatch::default(),
             };
@@ -497,31 +501,49 @@ pub fn vote_from(
                         }
                     };
                     let bit = 1u32 << fixed_bin(alpha_s_fixed, alpha_bins);
+                    // Without branches: whether a key votes depends on the pair's noise, and
+                    // as two branches per key (empty? flagged?) it was mispredicted often
+                    // enough to cost more than the votes of the lighter objects. Every key
+                    // writes a cast and a touched key; only a voting one (a new one) keeps
+                    // them. An empty key's flags are all set (`empty_flags`), so it never
+                    // votes and is never touched.
+                    s.casts.reserve(MAX_KEYS);
+                    s.touched_keys.reserve(MAX_KEYS);
+                    let (mut n_casts, mut n_touched) = (s.casts.len(), s.touched_keys.len());
+                    let casts = s.casts.spare_capacity_mut().as_mut_ptr();
+                    let touched = s.touched_keys.spare_capacity_mut().as_mut_ptr();
+                    let (casts_from, touched_from) = (n_casts, n_touched);
                     for &key in &keys[..n_keys] {
                         let k = key as usize;
-                        let (start, end) = (
-                            offsets[k].to_native() as usize,
-                            offsets[k + 1].to_native() as usize,
-                        );
-                        if start == end {
-                            continue; // no model pair under this key: nothing to flag
+                        let flag = s.flags[k];
+                        let new = flag & bit == 0;
+                        let (start, end) = (offsets[k].to_native(), offsets[k + 1].to_native());
+                        // SAFETY: at most `MAX_KEYS` writes per pair, each within the
+                        // capacity reserved above; only the first `n_casts` and `n_touched`
+                        // (all written) are kept.
+                        unsafe {
+                            casts
+                                .add(n_casts - casts_from)
+                                .write(std::mem::MaybeUninit::new(Cast {
+                                    start,
+                                    end,
+                                    alpha_s: alpha_s_fixed,
+                                }));
+                            touched
+                                .add(n_touched - touched_from)
+                                .write(std::mem::MaybeUninit::new(key));
                         }
+                        votes += u64::from(end - start) * u64::from(new);
+                        n_casts += usize::from(new);
                         if params.vote_once {
-                            let flag = &mut s.flags[k];
-                            if *flag & bit != 0 {
-                                continue;
-                            }
-                            if *flag == 0 {
-                                s.touched_keys.push(key);
-                            }
-                            *flag |= bit;
+                            n_touched += usize::from(flag == 0);
+                            s.flags[k] = flag | bit;
                         }
-                        votes += (end - start) as u64;
-                        s.casts.push(Cast {
-                            start: start as u32,
-                            end: end as u32,
-                            alpha_s: alpha_s_fixed,
-                        });
+                    }
+                    // SAFETY: the first `n_casts` casts and `n_touched` keys are written.
+                    unsafe {
+                        s.casts.set_len(n_casts);
+                        s.touched_keys.set_len(n_touched);
                     }
                 }
                 // SAFETY: every entry names a model point below `n_model` and there are at
@@ -534,7 +556,7 @@ pub fn vote_from(
                 s.casts.clear();
                 s.accumulator.merge();
                 for &k in &s.touched_keys {
-                    s.flags[k as usize] = 0;
+                    s.flags[k as usize] = 0; // a touched key has entries (see `empty_flags`)
                 }
                 s.touched_keys.clear();
                 let totals = &s.accumulator.totals;
@@ -751,69 +773,78 @@ mod tests {
             moved.push(pose * p, pose * n);
         }
         let scene = PreparedScene::new(&moved, &model.params().subsample_params(d)).unwrap();
-        let params = VotingParams {
-            peaks_per_reference: 1,
-            interpolate_alpha: false,
-            ..Default::default()
-        };
-        let q = model.quantizer();
-        let data = model.data();
-        let bins = data.params.alpha_bins.to_native();
-        let pts = &scene.points;
         let mut checked = 0;
-        for r in (0..pts.len()).step_by(7).take(25) {
-            let one = Selection {
-                references: vec![r],
-                excluded: Vec::new(),
+        // Each key votes once per α_s bin, or (`vote_once` off) as often as pairs fall under it.
+        for vote_once in [true, false] {
+            let params = VotingParams {
+                peaks_per_reference: 1,
+                interpolate_alpha: false,
+                vote_once,
+                ..Default::default()
             };
-            let (hyps, counts) = vote_from(&model, &scene, &one, &params);
-
-            let (sr, nr) = (pts.positions[r], pts.normals[r]);
-            let frame = LocalFrame::new(&sr, &nr);
-            let mut acc = vec![0u32; model.point_count() * ROW];
-            let mut cast = HashSet::new();
-            let mut votes = 0u64;
-            let mut partners = Vec::new();
-            scene.within(&sr, d, |i| partners.push(i));
-            assert!(partners.len() > 20);
-            for i in partners {
-                let (si, ni) = (pts.positions[i], pts.normals[i]);
-                if i == r {
-                    continue;
-                }
-                let Some(f) = PointPairFeature::compute(&sr, &nr, &si, &ni) else {
-                    continue;
+            let q = model.quantizer();
+            let data = model.data();
+            let bins = data.params.alpha_bins.to_native();
+            let pts = &scene.points;
+            for r in (0..pts.len()).step_by(7).take(25) {
+                let one = Selection {
+                    references: vec![r],
+                    excluded: Vec::new(),
                 };
-                let alpha_s = alpha_to_fixed(frame.alpha(&si));
-                let mut keys = [0u32; MAX_KEYS];
-                let n = q.keys_with_neighbours(&f, &mut keys);
-                for &k in &keys[..n] {
-                    let k = k as usize;
-                    let (start, end) = (
-                        data.table_offsets[k].to_native() as usize,
-                        data.table_offsets[k + 1].to_native() as usize,
-                    );
-                    if start == end || !cast.insert((k, fixed_bin(alpha_s, bins))) {
+                let (hyps, counts) = vote_from(&model, &scene, &one, &params);
+
+                let (sr, nr) = (pts.positions[r], pts.normals[r]);
+                let frame = LocalFrame::new(&sr, &nr);
+                let mut acc = vec![0u32; model.point_count() * ROW];
+                let mut cast = HashSet::new();
+                let mut votes = 0u64;
+                let mut partners = Vec::new();
+                scene.within(&sr, d, |i| partners.push(i));
+                assert!(partners.len() > 20);
+                for i in partners {
+                    let (si, ni) = (pts.positions[i], pts.normals[i]);
+                    if i == r {
                         continue;
                     }
-                    for e in &data.table_entries[start..end] {
-                        let e = e.to_native();
-                        let a = fixed_difference_bin(e as u16, alpha_s, bins) as usize;
-                        acc[(entry_model_point(e) as usize) * ROW + a] += 1;
-                        votes += 1;
+                    let Some(f) = PointPairFeature::compute(&sr, &nr, &si, &ni) else {
+                        continue;
+                    };
+                    let alpha_s = alpha_to_fixed(frame.alpha(&si));
+                    let mut keys = [0u32; MAX_KEYS];
+                    let n = q.keys_with_neighbours(&f, &mut keys);
+                    for &k in &keys[..n] {
+                        let k = k as usize;
+                        let (start, end) = (
+                            data.table_offsets[k].to_native() as usize,
+                            data.table_offsets[k + 1].to_native() as usize,
+                        );
+                        if start == end
+                            || (vote_once && !cast.insert((k, fixed_bin(alpha_s, bins))))
+                        {
+                            continue;
+                        }
+                        for e in &data.table_entries[start..end] {
+                            let e = e.to_native();
+                            let a = fixed_difference_bin(e as u16, alpha_s, bins) as usize;
+                            acc[(entry_model_point(e) as usize) * ROW + a] += 1;
+                            votes += 1;
+                        }
                     }
                 }
+                assert_eq!(
+                    counts.votes, votes,
+                    "reference point {r}, vote once: {vote_once}"
+                );
+                let max = acc.iter().copied().max().unwrap();
+                assert!(max > 0);
+                let h = &hyps[0];
+                assert_eq!(h.votes, max, "reference point {r}, vote once: {vote_once}");
+                let row = &acc[h.model_point as usize * ROW..][..ROW];
+                assert_eq!(row.iter().copied().max(), Some(max));
+                checked += 1;
             }
-            assert_eq!(counts.votes, votes, "reference point {r}");
-            let max = acc.iter().copied().max().unwrap();
-            assert!(max > 0);
-            let h = &hyps[0];
-            assert_eq!(h.votes, max, "reference point {r}");
-            let row = &acc[h.model_point as usize * ROW..][..ROW];
-            assert_eq!(row.iter().copied().max(), Some(max));
-            checked += 1;
         }
-        assert_eq!(checked, 25);
+        assert_eq!(checked, 50);
     }
 
     /// Reference points spread evenly: one per cube of the spacing, every cube that holds a
