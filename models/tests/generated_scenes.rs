@@ -384,6 +384,51 @@ fn table_points_are_no_partners() {
     assert!(!without.is_empty());
 }
 
+/// The detector's cloud holds only the points its object may vote with: the whole cloud's points
+/// that no plane excludes, in their order, and voting on it forms the same pairs and casts the
+/// same votes from the same reference points.
+#[test]
+fn a_cloud_leaves_out_the_points_no_object_votes_with() {
+    use ppfd_models::detect::plane::SupportingPlane;
+    use ppfd_models::detect::voting::{vote_from, Selection};
+    let (model, points, params) = bracket_on_table();
+    let d = model.diameter_mm();
+    let planes = SupportingPlane::find_all(&points, &params.plane);
+    assert!(!planes.is_empty(), "no table found");
+    let (clouds, cloud_of) = params.prepare_clouds(&points, &planes, &[&model]).unwrap();
+    assert_eq!(cloud_of, [0]);
+    let trimmed = &clouds[0];
+    let (groups, _) = params.scene_clouds(&[&model]);
+    let in_front = SupportingPlane::drop_hidden(&points, &planes, d).unwrap_or(points);
+    let whole = PreparedScene::new(&in_front, &groups[0]).unwrap();
+
+    let all = Selection::new(&whole, &params.voting, &planes, d);
+    let kept: Vec<usize> = (0..whole.points.len())
+        .filter(|&i| !all.excluded[i])
+        .collect();
+    assert!(
+        kept.len() < whole.points.len() * 3 / 4,
+        "{} of {} kept",
+        kept.len(),
+        whole.points.len()
+    );
+    let positions: Vec<_> = kept.iter().map(|&i| whole.points.positions[i]).collect();
+    assert_eq!(trimmed.points.positions, positions);
+
+    let selection = Selection::new(trimmed, &params.voting, &planes, d);
+    assert!(selection.excluded.iter().all(|&e| !e));
+    let references: Vec<usize> = all
+        .references
+        .iter()
+        .map(|&r| kept.binary_search(&r).unwrap())
+        .collect();
+    assert_eq!(selection.references, references);
+    let (_, on_whole) = vote_from(&model, &whole, &all, &params.voting);
+    let (_, on_trimmed) = vote_from(&model, trimmed, &selection, &params.voting);
+    assert_eq!(on_trimmed.pairs, on_whole.pairs);
+    assert_eq!(on_trimmed.votes, on_whole.votes);
+}
+
 /// What lies behind the table (a copy of the part 300 mm below its surface, as on a shelf
 /// beyond its edge) gives no reference points and no partners; with `plane.exclude_behind` off
 /// it does.

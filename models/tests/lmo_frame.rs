@@ -184,9 +184,9 @@ fn detect_frame(dir: &PathBuf) -> Outcome {
 /// The work is bounded too, on counts (the same every run, unlike times): with the scene
 /// sampled as finely as the model (a leaf of 0.05 D) the ape formed 3.44 M pairs and cast
 /// 294 M votes, the duck 3.04 M and 349 M; with the scene's leaf of 0.1 D no object forms
-/// more than 0.6 M pairs or casts more than 70 M votes. The points behind the table (the floor
-/// beyond its edge) never enter the clouds: the eight clouds hold 30 721 points, against 45 973
-/// when they were subsampled from the whole frame.
+/// more than 0.6 M pairs or casts more than 70 M votes. The clouds hold only what their objects
+/// may vote with: 21 254 points in the eight, against 45 973 subsampled from the whole frame
+/// and 30 721 from the points in front of the table.
 #[test]
 fn lmo_frame_objects_are_found() {
     let Some(dir) = shared_test_data("lmo") else {
@@ -220,8 +220,8 @@ fn lmo_frame_objects_are_found() {
         "{pairs} pairs and {votes} votes in all, at most 4 M and 400 M expected"
     );
     assert!(
-        o.cloud_points <= 36_000,
-        "{} points in the objects' clouds, at most 36 000 expected",
+        o.cloud_points <= 25_000,
+        "{} points in the objects' clouds, at most 25 000 expected",
         o.cloud_points
     );
 }

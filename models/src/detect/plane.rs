@@ -158,6 +158,13 @@ impl SupportingPlane {
         Some(OrientedPoints { positions, normals })
     }
 
+    /// Whether the oriented point `(p, n)` lies on the plane or hidden behind it: for an object
+    /// the plane [`excludes_for`](Self::excludes_for), neither a reference point nor a partner.
+    #[inline]
+    pub fn excludes(&self, p: &Point3<f32>, n: &Vector3<f32>) -> bool {
+        self.holds(p, n) || self.hides(p)
+    }
+
     /// The dominant plane of `points`, or `None` when no plane holds `min_inlier_fraction` of
     /// them (or the search is disabled, or there are fewer than three points).
     pub fn find(points: &OrientedPoints, params: &PlaneParams) -> Option<SupportingPlane> {

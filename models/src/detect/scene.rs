@@ -144,7 +144,22 @@ impl PreparedScene {
     /// Subsamples `points` like a model of diameter `leaf_mm / leaf_fraction` and builds the
     /// kd-tree.
     pub fn new(points: &OrientedPoints, subsample_params: &SubsampleParams) -> Result<Self> {
-        let sub = subsample(points, subsample_params);
+        Self::keeping(points, subsample_params, |_, _| true)
+    }
+
+    /// [`PreparedScene::new`] with only the subsampled points that `keep` accepts.
+    pub fn keeping(
+        points: &OrientedPoints,
+        subsample_params: &SubsampleParams,
+        keep: impl Fn(&Point3<f32>, &Vector3<f32>) -> bool,
+    ) -> Result<Self> {
+        let all = subsample(points, subsample_params);
+        let mut sub = OrientedPoints::default();
+        for (p, n) in all.positions.iter().zip(&all.normals) {
+            if keep(p, n) {
+                sub.push(*p, *n);
+            }
+        }
         let coords: Vec<[f32; 3]> = sub.positions.iter().map(|p| [p.x, p.y, p.z]).collect();
         let tree = ImmutableKdTree::new_from_slice(&coords)
             .map_err(|e| Error::InvalidFrame(format!("cannot index scene points: {e:?}")))?;

@@ -375,10 +375,9 @@ impl Selection {
             .collect();
         let excluded: Vec<bool> = (0..points.len())
             .map(|i| {
-                planes.iter().any(|pl| {
-                    pl.holds(&points.positions[i], &points.normals[i])
-                        || pl.hides(&points.positions[i])
-                })
+                planes
+                    .iter()
+                    .any(|pl| pl.excludes(&points.positions[i], &points.normals[i]))
             })
             .collect();
         let admitted = (0..points.len()).filter(|&i| {
