@@ -227,7 +227,14 @@ pub fn judge_point(
     Some((judgement, u, v))
 }
 
-/// Measures the fit of `surface` (model coordinates) at `pose` against `scene`.
+/// Measures the fit of `surface` (model coordinates) at `pose` against `scene`: the tally of
+/// [`judge_point`] over its points.
+///
+/// Counted without branches but one: the points' judgements follow the scene's noise, and as
+/// branches they were mispredicted often enough that each point waited for its depth alone.
+/// Every point reads a depth (pixel 0 for one that faces away or falls outside the image, not
+/// counted); only a point within the tolerance reads the scene's normal.
+/// `fit_counts_what_judge_point_judges` checks the tally.
 pub fn fit(
     surface: &OrientedPoints,
     pose: &Pose,
@@ -238,22 +245,32 @@ pub fn fit(
 ) -> Fit {
     let cos_max = max_normal_angle_deg.to_radians().cos();
     let pose = PoseMatrix::new(pose);
+    let k = &scene.intrinsics;
+    let depths = scene.depths();
+    let (width, height) = (scene.width as i64, scene.height as i64);
     let mut f = Fit::default();
     for (p, n) in surface.positions.iter().zip(&surface.normals) {
-        let Some((judgement, _, _)) =
-            judge_point(&pose, p, n, scene, tolerance_mm, conflict_mm, cos_max)
-        else {
-            continue;
-        };
-        f.facing += 1;
-        match judgement {
-            Judgement::Unmeasured => continue,
-            Judgement::Occluded => f.occluded += 1,
-            Judgement::SeeThrough => f.see_through += 1,
-            Judgement::Missed => {}
-            Judgement::Inlier => f.inliers += 1,
+        let pc = Point3::from(pose.rotation * p.coords + pose.translation);
+        let nc: Vector3<f32> = pose.rotation * n;
+        let facing = pc.z > 0.0 && nc.dot(&pc.coords) < 0.0;
+        // A point behind the camera projects to garbage, which `facing` leaves uncounted.
+        let (u, v) = k.pixel(&pc);
+        let inside = facing & (u >= 0) & (v >= 0) & (u < width) & (v < height);
+        let pixel = if inside { (v * width + u) as usize } else { 0 };
+        let z = depths[pixel];
+        let measured = inside & z.is_finite();
+        let dz = z - pc.z;
+        let occluded = measured & (dz < -conflict_mm);
+        let see_through = measured & (dz > conflict_mm);
+        let close = measured & !occluded & !see_through & (dz.abs() <= tolerance_mm);
+        f.facing += u32::from(inside);
+        f.measured += u32::from(measured);
+        f.occluded += u32::from(occluded);
+        f.see_through += u32::from(see_through);
+        if close {
+            // A pixel without a normal holds NaN, and the comparison fails: missed.
+            f.inliers += u32::from(scene.normals[pixel].dot(&nc) >= cos_max);
         }
-        f.measured += 1;
     }
     f
 }
@@ -558,6 +575,72 @@ mod tests {
 
     /// Re-scoring counts the points in Z order; the counts are those of the model's order, and
     /// the sparse set holds the same points as every `prescore_stride`-th of the model's.
+    /// The fit is the tally of each point's judgement, on poses that see the part well, that
+    /// put it partly outside the image, behind the table, in front of it, turned away, and
+    /// behind the camera: every kind of judgement occurs.
+    #[test]
+    fn fit_counts_what_judge_point_judges() {
+        let part = Part::LBracket;
+        let model = part.model().unwrap();
+        let mut generated = SceneSpec::new(3)
+            .object(part.object_id(), &part.mesh())
+            .build()
+            .unwrap();
+        let truth = generated.ground_truth[0].1;
+        // Every third row without depth: points the sensor did not measure.
+        let width = generated.frame.width as usize;
+        for (i, z) in generated.frame.depth.iter_mut().enumerate() {
+            if (i / width) % 3 == 0 {
+                *z = 0;
+            }
+        }
+        let scene = prepare(&generated.frame.view(), &SceneParams::default()).unwrap();
+        let d = model.diameter_mm();
+        let params = RescoringParams::default();
+        let surface = model.surface_points();
+        let (tol, conflict) = (params.tolerance_mm(d), params.conflict_mm(d));
+        let cos_max = params.max_normal_angle_deg.to_radians().cos();
+        let turn = nalgebra::UnitQuaternion::from_euler_angles(0.4, 2.5, -0.3);
+        let poses = [
+            truth,
+            Translation3::new(0.03 * d, -0.02 * d, 0.01 * d) * truth,
+            Translation3::new(0.0, 0.0, 2.0 * d) * truth,
+            Translation3::new(0.0, 0.0, -0.5 * d) * truth,
+            Translation3::new(truth.translation.x * -1.0 - 350.0, 0.0, 0.0) * truth,
+            truth * turn,
+            Translation3::new(0.0, 0.0, -2.0 * truth.translation.z) * truth,
+        ];
+        let mut seen = [0u32; 5];
+        for pose in poses {
+            let matrix = PoseMatrix::new(&pose);
+            let mut tally = Fit::default();
+            for (p, n) in surface.positions.iter().zip(&surface.normals) {
+                let Some((j, _, _)) = judge_point(&matrix, p, n, &scene, tol, conflict, cos_max)
+                else {
+                    continue;
+                };
+                tally.facing += 1;
+                tally.measured += u32::from(j != Judgement::Unmeasured);
+                tally.occluded += u32::from(j == Judgement::Occluded);
+                tally.see_through += u32::from(j == Judgement::SeeThrough);
+                tally.inliers += u32::from(j == Judgement::Inlier);
+                seen[match j {
+                    Judgement::Unmeasured => 0,
+                    Judgement::Occluded => 1,
+                    Judgement::SeeThrough => 2,
+                    Judgement::Missed => 3,
+                    Judgement::Inlier => 4,
+                }] += 1;
+            }
+            assert_eq!(
+                fit(&surface, &pose, &scene, tol, conflict, 45.0),
+                tally,
+                "{pose:?}"
+            );
+        }
+        assert!(seen.iter().all(|&c| c > 0), "judgements seen: {seen:?}");
+    }
+
     #[test]
     fn fit_points_count_as_the_model_order_does() {
         let (model, scene, truth) = bracket_on_table();

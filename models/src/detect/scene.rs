@@ -84,17 +84,29 @@ pub struct SceneImage {
     pub intrinsics: Intrinsics,
     pub points: Vec<Point3<f32>>,
     pub normals: Vec<Vector3<f32>>,
+    /// Per pixel, the z of `points` alone (NaN where there is none): what re-scoring reads
+    /// for every model point it projects, in a third of the bytes, so that more of it stays
+    /// in the cache.
+    depths: Vec<f32>,
 }
 
 impl SceneImage {
     fn of(frame: &DepthFrame, points: Vec<Point3<f32>>, normals: Vec<Vector3<f32>>) -> Self {
+        let depths = points.iter().map(|p| p.z).collect();
         SceneImage {
             width: frame.width,
             height: frame.height,
             intrinsics: frame.intrinsics,
             points,
             normals,
+            depths,
         }
+    }
+
+    /// Per pixel, row-major, the depth (z, mm) of its point, NaN where there is none.
+    #[inline]
+    pub fn depths(&self) -> &[f32] {
+        &self.depths
     }
 
     /// The point and normal at pixel `(u, v)`, if both exist.
@@ -114,7 +126,7 @@ impl SceneImage {
         if u < 0 || v < 0 || u >= self.width as i64 || v >= self.height as i64 {
             return None;
         }
-        let z = self.points[(v as u32 * self.width + u as u32) as usize].z;
+        let z = self.depths[(v as u32 * self.width + u as u32) as usize];
         z.is_finite().then_some(z)
     }
 
