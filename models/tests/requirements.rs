@@ -77,10 +77,13 @@ impl Setup {
 /// Nearest first: the three instances come nearest first, and the first is the nearest of
 /// the truth; best score first puts another instance first in this scene, so the order is the
 /// request's doing. Nearest first goes with a minimum score, as in a cell: a partial match
-/// near the camera would otherwise come before a part.
+/// near the camera would otherwise come before a part. The scene is one where the poses of all
+/// three instances pass the filters: a pose that fails one is listed after those that pass,
+/// whatever its distance, and in more than half of the generated piles of three (seeds 30–49)
+/// one instance's pose fails the consistency filter.
 #[test]
 fn ordered_by_distance_the_nearest_instance_comes_first() {
-    let s = setup(34);
+    let s = setup(42);
     let by_score = s.detect(3, Requirements::default());
     let min_score = 0.4 * by_score.objects[0].hypotheses[0].score;
     let nearest_first = Requirements {
