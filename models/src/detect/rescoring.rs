@@ -230,10 +230,10 @@ pub fn judge_point(
 /// Measures the fit of `surface` (model coordinates) at `pose` against `scene`: the tally of
 /// [`judge_point`] over its points.
 ///
-/// Counted without branches but one: the points' judgements follow the scene's noise, and as
-/// branches they were mispredicted often enough that each point waited for its depth alone.
-/// Every point reads a depth (pixel 0 for one that faces away or falls outside the image, not
-/// counted); only a point within the tolerance reads the scene's normal.
+/// Counted without branches but one: the points' judgements follow the scene's noise, so as
+/// branches they are often mispredicted; counted as flags, re-scoring takes about 7 % less
+/// (docs/METHOD.md §3.2). Every point reads a depth (pixel 0 for one that faces away or falls
+/// outside the image, not counted); only a point within the tolerance reads the scene's normal.
 /// `fit_counts_what_judge_point_judges` checks the tally.
 pub fn fit(
     surface: &OrientedPoints,
@@ -590,7 +590,7 @@ mod tests {
         // Every third row without depth: points the sensor did not measure.
         let width = generated.frame.width as usize;
         for (i, z) in generated.frame.depth.iter_mut().enumerate() {
-            if (i / width) % 3 == 0 {
+            if (i / width).is_multiple_of(3) {
                 *z = 0;
             }
         }
@@ -606,7 +606,7 @@ mod tests {
             Translation3::new(0.03 * d, -0.02 * d, 0.01 * d) * truth,
             Translation3::new(0.0, 0.0, 2.0 * d) * truth,
             Translation3::new(0.0, 0.0, -0.5 * d) * truth,
-            Translation3::new(truth.translation.x * -1.0 - 350.0, 0.0, 0.0) * truth,
+            Translation3::new(-truth.translation.x - 350.0, 0.0, 0.0) * truth,
             truth * turn,
             Translation3::new(0.0, 0.0, -2.0 * truth.translation.z) * truth,
         ];

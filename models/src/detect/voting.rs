@@ -500,12 +500,12 @@ pub fn vote_from(
                         }
                     };
                     let bit = 1u32 << fixed_bin(alpha_s_fixed, alpha_bins);
-                    // Without branches: whether a key votes depends on the pair's noise, and
-                    // as two branches per key (empty? flagged?) it was mispredicted often
-                    // enough to cost more than the votes of the lighter objects. Every key
-                    // writes a cast and a touched key; only a voting one (a new one) keeps
-                    // them. An empty key's flags are all set (`empty_flags`), so it never
-                    // votes and is never touched.
+                    // Without branches: whether a key votes depends on the pair's noise, so
+                    // two branches per key (empty? flagged?) are often mispredicted; without
+                    // them voting takes about 6 % less (docs/METHOD.md §2.4). Every key writes
+                    // a cast and a touched key; only a voting one (a new one) keeps them. An
+                    // empty key's flags are all set (`empty_flags`), so it never votes and is
+                    // never touched.
                     s.casts.reserve(MAX_KEYS);
                     s.touched_keys.reserve(MAX_KEYS);
                     let (mut n_casts, mut n_touched) = (s.casts.len(), s.touched_keys.len());
