@@ -754,7 +754,7 @@ impl Detector {
             clusters
         };
         let top = &clusters[..clusters.len().min(p.rescoring.top_clusters)];
-        let top = prescreen(
+        let (top, sparse_fits) = prescreen(
             top,
             &v.fit_points,
             scene,
@@ -765,7 +765,8 @@ impl Detector {
         // Only the best `top_poses` go on to ICP.
         let scored = score_poses(
             &top,
-            &v.fit_points.all,
+            &v.fit_points,
+            sparse_fits.as_deref(),
             scene,
             p.rescoring.tolerance_mm(d),
             v.conflict_mm,
@@ -897,7 +898,8 @@ impl Detector {
         // Only the best `max_candidates` go through the filters.
         let rescored = score_poses(
             &refined,
-            &v.fit_points.all,
+            &v.fit_points,
+            None,
             scene,
             p.rescoring.refined_tolerance_mm(d),
             v.conflict_mm,

@@ -292,7 +292,8 @@ pub fn diagnose(
     // Re-scoring with coarse outlines, and the cut to ICP.
     let scored = score_poses(
         &chosen,
-        &fit_points.all,
+        &fit_points,
+        None,
         frame.image,
         p.rescoring.tolerance_mm(d),
         conflict,
@@ -334,7 +335,8 @@ pub fn diagnose(
         .collect();
     let rescored = score_poses(
         &refined,
-        &fit_points.all,
+        &fit_points,
+        None,
         frame.image,
         p.rescoring.refined_tolerance_mm(d),
         conflict,

@@ -304,20 +304,28 @@ pub fn rescore(
     conflict_mm: f32,
     params: &RescoringParams,
 ) -> Vec<Scored> {
-    let total = surface.len().max(1) as f32;
+    let angle = params.max_normal_angle_deg;
+    rescore_with(poses, surface.len(), params, |_, pose| {
+        fit(surface, pose, scene, tolerance, conflict_mm, angle)
+    })
+}
+
+/// [`rescore`] with the fit of pose `i` of `poses` given by `count(i, pose)`, over a surface of
+/// `points` points.
+fn rescore_with(
+    poses: &[(Pose, u32)],
+    points: usize,
+    params: &RescoringParams,
+    count: impl Fn(usize, &Pose) -> Fit + Sync,
+) -> Vec<Scored> {
+    let total = points.max(1) as f32;
     let mut scored: Vec<Scored> = poses
         .par_iter()
-        .map(|&(pose, votes)| {
-            let fit = fit(
-                surface,
-                &pose,
-                scene,
-                tolerance,
-                conflict_mm,
-                params.max_normal_angle_deg,
-            );
+        .enumerate()
+        .map(|(i, &(pose, votes))| {
+            let fit = count(i, &pose);
             let fit_score = fit.inliers as f32 / total;
-            let score = fit_and_support(&fit, surface.len(), params);
+            let score = fit_and_support(&fit, points, params);
             Scored {
                 pose,
                 votes,
@@ -333,17 +341,18 @@ pub fn rescore(
     scored
 }
 
-/// The model's surface points as re-scoring counts them with [`fit`]: all of them, and every
-/// `prescore_stride`-th of them in the model's order for the sparse fit ([`prescreen`]), each
-/// set reordered along a Z-order curve over cubes of a fiftieth of the diameter. A fit counts
+/// The model's surface points as re-scoring counts them with [`fit`]: every
+/// `prescore_stride`-th of them in the model's order for the sparse fit ([`prescreen`]), and the
+/// rest; the full fit counts both, and adds the rest to a sparse fit already counted. Each set
+/// is reordered along a Z-order curve over cubes of a fiftieth of the diameter. A fit counts
 /// points, so its result does not depend on their order; in this one consecutive points project
 /// to nearby pixels, and the scene's depth and normals are read from the cache rather than from
 /// memory. On the LM-O frame, one core, re-scoring takes about a tenth less than in the
 /// sampling's order (docs/BENCHMARKS.md, "Where the time goes").
 #[derive(Clone, Debug)]
 pub struct FitPoints {
-    pub all: OrientedPoints,
     pub sparse: OrientedPoints,
+    pub rest: OrientedPoints,
 }
 
 impl FitPoints {
@@ -352,12 +361,43 @@ impl FitPoints {
     pub fn new(surface: &OrientedPoints, params: &RescoringParams, diameter_mm: f32) -> FitPoints {
         let stride = params.prescore_stride.max(1);
         let inverse = 50.0 / diameter_mm.max(f32::MIN_POSITIVE);
-        let all: Vec<usize> = (0..surface.len()).collect();
-        let sparse: Vec<usize> = all.iter().copied().step_by(stride).collect();
+        let (sparse, rest): (Vec<usize>, Vec<usize>) =
+            (0..surface.len()).partition(|i| i % stride == 0);
         FitPoints {
-            all: in_z_order(surface, all, inverse),
             sparse: in_z_order(surface, sparse, inverse),
+            rest: in_z_order(surface, rest, inverse),
         }
+    }
+
+    /// How many points the full fit counts.
+    pub fn len(&self) -> usize {
+        self.sparse.len() + self.rest.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The fit of every point at `pose` ([`fit`] over the sparse points and the rest).
+    pub fn fit(
+        &self,
+        pose: &Pose,
+        scene: &SceneImage,
+        tolerance_mm: f32,
+        conflict_mm: f32,
+        max_normal_angle_deg: f32,
+    ) -> Fit {
+        let count = |points| {
+            fit(
+                points,
+                pose,
+                scene,
+                tolerance_mm,
+                conflict_mm,
+                max_normal_angle_deg,
+            )
+        };
+        count(&self.sparse) + count(&self.rest)
     }
 }
 
@@ -389,7 +429,8 @@ fn in_z_order(
 
 /// The poses worth the full re-scoring: all of `poses` unless `params.prescore_keep` is set
 /// and smaller, else the `prescore_keep` best by [`rescore`] on the sparse points (see
-/// [`RescoringParams::prescore_stride`]), best first.
+/// [`RescoringParams::prescore_stride`]), best first, with each one's fit on the sparse points
+/// (for [`score_poses`], which then counts only the rest).
 pub fn prescreen(
     poses: &[(Pose, u32)],
     points: &FitPoints,
@@ -397,14 +438,18 @@ pub fn prescreen(
     tolerance: f32,
     conflict_mm: f32,
     params: &RescoringParams,
-) -> Vec<(Pose, u32)> {
+) -> (Vec<(Pose, u32)>, Option<Vec<Fit>>) {
     let keep = params.prescore_keep;
     if keep == 0 || poses.len() <= keep || params.prescore_stride <= 1 {
-        return poses.to_vec();
+        return (poses.to_vec(), None);
     }
-    let mut ranked = sparse_ranking(poses, &points.sparse, scene, tolerance, conflict_mm, params);
+    let mut ranked = rescore(poses, &points.sparse, scene, tolerance, conflict_mm, params);
     ranked.truncate(keep);
-    ranked
+    let fits = ranked.iter().map(|s| s.fit).collect();
+    (
+        ranked.into_iter().map(|s| (s.pose, s.votes)).collect(),
+        Some(fits),
+    )
 }
 
 /// All of `poses`, best first by [`rescore`] on `sparse` ([`FitPoints::sparse`]): the order
@@ -434,13 +479,16 @@ pub struct Outline<'a> {
     pub max_outline_px: u32,
 }
 
-/// The whole re-scoring of `poses`: [`rescore`] with inlier tolerance `tolerance` (mm), then,
-/// when `params.silhouette_weight` is positive, [`with_silhouettes`] keeping the best `keep`.
-/// Best first.
+/// The whole re-scoring of `poses`: [`rescore`] on all of `points` with inlier tolerance
+/// `tolerance` (mm), then, when `params.silhouette_weight` is positive, [`with_silhouettes`]
+/// keeping the best `keep`. Best first. `sparse_fits`, when given, holds each pose's fit on
+/// `points.sparse` with the same tolerances (as [`prescreen`] gives it): only the rest is
+/// counted, the same counts with a quarter less work.
 #[allow(clippy::too_many_arguments)]
 pub fn score_poses(
     poses: &[(Pose, u32)],
-    surface: &OrientedPoints,
+    points: &FitPoints,
+    sparse_fits: Option<&[Fit]>,
     scene: &SceneImage,
     tolerance: f32,
     conflict_mm: f32,
@@ -448,7 +496,11 @@ pub fn score_poses(
     outline: &Outline,
     keep: usize,
 ) -> Vec<Scored> {
-    let mut scored = rescore(poses, surface, scene, tolerance, conflict_mm, params);
+    let angle = params.max_normal_angle_deg;
+    let mut scored = rescore_with(poses, points.len(), params, |i, pose| match sparse_fits {
+        Some(known) => known[i] + fit(&points.rest, pose, scene, tolerance, conflict_mm, angle),
+        None => points.fit(pose, scene, tolerance, conflict_mm, angle),
+    });
     if params.silhouette_weight > 0.0 {
         with_silhouettes(&mut scored, outline, scene, conflict_mm, params, keep);
     }
@@ -641,6 +693,50 @@ mod tests {
         assert!(seen.iter().all(|&c| c > 0), "judgements seen: {seen:?}");
     }
 
+    /// The full re-scoring of the poses the sparse fit keeps counts only the rest of the
+    /// points on top of each one's sparse fit, and gives what counting every point gives.
+    #[test]
+    fn the_full_fit_adds_the_rest_to_the_sparse_one() {
+        let (model, scene, truth) = bracket_on_table();
+        let d = model.diameter_mm();
+        let params = RescoringParams {
+            prescore_keep: 4,
+            silhouette_weight: 0.0,
+            ..Default::default()
+        };
+        let points = FitPoints::new(&model.surface_points(), &params, d);
+        let poses: Vec<(Pose, u32)> = (0..9)
+            .map(|i| {
+                let dx = (i as f32 - 4.0) * 0.02 * d;
+                (Translation3::new(dx, 0.01 * d, 0.0) * truth, 10 + i)
+            })
+            .collect();
+        let (tol, conflict) = (params.tolerance_mm(d), params.conflict_mm(d));
+        let (kept, sparse_fits) = prescreen(&poses, &points, &scene, tol, conflict, &params);
+        let sparse_fits = sparse_fits.expect("the sparse fit cuts 9 poses to 4");
+        assert_eq!(kept.len(), 4);
+        let edges = EdgeMap::new(&scene, &FilterParams::default());
+        let mesh = model.render_mesh();
+        let sphere = bounding_sphere(&mesh);
+        let outline = Outline {
+            mesh: &mesh,
+            sphere: &sphere,
+            edges: &edges,
+            max_outline_px: 0,
+        };
+        let score = |known: Option<&[Fit]>| {
+            score_poses(
+                &kept, &points, known, &scene, tol, conflict, &params, &outline, 4,
+            )
+        };
+        let (added, counted) = (score(Some(&sparse_fits)), score(None));
+        assert!(counted[0].fit.inliers > 0);
+        for (a, c) in added.iter().zip(&counted) {
+            assert_eq!(a.fit, c.fit);
+            assert_eq!(a.fit, points.fit(&a.pose, &scene, tol, conflict, 45.0));
+        }
+    }
+
     #[test]
     fn fit_points_count_as_the_model_order_does() {
         let (model, scene, truth) = bracket_on_table();
@@ -648,11 +744,7 @@ mod tests {
         let params = RescoringParams::default();
         let surface = model.surface_points();
         let points = FitPoints::new(&surface, &params, d);
-        assert_eq!(points.all.len(), surface.len());
-        assert_ne!(
-            points.all.positions, surface.positions,
-            "the order is changed"
-        );
+        assert_eq!(points.len(), surface.len());
         let key = |p: &Point3<f32>| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
         let sorted = |ps: &mut dyn Iterator<Item = Point3<f32>>| {
             let mut v: Vec<[u32; 3]> = ps.map(|p| key(&p)).collect();
@@ -660,7 +752,14 @@ mod tests {
             v
         };
         assert_eq!(
-            sorted(&mut points.all.positions.iter().copied()),
+            sorted(
+                &mut points
+                    .sparse
+                    .positions
+                    .iter()
+                    .chain(&points.rest.positions)
+                    .copied()
+            ),
             sorted(&mut surface.positions.iter().copied())
         );
         let every = OrientedPoints {
@@ -681,15 +780,16 @@ mod tests {
             sorted(&mut points.sparse.positions.iter().copied()),
             sorted(&mut every.positions.iter().copied())
         );
+        assert_ne!(
+            points.sparse.positions, every.positions,
+            "the order is changed"
+        );
         let (tol, conflict) = (params.tolerance_mm(d), params.conflict_mm(d));
         let shifted = Translation3::new(0.02 * d, 0.0, 0.0) * truth;
         for pose in [truth, shifted] {
             let model_order = fit(&surface, &pose, &scene, tol, conflict, 45.0);
             assert!(model_order.inliers > 0);
-            assert_eq!(
-                fit(&points.all, &pose, &scene, tol, conflict, 45.0),
-                model_order
-            );
+            assert_eq!(points.fit(&pose, &scene, tol, conflict, 45.0), model_order);
             assert_eq!(
                 fit(&points.sparse, &pose, &scene, tol, conflict, 45.0),
                 fit(&every, &pose, &scene, tol, conflict, 45.0)

@@ -27,6 +27,20 @@ pub struct Fit {
     pub see_through: u32,
 }
 
+/// The counts of two disjoint sets of points together.
+impl std::ops::Add for Fit {
+    type Output = Fit;
+    fn add(self, o: Fit) -> Fit {
+        Fit {
+            facing: self.facing + o.facing,
+            measured: self.measured + o.measured,
+            inliers: self.inliers + o.inliers,
+            occluded: self.occluded + o.occluded,
+            see_through: self.see_through + o.see_through,
+        }
+    }
+}
+
 impl Fit {
     /// Points that should be seen: measured and not hidden behind something else.
     pub fn visible(&self) -> u32 {
