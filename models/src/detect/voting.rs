@@ -131,6 +131,8 @@ struct Accumulator {
     totals: Vec<u16>,
     /// Per row of [`ROW`] cells (one model point), the largest of its `totals`.
     row_max: Vec<u16>,
+    /// Cells waiting to be counted (see [`Accumulator::add_casts`]).
+    pending: Vec<u32>,
 }
 
 impl Accumulator {
@@ -141,6 +143,7 @@ impl Accumulator {
             carried: false,
             totals: vec![0; cells],
             row_max: vec![0; cells.div_ceil(ROW)],
+            pending: Vec::new(),
         }
     }
 
@@ -163,9 +166,11 @@ impl Accumulator {
     }
 
     /// The votes of every cast `(start, end, α_s)`: the table entries `start..end` of one
-    /// key, for a scene pair of angle `α_s` (fixed point). The cells of a batch of entries are
-    /// computed first (four at a time, see [`cells_of`]) and then counted, spread over the
-    /// copies; the entries of the cast after next are fetched into the cache meanwhile.
+    /// key, for a scene pair of angle `α_s` (fixed point). The cells of many casts' entries
+    /// are gathered first ([`push_cells`], four at a time) and then counted in one run, spread
+    /// over the copies: a key holds about a dozen entries, and counting each cast's apart
+    /// spends as much on starting and ending the loops as on the votes. The entries of the
+    /// cast after next are fetched into the cache meanwhile.
     ///
     /// # Safety
     ///
@@ -177,34 +182,54 @@ impl Accumulator {
         casts: &[Cast],
         alpha_bins: u16,
     ) {
-        const BATCH: usize = 64;
-        let cells_len = self.totals.len();
-        let mut copies = self.lanes.chunks_exact_mut(cells_len);
-        let lanes: [&mut [u8]; LANES] = std::array::from_fn(|_| copies.next().unwrap());
-        let (carries, carried) = (&mut self.carries[..], &mut self.carried);
-        let mut cells = [0u32; BATCH];
+        // Cells gathered before they are counted: 8 KB, which stays in the first-level cache
+        // beside the copies.
+        const PENDING: usize = 2048;
+        let mut pending = std::mem::take(&mut self.pending);
+        pending.clear();
         for (j, cast) in casts.iter().enumerate() {
             if let Some(next) = casts.get(j + 2) {
                 prefetch(entries[next.start as usize..].as_ptr());
             }
-            let key_entries = &entries[cast.start as usize..cast.end as usize];
-            for batch in key_entries.chunks(BATCH) {
-                let cells = &mut cells[..batch.len()];
-                cells_of(batch, cast.alpha_s, alpha_bins, cells);
-                let mut groups = cells.chunks_exact(LANES);
-                for g in &mut groups {
-                    for i in 0..LANES {
-                        // SAFETY: a cell is `(m << ROW_SHIFT) | bin` with `bin < alpha_bins
-                        // <= ROW` and `m` below the cells over `ROW` (the caller's promise),
-                        // so below `cells_len`, the length of every copy.
-                        unsafe { Self::bump(&mut *lanes[i], carries, carried, g[i] as usize) };
-                    }
-                }
-                for (i, &c) in groups.remainder().iter().enumerate() {
-                    // SAFETY: as above.
-                    unsafe { Self::bump(&mut *lanes[i], carries, carried, c as usize) };
+            let (mut start, end) = (cast.start as usize, cast.end as usize);
+            while start < end {
+                let to = end.min(start + PENDING);
+                push_cells(entries, start..to, cast.alpha_s, alpha_bins, &mut pending);
+                start = to;
+                if pending.len() >= PENDING {
+                    // SAFETY: the caller's promise, which `push_cells` turns into cells
+                    // below the number of cells.
+                    unsafe { self.count(&pending) };
+                    pending.clear();
                 }
             }
+        }
+        // SAFETY: as above.
+        unsafe { self.count(&pending) };
+        pending.clear();
+        self.pending = pending;
+    }
+
+    /// One vote into each of `cells`, taken by the copies in turn.
+    ///
+    /// # Safety
+    ///
+    /// Every cell must be below the number of cells.
+    unsafe fn count(&mut self, cells: &[u32]) {
+        let cells_len = self.totals.len();
+        let mut copies = self.lanes.chunks_exact_mut(cells_len);
+        let lanes: [&mut [u8]; LANES] = std::array::from_fn(|_| copies.next().unwrap());
+        let (carries, carried) = (&mut self.carries[..], &mut self.carried);
+        let mut groups = cells.chunks_exact(2 * LANES);
+        for g in &mut groups {
+            for i in 0..2 * LANES {
+                // SAFETY: the caller's promise: below `cells_len`, the length of every copy.
+                unsafe { Self::bump(&mut *lanes[i % LANES], carries, carried, g[i] as usize) };
+            }
+        }
+        for (i, &c) in groups.remainder().iter().enumerate() {
+            // SAFETY: as above.
+            unsafe { Self::bump(&mut *lanes[i % LANES], carries, carried, c as usize) };
         }
     }
 
@@ -260,43 +285,60 @@ struct Cast {
     alpha_s: u16,
 }
 
-/// The accumulator cell of each table entry for a scene pair of angle `alpha_s` (fixed
-/// point): `(model point << ROW_SHIFT) | bin(α_m − α_s)`, with the bin as
-/// [`crate::model::table::fixed_difference_bin`] gives it.
+/// Appends to `cells` the accumulator cell of each table entry of `range` for a scene pair of
+/// angle `alpha_s` (fixed point): `(model point << ROW_SHIFT) | bin(α_m − α_s)`, with the bin
+/// as [`crate::model::table::fixed_difference_bin`] gives it. Computed four entries at a time,
+/// reading (and writing into the spare capacity) up to three entries past the range's end
+/// while the table goes on, so that a key's last few entries need no loop of their own.
 #[inline(always)]
-fn cells_of(entries: &[rkyv::Archived<u32>], alpha_s: u16, alpha_bins: u16, out: &mut [u32]) {
-    debug_assert_eq!(entries.len(), out.len());
-    let mut done = 0;
+fn push_cells(
+    entries: &[rkyv::Archived<u32>],
+    range: std::ops::Range<usize>,
+    alpha_s: u16,
+    alpha_bins: u16,
+    cells: &mut Vec<u32>,
+) {
+    let (start, end) = (range.start, range.end);
+    debug_assert!(start <= end && end <= entries.len());
+    cells.reserve(end - start + 3);
+    let len = cells.len();
+    let out = cells.spare_capacity_mut().as_mut_ptr() as *mut u32;
+    let mut i = start;
     #[cfg(target_arch = "x86_64")]
     {
         use std::arch::x86_64::*;
         // SSE2 is part of x86-64: four entries at a time in 16-bit lanes. The low half of
         // each entry is α_m; `(α_m − α_s) ^ 0x8000` is the wrapped difference plus half a turn,
         // and its high 16 bits times the bin count (a 16-bit `mulhi`) is the bin.
-        // SAFETY: SSE2 is always available on x86-64; the loads and stores stay inside
-        // `entries` and `out` (four `u32` each, `done + 4 <= len`). Archived `u32` is a plain
-        // little-endian `u32`, as x86-64 is.
+        // SAFETY: SSE2 is always available on x86-64; each load reads four entries inside
+        // `entries` (`i + 4 <= entries.len()`), each store writes four cells at most three
+        // past the range's `end - start`, inside the capacity reserved above. Archived `u32`
+        // is a plain little-endian `u32`, as x86-64 is.
         unsafe {
             let alpha = _mm_set1_epi32(alpha_s as i32);
             let half = _mm_set1_epi32(0x8000);
             let bins = _mm_set1_epi32(alpha_bins as i32);
             let row_mask = _mm_set1_epi32(!((ROW as i32) - 1));
-            while done + 4 <= entries.len() {
-                let e = _mm_loadu_si128(entries.as_ptr().add(done) as *const __m128i);
+            while i < end && i + 4 <= entries.len() {
+                let e = _mm_loadu_si128(entries.as_ptr().add(i) as *const __m128i);
                 let d = _mm_xor_si128(_mm_sub_epi16(e, alpha), half);
                 let bin = _mm_mulhi_epu16(d, bins);
                 let point = _mm_and_si128(_mm_srli_epi32(e, 16 - ROW_SHIFT as i32), row_mask);
                 let cell = _mm_or_si128(point, bin);
-                _mm_storeu_si128(out.as_mut_ptr().add(done) as *mut __m128i, cell);
-                done += 4;
+                _mm_storeu_si128(out.add(i - start) as *mut __m128i, cell);
+                i += 4;
             }
         }
     }
-    for (c, e) in out[done..].iter_mut().zip(&entries[done..]) {
-        let e = e.to_native();
+    while i < end {
+        let e = entries[i].to_native();
         let bin = fixed_difference_bin(e as u16, alpha_s, alpha_bins as u32);
-        *c = ((e >> 16) << ROW_SHIFT) | bin;
+        // SAFETY: `i - start < end - start`, inside the capacity reserved above.
+        unsafe { out.add(i - start).write(((e >> 16) << ROW_SHIFT) | bin) };
+        i += 1;
     }
+    // SAFETY: the cells of the whole range are written.
+    unsafe { cells.set_len(len + end - start) };
 }
 
 /// Asks for the cache line at `p` ahead of its use (nothing on other architectures).
@@ -311,12 +353,21 @@ fn prefetch<T>(p: *const T) {
     let _ = p;
 }
 
+/// A key of the lookup table as voting reads it: where its entries start (they end where the
+/// next key's start), and the α_s bins it has voted with for the reference point under way.
+#[derive(Clone, Copy, Debug)]
+#[repr(C)]
+struct KeySlot {
+    start: u32,
+    flags: u32,
+}
+
 /// Per-thread scratch: the accumulator and vote-once flags, reused across reference points.
 struct Scratch {
     accumulator: Accumulator,
     /// The reference point's casts, in the order its pairs made them.
     casts: Vec<Cast>,
-    flags: Vec<u32>,
+    slots: Vec<KeySlot>,
     touched_keys: Vec<u32>,
     /// The reference point's partners.
     pairs: PairBatch,
@@ -439,18 +490,20 @@ pub fn vote_from(
         "a table entry names a model point past the model's {n_model}"
     );
     assert!(nb <= ROW, "{nb} α bins, at most {ROW}");
-    // Per key: all bits set when it holds no entries, so that it never votes.
-    let empty_flags: Vec<u32> = (0..key_count)
-        .map(|k| {
-            if offsets[k] == offsets[k + 1] {
+    // Per key: where its entries start, and its vote-once flags, all bits set when it holds no
+    // entries so that it never votes; one slot past the last key ends the last key's entries.
+    let empty_slots: Vec<KeySlot> = (0..=key_count)
+        .map(|k| KeySlot {
+            start: offsets[k].to_native(),
+            flags: if k == key_count || offsets[k] == offsets[k + 1] {
                 u32::MAX
             } else {
                 0
-            }
+            },
         })
         .collect();
     // A few blocks per thread, each with its own scratch: enough to balance the load, few
-    // enough that the scratch (270 KB of flags, and 192 bytes per model point for the
+    // enough that the scratch (540 KB of key slots, and 192 bytes per model point for the
     // accumulator: its copies' low bytes, its carries and its totals) is set up only a
     // handful of times.
     let block = references
@@ -463,7 +516,7 @@ pub fn vote_from(
             let mut scratch = Scratch {
                 accumulator: Accumulator::new(n_model * ROW),
                 casts: Vec::new(),
-                flags: empty_flags.clone(),
+                slots: empty_slots.clone(),
                 touched_keys: Vec::new(),
                 pairs: PairBatch::default(),
             };
@@ -504,7 +557,7 @@ pub fn vote_from(
                     // two branches per key (empty? flagged?) are often mispredicted; without
                     // them voting takes about 6 % less (docs/METHOD.md §2.4). Every key writes
                     // a cast and a touched key; only a voting one (a new one) keeps them. An
-                    // empty key's flags are all set (`empty_flags`), so it never votes and is
+                    // empty key's flags are all set (`empty_slots`), so it never votes and is
                     // never touched.
                     s.casts.reserve(MAX_KEYS);
                     s.touched_keys.reserve(MAX_KEYS);
@@ -514,9 +567,9 @@ pub fn vote_from(
                     let (casts_from, touched_from) = (n_casts, n_touched);
                     for &key in &keys[..n_keys] {
                         let k = key as usize;
-                        let flag = s.flags[k];
+                        let flag = s.slots[k].flags;
                         let new = flag & bit == 0;
-                        let (start, end) = (offsets[k].to_native(), offsets[k + 1].to_native());
+                        let (start, end) = (s.slots[k].start, s.slots[k + 1].start);
                         // SAFETY: at most `MAX_KEYS` writes per pair, each within the
                         // capacity reserved above; only the first `n_casts` and `n_touched`
                         // (all written) are kept.
@@ -536,7 +589,7 @@ pub fn vote_from(
                         n_casts += usize::from(new);
                         if params.vote_once {
                             n_touched += usize::from(flag == 0);
-                            s.flags[k] = flag | bit;
+                            s.slots[k].flags = flag | bit;
                         }
                     }
                     // SAFETY: the first `n_casts` casts and `n_touched` keys are written.
@@ -555,7 +608,7 @@ pub fn vote_from(
                 s.casts.clear();
                 s.accumulator.merge();
                 for &k in &s.touched_keys {
-                    s.flags[k as usize] = 0; // a touched key has entries (see `empty_flags`)
+                    s.slots[k as usize].flags = 0; // a touched key has entries (see `empty_slots`)
                 }
                 s.touched_keys.clear();
                 let totals = &s.accumulator.totals;
@@ -731,6 +784,70 @@ mod tests {
         assert_eq!(acc.totals[cell], u16::MAX);
         assert_eq!(acc.row_max, [0, 0, u16::MAX, 0]);
         assert_eq!(acc.totals.iter().filter(|&&v| v > 0).count(), 1);
+    }
+
+    /// Cells gathered over many casts count as each entry counted alone: casts longer than
+    /// the gathering buffer, casts of one entry, and casts that end at the table's last entry
+    /// (where the four-at-a-time reading stops).
+    #[test]
+    fn gathered_cells_count_as_each_entry_alone() {
+        let (points, bins) = (37usize, 30u16);
+        let mut rng = crate::geometry::rng::Rng::new(5);
+        let entries: Vec<rkyv::Archived<u32>> = (0..6003)
+            .map(|_| {
+                let m = (rng.next_u64() % points as u64) as u32;
+                let alpha_m = (rng.next_u64() & 0xffff) as u32;
+                rkyv::Archived::<u32>::from_native((m << 16) | alpha_m)
+            })
+            .collect();
+        let n = entries.len() as u32;
+        let mut casts = vec![
+            Cast {
+                start: 0,
+                end: n,
+                alpha_s: 123,
+            },
+            Cast {
+                start: n - 1,
+                end: n,
+                alpha_s: 40_000,
+            },
+            Cast {
+                start: n - 3,
+                end: n,
+                alpha_s: 7,
+            },
+            Cast {
+                start: 17,
+                end: 17,
+                alpha_s: 9,
+            },
+        ];
+        for _ in 0..500 {
+            let start = (rng.next_u64() % n as u64) as u32;
+            let len = (rng.next_u64() % 30) as u32;
+            casts.push(Cast {
+                start,
+                end: (start + len).min(n),
+                alpha_s: (rng.next_u64() & 0xffff) as u16,
+            });
+        }
+        let mut expected = vec![0u32; points * ROW];
+        for c in &casts {
+            for e in &entries[c.start as usize..c.end as usize] {
+                let e = e.to_native();
+                let bin = fixed_difference_bin(e as u16, c.alpha_s, bins as u32);
+                expected[((e >> 16) as usize) << ROW_SHIFT | bin as usize] += 1;
+            }
+        }
+        let mut acc = Accumulator::new(points * ROW);
+        // SAFETY: every entry names a model point below 37, and 30 bins <= ROW.
+        unsafe { acc.add_casts(&entries, &casts, bins) };
+        acc.merge();
+        let totals: Vec<u32> = acc.totals.iter().map(|&v| v as u32).collect();
+        assert!(expected.iter().all(|&v| v < u16::MAX as u32));
+        assert_eq!(totals, expected);
+        assert!(expected.iter().sum::<u32>() > 2 * n);
     }
 
     #[test]
