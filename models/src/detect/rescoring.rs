@@ -234,7 +234,9 @@ pub fn judge_point(
 /// branches they are often mispredicted; counted as flags, re-scoring takes about 7 % less
 /// (docs/METHOD.md §3.2). Every point reads a depth (pixel 0 for one that faces away or falls
 /// outside the image, not counted); only a point within the tolerance reads the scene's normal.
-/// `fit_counts_what_judge_point_judges` checks the tally.
+/// Points are moved and projected four at a time ([`Moved::four`]), with the same operations
+/// in the same order as one at a time, so to the bit. `fit_counts_what_judge_point_judges`
+/// checks the tally.
 pub fn fit(
     surface: &OrientedPoints,
     pose: &Pose,
@@ -249,17 +251,13 @@ pub fn fit(
     let depths = scene.depths();
     let (width, height) = (scene.width as i64, scene.height as i64);
     let mut f = Fit::default();
-    for (p, n) in surface.positions.iter().zip(&surface.normals) {
-        let pc = Point3::from(pose.rotation * p.coords + pose.translation);
-        let nc: Vector3<f32> = pose.rotation * n;
-        let facing = pc.z > 0.0 && nc.dot(&pc.coords) < 0.0;
-        // A point behind the camera projects to garbage, which `facing` leaves uncounted.
-        let (u, v) = k.pixel(&pc);
-        let inside = facing & (u >= 0) & (v >= 0) & (u < width) & (v < height);
+    let mut tally = |m: &Moved, lane: usize| {
+        let (u, v) = (m.u[lane] as i64, m.v[lane] as i64);
+        let inside = m.facing[lane] & (u >= 0) & (v >= 0) & (u < width) & (v < height);
         let pixel = if inside { (v * width + u) as usize } else { 0 };
         let z = depths[pixel];
         let measured = inside & z.is_finite();
-        let dz = z - pc.z;
+        let dz = z - m.z[lane];
         let occluded = measured & (dz < -conflict_mm);
         let see_through = measured & (dz > conflict_mm);
         let close = measured & !occluded & !see_through & (dz.abs() <= tolerance_mm);
@@ -269,10 +267,117 @@ pub fn fit(
         f.see_through += u32::from(see_through);
         if close {
             // A pixel without a normal holds NaN, and the comparison fails: missed.
+            let nc = Vector3::new(m.nx[lane], m.ny[lane], m.nz[lane]);
             f.inliers += u32::from(scene.normals[pixel].dot(&nc) >= cos_max);
         }
+    };
+    let (positions, normals) = (&surface.positions, &surface.normals);
+    let fours = positions.len() / 4 * 4;
+    let mut m = Moved::default();
+    for i in (0..fours).step_by(4) {
+        m.four(&pose, k, &positions[i..i + 4], &normals[i..i + 4]);
+        for lane in 0..4 {
+            tally(&m, lane);
+        }
+    }
+    for (p, n) in positions[fours..].iter().zip(&normals[fours..]) {
+        m.one(&pose, k, p, n);
+        tally(&m, 0);
     }
     f
+}
+
+/// Up to four model points moved into the camera by a pose: whether each faces the camera, the
+/// pixel it projects to (rounded half away from zero, as [`Intrinsics::pixel`]; garbage for
+/// one that does not face the camera), its depth and its normal in the camera.
+#[derive(Default)]
+struct Moved {
+    facing: [bool; 4],
+    u: [i32; 4],
+    v: [i32; 4],
+    z: [f32; 4],
+    nx: [f32; 4],
+    ny: [f32; 4],
+    nz: [f32; 4],
+}
+
+impl Moved {
+    /// One point, into lane 0, as [`facing_projection`] moves it. A pixel beyond the `i32`
+    /// range is `i32::MIN`, outside the image as the four-point path leaves it.
+    #[inline]
+    fn one(&mut self, pose: &PoseMatrix, k: &Intrinsics, p: &Point3<f32>, n: &Vector3<f32>) {
+        let pc = Point3::from(pose.rotation * p.coords + pose.translation);
+        let nc: Vector3<f32> = pose.rotation * n;
+        self.facing[0] = pc.z > 0.0 && nc.dot(&pc.coords) < 0.0;
+        let (u, v) = k.pixel(&pc);
+        let narrow = |x: i64| i32::try_from(x).unwrap_or(i32::MIN);
+        (self.u[0], self.v[0]) = (narrow(u), narrow(v));
+        self.z[0] = pc.z;
+        (self.nx[0], self.ny[0], self.nz[0]) = (nc.x, nc.y, nc.z);
+    }
+
+    /// Four points side by side. nalgebra's `Matrix3 * Vector3` sums `((r₀·x + r₁·y) + r₂·z)`
+    /// and its dot product `(a + b) + c`; this does the same operations in the same order (no
+    /// fused multiply-add), so each lane comes out as [`Moved::one`] gives it.
+    #[inline]
+    fn four(&mut self, pose: &PoseMatrix, k: &Intrinsics, p: &[Point3<f32>], n: &[Vector3<f32>]) {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: SSE2 is part of x86-64; the loads read the four given points, the stores
+        // write this value's arrays of four.
+        unsafe {
+            use std::arch::x86_64::*;
+            let r = &pose.rotation;
+            let t = &pose.translation;
+            let (p, n) = (&p[..4], &n[..4]);
+            let px = _mm_setr_ps(p[0].x, p[1].x, p[2].x, p[3].x);
+            let py = _mm_setr_ps(p[0].y, p[1].y, p[2].y, p[3].y);
+            let pz = _mm_setr_ps(p[0].z, p[1].z, p[2].z, p[3].z);
+            let qx = _mm_setr_ps(n[0].x, n[1].x, n[2].x, n[3].x);
+            let qy = _mm_setr_ps(n[0].y, n[1].y, n[2].y, n[3].y);
+            let qz = _mm_setr_ps(n[0].z, n[1].z, n[2].z, n[3].z);
+            let s = _mm_set1_ps;
+            let row = |i: usize, x, y, z| {
+                _mm_add_ps(
+                    _mm_add_ps(_mm_mul_ps(s(r[(i, 0)]), x), _mm_mul_ps(s(r[(i, 1)]), y)),
+                    _mm_mul_ps(s(r[(i, 2)]), z),
+                )
+            };
+            let cx = _mm_add_ps(row(0, px, py, pz), s(t.x));
+            let cy = _mm_add_ps(row(1, px, py, pz), s(t.y));
+            let cz = _mm_add_ps(row(2, px, py, pz), s(t.z));
+            let (nx, ny, nz) = (row(0, qx, qy, qz), row(1, qx, qy, qz), row(2, qx, qy, qz));
+            let dot = _mm_add_ps(
+                _mm_add_ps(_mm_mul_ps(nx, cx), _mm_mul_ps(ny, cy)),
+                _mm_mul_ps(nz, cz),
+            );
+            let zero = _mm_setzero_ps();
+            let facing =
+                _mm_movemask_ps(_mm_and_ps(_mm_cmpgt_ps(cz, zero), _mm_cmplt_ps(dot, zero)));
+            // Rounded half away from zero: plus 0.5 with the value's sign, then truncated.
+            let sign = s(-0.0);
+            let round =
+                |x: __m128| _mm_cvttps_epi32(_mm_add_ps(x, _mm_or_ps(_mm_and_ps(x, sign), s(0.5))));
+            let u = _mm_add_ps(_mm_div_ps(_mm_mul_ps(s(k.fx), cx), cz), s(k.cx));
+            let v = _mm_add_ps(_mm_div_ps(_mm_mul_ps(s(k.fy), cy), cz), s(k.cy));
+            _mm_storeu_si128(self.u.as_mut_ptr() as *mut __m128i, round(u));
+            _mm_storeu_si128(self.v.as_mut_ptr() as *mut __m128i, round(v));
+            _mm_storeu_ps(self.z.as_mut_ptr(), cz);
+            _mm_storeu_ps(self.nx.as_mut_ptr(), nx);
+            _mm_storeu_ps(self.ny.as_mut_ptr(), ny);
+            _mm_storeu_ps(self.nz.as_mut_ptr(), nz);
+            self.facing = std::array::from_fn(|i| facing >> i & 1 == 1);
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            let mut one = Moved::default();
+            for i in 0..4 {
+                one.one(pose, k, &p[i], &n[i]);
+                self.facing[i] = one.facing[0];
+                (self.u[i], self.v[i], self.z[i]) = (one.u[0], one.v[0], one.z[0]);
+                (self.nx[i], self.ny[i], self.nz[i]) = (one.nx[0], one.ny[0], one.nz[0]);
+            }
+        }
+    }
 }
 
 /// A pose with its re-scoring result.
@@ -599,6 +704,49 @@ mod tests {
         (model, scene, truth)
     }
 
+    /// Four points moved side by side come out as each moved alone, to the bit: what keeps
+    /// the fit's counts those of [`judge_point`] at every tolerance's edge.
+    #[test]
+    fn moving_four_points_is_moving_each_alone() {
+        let mut rng = Rng::new(21);
+        let mut r = || (rng.uniform() as f32 - 0.5) * 2.0;
+        let k = Intrinsics {
+            fx: 572.4,
+            fy: 573.6,
+            cx: 325.3,
+            cy: 242.0,
+        };
+        let mut lanes_compared = 0;
+        for _ in 0..300 {
+            let turn = nalgebra::UnitQuaternion::from_euler_angles(3.0 * r(), 3.0 * r(), 3.0 * r());
+            let pose = PoseMatrix::new(&Pose::from_parts(
+                Translation3::new(300.0 * r(), 300.0 * r(), 900.0 + 500.0 * r()),
+                turn,
+            ));
+            let p: Vec<Point3<f32>> = (0..4)
+                .map(|_| Point3::new(80.0 * r(), 80.0 * r(), 80.0 * r()))
+                .collect();
+            let n: Vec<Vector3<f32>> = (0..4)
+                .map(|_| Vector3::new(r(), r(), r()).normalize())
+                .collect();
+            let mut four = Moved::default();
+            four.four(&pose, &k, &p, &n);
+            for i in 0..4 {
+                let mut one = Moved::default();
+                one.one(&pose, &k, &p[i], &n[i]);
+                let bits =
+                    |m: &Moved, l: usize| [m.z[l], m.nx[l], m.ny[l], m.nz[l]].map(f32::to_bits);
+                assert_eq!(bits(&four, i), bits(&one, 0));
+                assert_eq!(four.facing[i], one.facing[0]);
+                if one.facing[0] {
+                    assert_eq!((four.u[i], four.v[i]), (one.u[0], one.v[0]));
+                }
+                lanes_compared += 1;
+            }
+        }
+        assert_eq!(lanes_compared, 1200);
+    }
+
     #[test]
     fn support_is_confirmed_over_visible() {
         let f = Fit {
@@ -662,8 +810,27 @@ mod tests {
             truth * turn,
             Translation3::new(0.0, 0.0, -2.0 * truth.translation.z) * truth,
         ];
+        // Poses scattered about the truth as well, and surfaces of every length modulo four
+        // (points are moved four at a time, the last few one at a time).
+        let mut rng = Rng::new(8);
+        let mut poses = poses.to_vec();
+        for _ in 0..40 {
+            let mut r = || (rng.uniform() as f32 - 0.5) * 2.0;
+            let turn = nalgebra::UnitQuaternion::from_euler_angles(0.3 * r(), 0.3 * r(), 0.3 * r());
+            let shift = Translation3::new(0.2 * d * r(), 0.2 * d * r(), 0.2 * d * r());
+            poses.push(shift * truth * turn);
+        }
+        let n = surface.len();
+        let cut = |m: usize| OrientedPoints {
+            positions: surface.positions[..m].to_vec(),
+            normals: surface.normals[..m].to_vec(),
+        };
+        let surfaces = [cut(n), cut(n - 1), cut(n - 2), cut(n - 3), cut(3)];
         let mut seen = [0u32; 5];
-        for pose in poses {
+        for (pose, surface) in poses
+            .iter()
+            .flat_map(|pose| surfaces.iter().map(move |s| (*pose, s)))
+        {
             let matrix = PoseMatrix::new(&pose);
             let mut tally = Fit::default();
             for (p, n) in surface.positions.iter().zip(&surface.normals) {
@@ -685,9 +852,10 @@ mod tests {
                 }] += 1;
             }
             assert_eq!(
-                fit(&surface, &pose, &scene, tol, conflict, 45.0),
+                fit(surface, &pose, &scene, tol, conflict, 45.0),
                 tally,
-                "{pose:?}"
+                "{pose:?}, {} points",
+                surface.len()
             );
         }
         assert!(seen.iter().all(|&c| c > 0), "judgements seen: {seen:?}");
