@@ -7,7 +7,7 @@
 
 use nalgebra::{Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
 
-use crate::detect::rescoring::{facing_projection, PoseMatrix};
+use crate::detect::rescoring::{Moved, PoseMatrix};
 use crate::detect::scene::SceneImage;
 use crate::model::subsample::OrientedPoints;
 use crate::Pose;
@@ -128,23 +128,23 @@ pub fn refine(
         let mut atb = Vector6::<f64>::zeros();
         let mut count = 0u32;
         let mut sq = 0f64;
-        let points = surface.positions.iter().zip(&surface.normals);
         let moved = PoseMatrix::new(&pose);
         // The small rotation turns about the model's centre, not the camera's origin. To first
         // order both are the same motion, but about the origin every finite turn comes with a
         // lever of a metre and a translation that only cancels it linearly: poses 15° off slid
         // away by up to 0.6 m instead of converging (`icp_converges_from_poses_turned_far`).
         let centre = pose * centroid;
-        for (p, n) in points.step_by(stride) {
-            let Some((pc, nc, u, v)) = facing_projection(&moved, p, n, k) else {
-                continue;
+        Moved::each(&moved, k, surface, stride, |m, lane| {
+            if !m.facing[lane] {
+                return;
+            }
+            let Some((q, qn)) = scene.at(m.u[lane] as i64, m.v[lane] as i64) else {
+                return;
             };
-            let Some((q, qn)) = scene.at(u, v) else {
-                continue;
-            };
+            let (pc, nc) = (m.point(lane), m.normal(lane));
             let d = pc - q;
             if d.norm_squared() > max_d * max_d || qn.dot(&nc) < cos_max {
-                continue;
+                return;
             }
             // r = ((p − c) × n)·ω + n·δt + (p − q)·n, linear in the small motion (ω, δt).
             let c = (pc - centre).cross(&qn);
@@ -161,7 +161,7 @@ pub fn refine(
             atb -= row * r;
             sq += r * r;
             count += 1;
-        }
+        });
         result.correspondences = count;
         result.iterations += 1;
         it += 1;

@@ -267,23 +267,10 @@ pub fn fit(
         f.see_through += u32::from(see_through);
         if close {
             // A pixel without a normal holds NaN, and the comparison fails: missed.
-            let nc = Vector3::new(m.nx[lane], m.ny[lane], m.nz[lane]);
-            f.inliers += u32::from(scene.normals[pixel].dot(&nc) >= cos_max);
+            f.inliers += u32::from(scene.normals[pixel].dot(&m.normal(lane)) >= cos_max);
         }
     };
-    let (positions, normals) = (&surface.positions, &surface.normals);
-    let fours = positions.len() / 4 * 4;
-    let mut m = Moved::default();
-    for i in (0..fours).step_by(4) {
-        m.four(&pose, k, &positions[i..i + 4], &normals[i..i + 4]);
-        for lane in 0..4 {
-            tally(&m, lane);
-        }
-    }
-    for (p, n) in positions[fours..].iter().zip(&normals[fours..]) {
-        m.one(&pose, k, p, n);
-        tally(&m, 0);
-    }
+    Moved::each(&pose, k, surface, 1, |m, lane| tally(m, lane));
     f
 }
 
@@ -291,17 +278,71 @@ pub fn fit(
 /// pixel it projects to (rounded half away from zero, as [`Intrinsics::pixel`]; garbage for
 /// one that does not face the camera), its depth and its normal in the camera.
 #[derive(Default)]
-struct Moved {
-    facing: [bool; 4],
-    u: [i32; 4],
-    v: [i32; 4],
-    z: [f32; 4],
-    nx: [f32; 4],
-    ny: [f32; 4],
-    nz: [f32; 4],
+pub(crate) struct Moved {
+    pub facing: [bool; 4],
+    pub u: [i32; 4],
+    pub v: [i32; 4],
+    pub x: [f32; 4],
+    pub y: [f32; 4],
+    pub z: [f32; 4],
+    pub nx: [f32; 4],
+    pub ny: [f32; 4],
+    pub nz: [f32; 4],
 }
 
 impl Moved {
+    /// Every `stride`-th point of `surface` moved by `pose`, four at a time: calls
+    /// `visit(moved, lane)` for each point in order.
+    #[inline]
+    pub fn each(
+        pose: &PoseMatrix,
+        k: &Intrinsics,
+        surface: &OrientedPoints,
+        stride: usize,
+        mut visit: impl FnMut(&Moved, usize),
+    ) {
+        let (positions, normals) = (&surface.positions[..], &surface.normals[..]);
+        let stride = stride.max(1);
+        let mut m = Moved::default();
+        let mut i = 0;
+        if stride == 1 {
+            while i + 4 <= positions.len() {
+                m.four(pose, k, &positions[i..i + 4], &normals[i..i + 4]);
+                for lane in 0..4 {
+                    visit(&m, lane);
+                }
+                i += 4;
+            }
+        } else {
+            while i + 3 * stride < positions.len() {
+                let p: [Point3<f32>; 4] = std::array::from_fn(|j| positions[i + j * stride]);
+                let n: [Vector3<f32>; 4] = std::array::from_fn(|j| normals[i + j * stride]);
+                m.four(pose, k, &p, &n);
+                for lane in 0..4 {
+                    visit(&m, lane);
+                }
+                i += 4 * stride;
+            }
+        }
+        while i < positions.len() {
+            m.one(pose, k, &positions[i], &normals[i]);
+            visit(&m, 0);
+            i += stride;
+        }
+    }
+
+    /// The camera position of lane `lane`.
+    #[inline]
+    pub fn point(&self, lane: usize) -> Point3<f32> {
+        Point3::new(self.x[lane], self.y[lane], self.z[lane])
+    }
+
+    /// The camera normal of lane `lane`.
+    #[inline]
+    pub fn normal(&self, lane: usize) -> Vector3<f32> {
+        Vector3::new(self.nx[lane], self.ny[lane], self.nz[lane])
+    }
+
     /// One point, into lane 0, as [`facing_projection`] moves it. A pixel beyond the `i32`
     /// range is `i32::MIN`, outside the image as the four-point path leaves it.
     #[inline]
@@ -312,7 +353,7 @@ impl Moved {
         let (u, v) = k.pixel(&pc);
         let narrow = |x: i64| i32::try_from(x).unwrap_or(i32::MIN);
         (self.u[0], self.v[0]) = (narrow(u), narrow(v));
-        self.z[0] = pc.z;
+        (self.x[0], self.y[0], self.z[0]) = (pc.x, pc.y, pc.z);
         (self.nx[0], self.ny[0], self.nz[0]) = (nc.x, nc.y, nc.z);
     }
 
@@ -361,6 +402,8 @@ impl Moved {
             let v = _mm_add_ps(_mm_div_ps(_mm_mul_ps(s(k.fy), cy), cz), s(k.cy));
             _mm_storeu_si128(self.u.as_mut_ptr() as *mut __m128i, round(u));
             _mm_storeu_si128(self.v.as_mut_ptr() as *mut __m128i, round(v));
+            _mm_storeu_ps(self.x.as_mut_ptr(), cx);
+            _mm_storeu_ps(self.y.as_mut_ptr(), cy);
             _mm_storeu_ps(self.z.as_mut_ptr(), cz);
             _mm_storeu_ps(self.nx.as_mut_ptr(), nx);
             _mm_storeu_ps(self.ny.as_mut_ptr(), ny);
@@ -373,7 +416,8 @@ impl Moved {
             for i in 0..4 {
                 one.one(pose, k, &p[i], &n[i]);
                 self.facing[i] = one.facing[0];
-                (self.u[i], self.v[i], self.z[i]) = (one.u[0], one.v[0], one.z[0]);
+                (self.u[i], self.v[i]) = (one.u[0], one.v[0]);
+                (self.x[i], self.y[i], self.z[i]) = (one.x[0], one.y[0], one.z[0]);
                 (self.nx[i], self.ny[i], self.nz[i]) = (one.nx[0], one.ny[0], one.nz[0]);
             }
         }
@@ -745,6 +789,53 @@ mod tests {
             }
         }
         assert_eq!(lanes_compared, 1200);
+    }
+
+    /// [`Moved::each`] visits every `stride`-th point once, in order, as moving each alone
+    /// gives it, whatever the surface's length.
+    #[test]
+    fn each_visits_every_strided_point_in_order() {
+        let mut rng = Rng::new(4);
+        let mut r = || (rng.uniform() as f32 - 0.5) * 2.0;
+        let k = Intrinsics {
+            fx: 600.0,
+            fy: 600.0,
+            cx: 320.0,
+            cy: 240.0,
+        };
+        let pose = PoseMatrix::new(&Pose::from_parts(
+            Translation3::new(10.0, -20.0, 800.0),
+            nalgebra::UnitQuaternion::from_euler_angles(0.5, -1.0, 2.0),
+        ));
+        let all = OrientedPoints {
+            positions: (0..23)
+                .map(|_| Point3::new(50.0 * r(), 50.0 * r(), 50.0 * r()))
+                .collect(),
+            normals: (0..23)
+                .map(|_| Vector3::new(r(), r(), r()).normalize())
+                .collect(),
+        };
+        for len in [0, 1, 4, 5, 16, 22, 23] {
+            let surface = OrientedPoints {
+                positions: all.positions[..len].to_vec(),
+                normals: all.normals[..len].to_vec(),
+            };
+            for stride in 1..=5 {
+                let mut visited = Vec::new();
+                Moved::each(&pose, &k, &surface, stride, |m, lane| {
+                    visited.push((m.point(lane), m.normal(lane), m.facing[lane]));
+                });
+                let expected: Vec<_> = (0..len)
+                    .step_by(stride)
+                    .map(|i| {
+                        let mut one = Moved::default();
+                        one.one(&pose, &k, &surface.positions[i], &surface.normals[i]);
+                        (one.point(0), one.normal(0), one.facing[0])
+                    })
+                    .collect();
+                assert_eq!(visited, expected, "{len} points, stride {stride}");
+            }
+        }
     }
 
     #[test]
