@@ -357,36 +357,19 @@ impl Moved {
         (self.nx[0], self.ny[0], self.nz[0]) = (nc.x, nc.y, nc.z);
     }
 
-    /// Four points side by side. nalgebra's `Matrix3 * Vector3` sums `((r₀·x + r₁·y) + r₂·z)`
-    /// and its dot product `(a + b) + c`; this does the same operations in the same order (no
-    /// fused multiply-add), so each lane comes out as [`Moved::one`] gives it.
+    /// Four points side by side (see `geometry::four`); nalgebra's dot product of 3-vectors
+    /// sums `(a + b) + c`, as this does, so each lane comes out as [`Moved::one`] gives it.
     #[inline]
     fn four(&mut self, pose: &PoseMatrix, k: &Intrinsics, p: &[Point3<f32>], n: &[Vector3<f32>]) {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: SSE2 is part of x86-64; the loads read the four given points, the stores
         // write this value's arrays of four.
         unsafe {
+            use crate::geometry::four::{lanes_of, moved, rounded};
             use std::arch::x86_64::*;
-            let r = &pose.rotation;
-            let t = &pose.translation;
-            let (p, n) = (&p[..4], &n[..4]);
-            let px = _mm_setr_ps(p[0].x, p[1].x, p[2].x, p[3].x);
-            let py = _mm_setr_ps(p[0].y, p[1].y, p[2].y, p[3].y);
-            let pz = _mm_setr_ps(p[0].z, p[1].z, p[2].z, p[3].z);
-            let qx = _mm_setr_ps(n[0].x, n[1].x, n[2].x, n[3].x);
-            let qy = _mm_setr_ps(n[0].y, n[1].y, n[2].y, n[3].y);
-            let qz = _mm_setr_ps(n[0].z, n[1].z, n[2].z, n[3].z);
-            let s = _mm_set1_ps;
-            let row = |i: usize, x, y, z| {
-                _mm_add_ps(
-                    _mm_add_ps(_mm_mul_ps(s(r[(i, 0)]), x), _mm_mul_ps(s(r[(i, 1)]), y)),
-                    _mm_mul_ps(s(r[(i, 2)]), z),
-                )
-            };
-            let cx = _mm_add_ps(row(0, px, py, pz), s(t.x));
-            let cy = _mm_add_ps(row(1, px, py, pz), s(t.y));
-            let cz = _mm_add_ps(row(2, px, py, pz), s(t.z));
-            let (nx, ny, nz) = (row(0, qx, qy, qz), row(1, qx, qy, qz), row(2, qx, qy, qz));
+            let (r, t) = (&pose.rotation, &pose.translation);
+            let [cx, cy, cz] = moved(r, Some(t), lanes_of(|i| p[i].coords));
+            let [nx, ny, nz] = moved(r, None, lanes_of(|i| n[i]));
             let dot = _mm_add_ps(
                 _mm_add_ps(_mm_mul_ps(nx, cx), _mm_mul_ps(ny, cy)),
                 _mm_mul_ps(nz, cz),
@@ -394,14 +377,11 @@ impl Moved {
             let zero = _mm_setzero_ps();
             let facing =
                 _mm_movemask_ps(_mm_and_ps(_mm_cmpgt_ps(cz, zero), _mm_cmplt_ps(dot, zero)));
-            // Rounded half away from zero: plus 0.5 with the value's sign, then truncated.
-            let sign = s(-0.0);
-            let round =
-                |x: __m128| _mm_cvttps_epi32(_mm_add_ps(x, _mm_or_ps(_mm_and_ps(x, sign), s(0.5))));
+            let s = _mm_set1_ps;
             let u = _mm_add_ps(_mm_div_ps(_mm_mul_ps(s(k.fx), cx), cz), s(k.cx));
             let v = _mm_add_ps(_mm_div_ps(_mm_mul_ps(s(k.fy), cy), cz), s(k.cy));
-            _mm_storeu_si128(self.u.as_mut_ptr() as *mut __m128i, round(u));
-            _mm_storeu_si128(self.v.as_mut_ptr() as *mut __m128i, round(v));
+            _mm_storeu_si128(self.u.as_mut_ptr() as *mut __m128i, rounded(u));
+            _mm_storeu_si128(self.v.as_mut_ptr() as *mut __m128i, rounded(v));
             _mm_storeu_ps(self.x.as_mut_ptr(), cx);
             _mm_storeu_ps(self.y.as_mut_ptr(), cy);
             _mm_storeu_ps(self.z.as_mut_ptr(), cz);

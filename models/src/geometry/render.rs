@@ -417,7 +417,33 @@ impl Renderer {
         let translation = pose.translation.vector;
         self.camera_points.clear();
         self.screen.clear();
-        for p in &mesh.positions {
+        let positions = &mesh.positions[..];
+        let mut i = 0;
+        #[cfg(target_arch = "x86_64")]
+        while i + 4 <= positions.len() {
+            // Four vertices at a time, each as the loop below moves and snaps it alone.
+            // SAFETY: SSE2 is part of x86-64; the stores write arrays of four.
+            unsafe {
+                use crate::geometry::four::{lanes_of, moved};
+                use std::arch::x86_64::*;
+                let q = moved(
+                    &rotation,
+                    Some(&translation),
+                    lanes_of(|j| positions[i + j].coords),
+                );
+                let [mut x, mut y, mut z] = [[0f32; 4]; 3];
+                _mm_storeu_ps(x.as_mut_ptr(), q[0]);
+                _mm_storeu_ps(y.as_mut_ptr(), q[1]);
+                _mm_storeu_ps(z.as_mut_ptr(), q[2]);
+                let screen = window.snap_four(q, intrinsics, self.near_mm);
+                for j in 0..4 {
+                    self.camera_points.push(Point3::new(x[j], y[j], z[j]));
+                    self.screen.push(screen[j]);
+                }
+            }
+            i += 4;
+        }
+        for p in &positions[i..] {
             let q = Point3::from(rotation * p.coords + translation);
             self.camera_points.push(q);
             self.screen.push(window.snap(&q, intrinsics, self.near_mm));
@@ -491,6 +517,59 @@ impl Window {
         } else {
             [OFF_SCREEN, 0]
         }
+    }
+
+    /// [`Window::snap`] of four camera points given by their coordinates' lanes, with the same
+    /// operations in the same order.
+    ///
+    /// # Safety
+    ///
+    /// SSE2 must be available, as it always is on x86-64.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn snap_four(
+        &self,
+        [qx, qy, qz]: [std::arch::x86_64::__m128; 3],
+        k: &Intrinsics,
+        near_mm: f32,
+    ) -> [[i32; 2]; 4] {
+        use crate::geometry::four::rounded;
+        use std::arch::x86_64::*;
+        let s = _mm_set1_ps;
+        let valid = _mm_and_ps(
+            _mm_cmpge_ps(qz, s(near_mm)),
+            _mm_cmplt_ps(qz, s(f32::INFINITY)),
+        );
+        let inv = _mm_div_ps(s(1.0), qz);
+        let x = _mm_add_ps(_mm_mul_ps(_mm_mul_ps(s(k.fx), qx), inv), s(k.cx));
+        let y = _mm_add_ps(_mm_mul_ps(_mm_mul_ps(s(k.fy), qy), inv), s(k.cy));
+        let inside = _mm_and_ps(
+            _mm_and_ps(
+                _mm_cmpge_ps(x, s(self.left)),
+                _mm_cmple_ps(x, s(self.right)),
+            ),
+            _mm_and_ps(
+                _mm_cmpge_ps(y, s(self.top)),
+                _mm_cmple_ps(y, s(self.bottom)),
+            ),
+        );
+        let mask = _mm_movemask_ps(_mm_and_ps(valid, inside));
+        let [mut u, mut v] = [[0i32; 4]; 2];
+        _mm_storeu_si128(
+            u.as_mut_ptr() as *mut __m128i,
+            rounded(_mm_mul_ps(x, s(SUBPIXEL))),
+        );
+        _mm_storeu_si128(
+            v.as_mut_ptr() as *mut __m128i,
+            rounded(_mm_mul_ps(y, s(SUBPIXEL))),
+        );
+        std::array::from_fn(|j| {
+            if mask >> j & 1 == 1 {
+                [u[j], v[j]]
+            } else {
+                [OFF_SCREEN, 0]
+            }
+        })
     }
 
     /// The clipping planes, as `n · p ≥ 0` in camera space (the near plane is handled apart).
@@ -838,6 +917,51 @@ mod tests {
     use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector2};
 
     const K: Intrinsics = Intrinsics::LMO;
+
+    /// Four camera points snapped side by side land where each snapped alone does, or off
+    /// screen with it: in the window, beyond its edges, behind the near plane, at infinity.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn four_snapped_points_are_each_snapped_alone() {
+        use std::arch::x86_64::*;
+        let window = Window {
+            left: 100.0 - GUARD_PX,
+            right: 300.0 + GUARD_PX,
+            top: 50.0 - GUARD_PX,
+            bottom: 250.0 + GUARD_PX,
+        };
+        let mut rng = crate::geometry::rng::Rng::new(6);
+        let mut r = || rng.uniform() as f32;
+        let mut on_screen = 0;
+        for n in 0..2000 {
+            let q: [Point3<f32>; 4] = std::array::from_fn(|_| {
+                let z = match n % 5 {
+                    0 => 5.0 * r(),
+                    1 => f32::INFINITY,
+                    _ => 100.0 + 1500.0 * r(),
+                };
+                Point3::new(800.0 * (r() - 0.5), 800.0 * (r() - 0.5), z)
+            });
+            // SAFETY: SSE2 is part of x86-64.
+            let four = unsafe {
+                let lanes = [
+                    _mm_setr_ps(q[0].x, q[1].x, q[2].x, q[3].x),
+                    _mm_setr_ps(q[0].y, q[1].y, q[2].y, q[3].y),
+                    _mm_setr_ps(q[0].z, q[1].z, q[2].z, q[3].z),
+                ];
+                window.snap_four(lanes, &K, 10.0)
+            };
+            for (j, q) in q.iter().enumerate() {
+                let alone = window.snap(q, &K, 10.0);
+                assert_eq!(four[j], alone, "{q:?}");
+                on_screen += usize::from(alone[0] != OFF_SCREEN);
+            }
+        }
+        assert!(
+            on_screen > 1000 && on_screen < 7000,
+            "{on_screen} on screen"
+        );
+    }
 
     fn ray(u: u32, v: u32) -> Vector3<f32> {
         Vector3::new((u as f32 - K.cx) / K.fx, (v as f32 - K.cy) / K.fy, 1.0)
