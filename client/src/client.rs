@@ -113,7 +113,7 @@ pub struct DetectOptions {
     pub hypotheses_per_object: u32,
     /// How long to wait for the answer; also sent as the request's deadline. The default, 3 s,
     /// is about six times what eight objects in a cluttered VGA frame take on two cores
-    /// (0.52 s on the LM-O frame, docs/BENCHMARKS.md): room for a busy host, larger frames and
+    /// (0.51 s on the LM-O frame, docs/BENCHMARKS.md): room for a busy host, larger frames and
     /// a diagnosis (twice the time), and a hung cycle still ends within a few picking cycles.
     pub timeout: Duration,
     /// Oldest acceptable camera frame (`None`: the daemon's limit).
