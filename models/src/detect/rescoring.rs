@@ -164,13 +164,9 @@ pub fn facing_projection(
     n: &Vector3<f32>,
     k: &Intrinsics,
 ) -> Option<(Point3<f32>, Vector3<f32>, i64, i64)> {
-    let pc = Point3::from(pose.rotation * p.coords + pose.translation);
-    let nc: Vector3<f32> = pose.rotation * n;
-    if pc.z <= 0.0 || nc.dot(&pc.coords) >= 0.0 {
-        return None;
-    }
-    let (u, v) = k.pixel(&pc);
-    Some((pc, nc, u, v))
+    let mut m = Moved::default();
+    m.one(pose, k, p, n);
+    m.facing[0].then(|| (m.point(0), m.normal(0), m.u[0] as i64, m.v[0] as i64))
 }
 
 /// How the scene judges one surface point at its pixel (see [`judge_point`]).
@@ -343,7 +339,7 @@ impl Moved {
         Vector3::new(self.nx[lane], self.ny[lane], self.nz[lane])
     }
 
-    /// One point, into lane 0, as [`facing_projection`] moves it. A pixel beyond the `i32`
+    /// One point, into lane 0 (what [`facing_projection`] reads). A pixel beyond the `i32`
     /// range is `i32::MIN`, outside the image as the four-point path leaves it.
     #[inline]
     fn one(&mut self, pose: &PoseMatrix, k: &Intrinsics, p: &Point3<f32>, n: &Vector3<f32>) {
@@ -734,12 +730,7 @@ mod tests {
     fn moving_four_points_is_moving_each_alone() {
         let mut rng = Rng::new(21);
         let mut r = || (rng.uniform() as f32 - 0.5) * 2.0;
-        let k = Intrinsics {
-            fx: 572.4,
-            fy: 573.6,
-            cx: 325.3,
-            cy: 242.0,
-        };
+        let k = Intrinsics::LMO;
         let mut lanes_compared = 0;
         for _ in 0..300 {
             let turn = nalgebra::UnitQuaternion::from_euler_angles(3.0 * r(), 3.0 * r(), 3.0 * r());
@@ -758,8 +749,9 @@ mod tests {
             for i in 0..4 {
                 let mut one = Moved::default();
                 one.one(&pose, &k, &p[i], &n[i]);
-                let bits =
-                    |m: &Moved, l: usize| [m.z[l], m.nx[l], m.ny[l], m.nz[l]].map(f32::to_bits);
+                let bits = |m: &Moved, l: usize| {
+                    [m.x[l], m.y[l], m.z[l], m.nx[l], m.ny[l], m.nz[l]].map(f32::to_bits)
+                };
                 assert_eq!(bits(&four, i), bits(&one, 0));
                 assert_eq!(four.facing[i], one.facing[0]);
                 if one.facing[0] {
@@ -777,12 +769,7 @@ mod tests {
     fn each_visits_every_strided_point_in_order() {
         let mut rng = Rng::new(4);
         let mut r = || (rng.uniform() as f32 - 0.5) * 2.0;
-        let k = Intrinsics {
-            fx: 600.0,
-            fy: 600.0,
-            cx: 320.0,
-            cy: 240.0,
-        };
+        let k = Intrinsics::LMO;
         let pose = PoseMatrix::new(&Pose::from_parts(
             Translation3::new(10.0, -20.0, 800.0),
             nalgebra::UnitQuaternion::from_euler_angles(0.5, -1.0, 2.0),

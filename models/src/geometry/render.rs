@@ -923,7 +923,6 @@ mod tests {
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn four_snapped_points_are_each_snapped_alone() {
-        use std::arch::x86_64::*;
         let window = Window {
             left: 100.0 - GUARD_PX,
             right: 300.0 + GUARD_PX,
@@ -944,12 +943,7 @@ mod tests {
             });
             // SAFETY: SSE2 is part of x86-64.
             let four = unsafe {
-                let lanes = [
-                    _mm_setr_ps(q[0].x, q[1].x, q[2].x, q[3].x),
-                    _mm_setr_ps(q[0].y, q[1].y, q[2].y, q[3].y),
-                    _mm_setr_ps(q[0].z, q[1].z, q[2].z, q[3].z),
-                ];
-                window.snap_four(lanes, &K, 10.0)
+                window.snap_four(crate::geometry::four::lanes_of(|j| q[j].coords), &K, 10.0)
             };
             for (j, q) in q.iter().enumerate() {
                 let alone = window.snap(q, &K, 10.0);
