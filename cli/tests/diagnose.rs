@@ -32,7 +32,8 @@ fn diagnose_counts_the_reference_points_that_propose_the_right_pose() {
         return;
     };
     let cache = std::env::temp_dir().join(format!("ppf-diagnose-cache-{}", std::process::id()));
-    let run = diagnose(&dataset, "8,11", &cache);
+    // The driller and the glue are found; the egg box is lost at voting.
+    let run = diagnose(&dataset, "8,11,10", &cache);
     let _ = std::fs::remove_dir_all(&cache);
     let stdout = String::from_utf8_lossy(&run.stdout);
     assert!(
@@ -65,7 +66,7 @@ fn diagnose_counts_the_reference_points_that_propose_the_right_pose() {
         .filter(|l| l.starts_with("| ") && !l.starts_with("| object"))
         .map(|l| l.split('|').map(str::trim).collect())
         .collect();
-    assert_eq!(rows.len(), 2, "{stdout}");
+    assert_eq!(rows.len(), 3, "{stdout}");
     for row in &rows {
         let n = |c: usize| row[c].parse::<f64>().unwrap_or_else(|_| panic!("{row:?}"));
         // Every reference point on the object is one of the cloud's points on it.
@@ -75,7 +76,10 @@ fn diagnose_counts_the_reference_points_that_propose_the_right_pose() {
         // mean they are compared with the wrong surface.
         assert!(n(normal_error) < 45.0, "{row:?}");
         // The object's stage lines, below its heading.
-        let heading = format!("object {}: {}", row[object], row[lost_at]);
+        let heading = match row[lost_at] {
+            "found" => format!("object {}: found", row[object]),
+            stage => format!("object {}: lost at {stage}", row[object]),
+        };
         let stages: Vec<&str> = stdout
             .lines()
             .skip_while(|l| *l != heading)
@@ -93,12 +97,22 @@ fn diagnose_counts_the_reference_points_that_propose_the_right_pose() {
         // The voting line counts the reference points proposing a pose near the target: only
         // reference points on the object can.
         let voting = stage("voting");
-        let proposing: f64 = voting
-            .split_whitespace()
-            .nth(1)
-            .and_then(|w| w.parse().ok())
-            .unwrap_or_else(|| panic!("{voting}"));
+        let proposing: f64 = match voting.split_whitespace().nth(1) {
+            Some("none") => 0.0,
+            w => w
+                .and_then(|w| w.parse().ok())
+                .unwrap_or_else(|| panic!("{voting}")),
+        };
         assert!(proposing <= n(references), "{voting} / {row:?}");
+        // An object lost at voting is told by how much: where the target stands among the
+        // reference points' peaks, or that it is among none of them.
+        if row[lost_at] == "voting" {
+            assert!(
+                voting.contains("the nearest it comes is a reference point's")
+                    || voting.contains("nor is it among the 32 highest peaks"),
+                "{voting}"
+            );
+        }
         // The driller's pose ranks first on this frame: some reference point proposed it, and
         // ICP keeps it first.
         if row[object] == "8" {

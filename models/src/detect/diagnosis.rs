@@ -18,7 +18,7 @@ use crate::detect::plane::SupportingPlane;
 use crate::detect::rescoring::{score_poses, sparse_ranking, FitPoints, Outline, Scored};
 use crate::detect::scene::{prepare, PreparedScene, SceneImage};
 use crate::detect::silhouette::{EdgeMap, SilhouetteFilter};
-use crate::detect::voting::{vote_from, Selection};
+use crate::detect::voting::{vote_from, Selection, VotedPose, VotingParams};
 use crate::geometry::camera::DepthFrame;
 use crate::geometry::render::{bounding_sphere, Renderer};
 use crate::model::ObjectModel;
@@ -198,11 +198,39 @@ pub fn diagnose(
             proposing.len(),
             selection.references.len()
         ),
-        None => format!(
-            "none of {} reference points proposes a pose near the target ({} hypotheses; the most votes {most})",
-            selection.references.len(),
-            raw.len()
-        ),
+        None => {
+            // By how much: the same votes with every peak of each reference point kept, and
+            // the target's best place among them.
+            let deeper = VotingParams {
+                peaks_per_reference: DEEPEST_PEAK,
+                peak_ratio: 0.0,
+                ..p.voting
+            };
+            let (all_peaks, _) = vote_from(model, cloud, &selection, &deeper);
+            let taken = match p.voting.peaks_per_reference {
+                1 => "1 per reference point".to_string(),
+                k => format!(
+                    "{k} per reference point, the others with at least {:.0} % of the first's votes",
+                    100.0 * p.voting.peak_ratio
+                ),
+            };
+            let place = match nearest_peak(&all_peaks, &near) {
+                Some(peak) => format!(
+                    "; the nearest it comes is a reference point's {} peak, {} votes where its first has {} (the detector takes {taken})",
+                    ordinal(peak.rank),
+                    peak.votes,
+                    peak.first_votes,
+                ),
+                None => format!(
+                    "; nor is it among the {DEEPEST_PEAK} highest peaks of any reference point"
+                ),
+            };
+            format!(
+                "none of {} reference points proposes a pose near the target ({} hypotheses; the most votes {most}){place}",
+                selection.references.len(),
+                raw.len()
+            )
+        }
     };
     if !trace.report("voting", best_near.is_some(), line) {
         return trace;
@@ -354,13 +382,26 @@ pub fn diagnose(
                 &format!("; {dt:.1} mm, {dr:.1}° from the target"),
             ),
         ),
-        None => (
-            false,
-            format!(
-                "ICP moved every candidate near the target away from it ({} refined)",
-                refined.len()
-            ),
-        ),
+        None => {
+            // By how much: where ICP took the candidates that started near the target.
+            let closest = scored
+                .iter()
+                .take(icp_cut)
+                .zip(&refined)
+                .filter(|(s, _)| near(&s.pose))
+                .map(|(_, (pose, _))| errors(pose))
+                .min_by(|a, b| off_by(*a, d).total_cmp(&off_by(*b, d)));
+            let ended = closest.map_or(String::new(), |(dt, dr)| {
+                format!("; the closest ended {dt:.1} mm, {dr:.1}° from it")
+            });
+            (
+                false,
+                format!(
+                    "ICP moved every candidate near the target away from it ({} refined){ended}",
+                    refined.len()
+                ),
+            )
+        }
     };
     if !trace.report("ICP", kept, line) {
         return trace;
@@ -449,6 +490,74 @@ pub fn diagnose(
     };
     trace.report("result", kept, line);
     trace
+}
+
+/// How many peaks per reference point the voting line looks through when the detector's own
+/// peaks hold no pose near the target: the most `voting.peaks_per_reference` allows.
+pub const DEEPEST_PEAK: usize = 32;
+
+/// A pose near the target among a reference point's peaks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Peak {
+    /// 1 for the reference point's highest peak.
+    rank: usize,
+    votes: u32,
+    /// The votes of the reference point's highest peak.
+    first_votes: u32,
+}
+
+/// Of `hypotheses` (each reference point's peaks together, highest first, as voting emits
+/// them), the peak near the target (`near`) that the detector comes closest to taking: the
+/// lowest rank within its reference point, then the largest share of that point's first
+/// peak.
+fn nearest_peak(hypotheses: &[VotedPose], near: &dyn Fn(&Pose) -> bool) -> Option<Peak> {
+    let mut best: Option<Peak> = None;
+    let mut rank = 0;
+    let mut first_votes = 0;
+    for (i, h) in hypotheses.iter().enumerate() {
+        if i == 0 || hypotheses[i - 1].scene_point != h.scene_point {
+            rank = 0;
+            first_votes = h.votes;
+        }
+        rank += 1;
+        if !near(&h.pose) {
+            continue;
+        }
+        let peak = Peak {
+            rank,
+            votes: h.votes,
+            first_votes,
+        };
+        // A lower rank first; at one rank, the larger share of the first peak's votes.
+        let better = best.is_none_or(|b| {
+            peak.rank < b.rank
+                || (peak.rank == b.rank
+                    && peak.votes as u64 * b.first_votes as u64
+                        > b.votes as u64 * peak.first_votes as u64)
+        });
+        if better {
+            best = Some(peak);
+        }
+    }
+    best
+}
+
+/// How far a pose with errors `(mm, degrees)` is from the target, in multiples of what counts
+/// as near for an object of diameter `d`: at most 1 is near.
+fn off_by((dt, dr): (f32, f32), d: f32) -> f32 {
+    (dt / (NEAR_TRANSLATION_FRACTION * d)).max(dr / NEAR_ROTATION_DEG)
+}
+
+/// "1st", "2nd", "3rd", "4th", … "11th", "12th", "13th", "21st", …
+fn ordinal(n: usize) -> String {
+    let suffix = match (n % 10, n % 100) {
+        (_, 11..=13) => "th",
+        (1, _) => "st",
+        (2, _) => "nd",
+        (3, _) => "rd",
+        _ => "th",
+    };
+    format!("{n}{suffix}")
 }
 
 impl Diagnosis {
@@ -565,6 +674,70 @@ mod tests {
             format!("object {}: lost at voting", part.object_id())
         );
         assert!(lines[1].contains("none of"), "{lines:?}");
+        // And says by how much: no reference point holds the pose among any of its peaks.
+        assert!(
+            lines[1].ends_with("nor is it among the 32 highest peaks of any reference point"),
+            "{lines:?}"
+        );
+    }
+
+    /// The voting line's "by how much": of each reference point's peaks, highest first, the
+    /// one near the target with the lowest rank within its reference point, and at one rank
+    /// the one with the largest share of its first peak's votes.
+    #[test]
+    fn the_nearest_peak_is_the_one_the_detector_comes_closest_to_taking() {
+        let at = |x: f32| {
+            Pose::from_parts(
+                nalgebra::Translation3::new(x, 0.0, 500.0),
+                nalgebra::UnitQuaternion::identity(),
+            )
+        };
+        let peak = |scene_point: u32, votes: u32, x: f32| VotedPose {
+            pose: at(x),
+            votes,
+            scene_point,
+            model_point: 0,
+        };
+        let near = |p: &Pose| p.translation.vector.x.abs() < 1.0;
+        // Reference point 0: the target is its 3rd peak; point 1: its 2nd, at 20 of 30;
+        // point 2: its 2nd too, at 18 of 20, a larger share; point 3 holds it nowhere.
+        let hypotheses = [
+            peak(0, 40, 100.0),
+            peak(0, 35, 200.0),
+            peak(0, 34, 0.0),
+            peak(1, 30, 100.0),
+            peak(1, 20, 0.5),
+            peak(2, 20, 300.0),
+            peak(2, 18, -0.5),
+            peak(2, 17, 0.0),
+            peak(3, 50, 400.0),
+        ];
+        assert_eq!(
+            nearest_peak(&hypotheses, &near),
+            Some(Peak {
+                rank: 2,
+                votes: 18,
+                first_votes: 20
+            })
+        );
+        // A reference point whose first peak is near wins outright.
+        let mut first = hypotheses.to_vec();
+        first.push(peak(4, 5, 0.2));
+        assert_eq!(
+            nearest_peak(&first, &near),
+            Some(Peak {
+                rank: 1,
+                votes: 5,
+                first_votes: 5
+            })
+        );
+        assert_eq!(nearest_peak(&hypotheses[..2], &near), None);
+        assert_eq!(nearest_peak(&[], &near), None);
+        let named: Vec<String> = [1, 2, 3, 4, 11, 12, 13, 21, 22, 32].map(ordinal).into();
+        assert_eq!(
+            named,
+            ["1st", "2nd", "3rd", "4th", "11th", "12th", "13th", "21st", "22nd", "32nd"]
+        );
     }
 
     /// A diagnosis gives up as a detection does: with the request cancelled, or its deadline
