@@ -216,9 +216,9 @@ pub fn diagnose(
             };
             let place = match nearest_peak(&all_peaks, &near) {
                 Some(peak) => format!(
-                    "; the nearest it comes is a reference point's {} peak, {} votes where its first has {} (the detector takes {taken})",
+                    "; the nearest it comes is a reference point's {} peak, {} where its first has {} (the detector takes {taken})",
                     ordinal(peak.rank),
-                    peak.votes,
+                    votes(peak.votes),
                     peak.first_votes,
                 ),
                 None => format!(
@@ -548,6 +548,14 @@ fn off_by((dt, dr): (f32, f32), d: f32) -> f32 {
     (dt / (NEAR_TRANSLATION_FRACTION * d)).max(dr / NEAR_ROTATION_DEG)
 }
 
+/// "1 vote", "2 votes", …
+fn votes(n: u32) -> String {
+    match n {
+        1 => "1 vote".into(),
+        n => format!("{n} votes"),
+    }
+}
+
 /// "1st", "2nd", "3rd", "4th", … "11th", "12th", "13th", "21st", …
 fn ordinal(n: usize) -> String {
     let suffix = match (n % 10, n % 100) {
@@ -733,6 +741,7 @@ mod tests {
         );
         assert_eq!(nearest_peak(&hypotheses[..2], &near), None);
         assert_eq!(nearest_peak(&[], &near), None);
+        assert_eq!([votes(1), votes(2)], ["1 vote", "2 votes"]);
         let named: Vec<String> = [1, 2, 3, 4, 11, 12, 13, 21, 22, 32].map(ordinal).into();
         assert_eq!(
             named,
