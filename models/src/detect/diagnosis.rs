@@ -10,7 +10,7 @@
 //! Every candidate is kept (the detector keeps the best few), so that the ranks beyond the cut
 //! are known too.
 
-use crate::detect::clustering::cluster_poses;
+use crate::detect::clustering::{cluster_poses, PoseCluster};
 use crate::detect::detector::{DetectParams, Hint, RunOptions};
 use crate::detect::filters::is_consistent;
 use crate::detect::icp::refine;
@@ -250,13 +250,21 @@ pub fn diagnose(
                 clusters[rank - 1].votes
             ),
         ),
-        None => (
-            false,
-            format!(
-                "no cluster near the target among {} (the proposals near it were merged into others)",
-                clusters.len()
-            ),
-        ),
+        None => {
+            // By how much: the cluster that comes closest, wherever it ranks.
+            let nearest = nearest_cluster(&clusters, errors, d).map_or(String::new(), |(rank, votes, (dt, dr))| {
+                format!(
+                    "; the nearest ranks {rank} by votes ({votes} votes) and is {dt:.1} mm, {dr:.1}° from it"
+                )
+            });
+            (
+                false,
+                format!(
+                    "no cluster near the target among {} (the proposals near it were merged into others){nearest}",
+                    clusters.len()
+                ),
+            )
+        }
     };
     if !trace.report("clustering", kept, line) {
         return trace;
@@ -443,27 +451,27 @@ pub fn diagnose(
     // What is returned: the poses that pass come first, in score order, one per instance (a
     // pose whose centre is near a better one's is the same instance).
     let nms = p.nms_distance_fraction * d;
-    let mut passed_ahead: Vec<Pose> = Vec::new();
+    let mut passed_ahead: Vec<&Scored> = Vec::new();
     for o in rescored[..rank - 1].iter().take(p.filters.max_candidates) {
         let centre = o.pose * sphere.0;
         if passed_ahead
             .iter()
-            .any(|q| (q * sphere.0 - centre).norm() < nms)
+            .any(|q| (q.pose * sphere.0 - centre).norm() < nms)
         {
             continue;
         }
         if is_consistent(&o.fit, &p.filters)
             && filter.passes(filter.fraction(o.outline, &mut renderer, &o.pose))
         {
-            passed_ahead.push(o.pose);
+            passed_ahead.push(o);
         }
     }
     let centre = s.pose * sphere.0;
     let (kept, line) = if let Some(q) = passed_ahead
         .iter()
-        .position(|q| (q * sphere.0 - centre).norm() < nms)
+        .position(|q| (q.pose * sphere.0 - centre).norm() < nms)
     {
-        let (dt, dr) = errors(&passed_ahead[q]);
+        let (dt, dr) = errors(&passed_ahead[q].pose);
         (
             q < hypotheses,
             format!(
@@ -483,8 +491,15 @@ pub fn diagnose(
         (
             false,
             format!(
-                "{} poses elsewhere score higher and pass the filters; the request returns {hypotheses}",
-                passed_ahead.len()
+                "{} elsewhere {} higher and {} the filters (the first {:.3}, this one {:.3}); the request returns {hypotheses}",
+                match passed_ahead.len() {
+                    1 => "1 pose".to_string(),
+                    n => format!("{n} poses"),
+                },
+                if passed_ahead.len() == 1 { "scores" } else { "score" },
+                if passed_ahead.len() == 1 { "passes" } else { "pass" },
+                passed_ahead.first().map_or(s.score, |q| q.score),
+                s.score
             ),
         )
     };
@@ -540,6 +555,20 @@ fn nearest_peak(hypotheses: &[VotedPose], near: &dyn Fn(&Pose) -> bool) -> Optio
         }
     }
     best
+}
+
+/// Of `clusters` (in rank order), the one nearest the target by [`off_by`]: its rank from 1,
+/// its votes and its errors.
+fn nearest_cluster(
+    clusters: &[PoseCluster],
+    errors: &dyn Fn(&Pose) -> (f32, f32),
+    d: f32,
+) -> Option<(usize, u32, (f32, f32))> {
+    clusters
+        .iter()
+        .enumerate()
+        .map(|(i, c)| (i + 1, c.votes, errors(&c.pose)))
+        .min_by(|a, b| off_by(a.2, d).total_cmp(&off_by(b.2, d)))
 }
 
 /// How far a pose with errors `(mm, degrees)` is from the target, in multiples of what counts
@@ -689,11 +718,71 @@ mod tests {
         );
     }
 
-    /// The voting line's "by how much": of each reference point's peaks, highest first, the
-    /// one near the target with the lowest rank within its reference point, and at one rank
-    /// the one with the largest share of its first peak's votes.
+    /// Two instances of one part and one hypothesis asked for: the instance the detection
+    /// returns is found, the other is lost at the result to it, and the line says by how much
+    /// (the scores of the first pose ahead and of this one); with two hypotheses both are
+    /// returned.
     #[test]
-    fn the_nearest_peak_is_the_one_the_detector_comes_closest_to_taking() {
+    fn a_second_instance_is_lost_at_the_result_by_its_score() {
+        let part = Part::LBracket;
+        let mesh = part.mesh();
+        let scene = SceneSpec::new(7)
+            .object(part.object_id(), &mesh)
+            .object(part.object_id(), &mesh)
+            .build()
+            .unwrap();
+        let model = part.model().unwrap();
+        let params = DetectParams::default();
+        let image = prepare(&scene.frame.view(), &params.scene).unwrap();
+        let points = image.oriented_points();
+        let planes = SupportingPlane::find_all(&points, &params.plane);
+        let edges = EdgeMap::new(&image, &params.filters);
+        let frame = PreparedFrame {
+            image: &image,
+            planes: &planes,
+            edges: &edges,
+        };
+        let cloud = &params
+            .prepare_clouds(&points, &planes, &[&model])
+            .unwrap()
+            .0[0];
+        let truths: Vec<Pose> = scene.ground_truth.iter().map(|&(_, pose)| pose).collect();
+        assert_eq!(truths.len(), 2);
+        let one: Vec<Diagnosis> = truths
+            .iter()
+            .map(|&t| diagnose(&params, &frame, cloud, &model, &errors_to(t), 1))
+            .collect();
+        let lost: Vec<Option<&str>> = one.iter().map(Diagnosis::lost_at).collect();
+        assert!(
+            lost.contains(&None) && lost.contains(&Some("result")),
+            "{:#?}",
+            one.iter().map(Diagnosis::lines).collect::<Vec<_>>()
+        );
+        let second = one.iter().find(|d| d.lost_at().is_some()).unwrap();
+        let line = &second.stages.last().unwrap().line;
+        let scores: Vec<f32> = line
+            .split(|c: char| !(c.is_ascii_digit() || c == '.'))
+            .filter(|w| w.contains('.'))
+            .map(|w| w.trim_end_matches('.').parse().unwrap())
+            .collect();
+        assert!(
+            line.starts_with("1 pose elsewhere scores higher and passes the filters (the first "),
+            "{line}"
+        );
+        assert_eq!(scores.len(), 2, "{line}");
+        assert!(scores[0] >= scores[1], "{line}");
+        for &t in &truths {
+            let both = diagnose(&params, &frame, cloud, &model, &errors_to(t), 2);
+            assert_eq!(both.lost_at(), None, "{:#?}", both.lines());
+        }
+    }
+
+    /// The margins the lines give. Voting's: of each reference point's peaks, highest first,
+    /// the one near the target with the lowest rank within its reference point, and at one
+    /// rank the one with the largest share of its first peak's votes. Clustering's: the
+    /// cluster nearest the target, wherever it ranks.
+    #[test]
+    fn the_margins_name_the_nearest_peak_and_the_nearest_cluster() {
         let at = |x: f32| {
             Pose::from_parts(
                 nalgebra::Translation3::new(x, 0.0, 500.0),
@@ -742,6 +831,32 @@ mod tests {
         assert_eq!(nearest_peak(&hypotheses[..2], &near), None);
         assert_eq!(nearest_peak(&[], &near), None);
         assert_eq!([votes(1), votes(2)], ["1 vote", "2 votes"]);
+        // The nearest cluster: off by the larger of 0.1 D and 15° multiples, wherever it ranks.
+        let d = 100.0;
+        let cluster = |x: f32, deg: f32, votes: u32| PoseCluster {
+            pose: Pose::from_parts(
+                nalgebra::Translation3::new(x, 0.0, 500.0),
+                nalgebra::UnitQuaternion::from_axis_angle(
+                    &nalgebra::Vector3::z_axis(),
+                    deg.to_radians(),
+                ),
+            ),
+            votes,
+            members: 1,
+        };
+        let clusters = [
+            cluster(50.0, 0.0, 90),
+            cluster(0.0, 40.0, 80),
+            cluster(15.0, 20.0, 10),
+        ];
+        let target = errors_to(at(0.0));
+        let (rank, votes, (dt, dr)) = nearest_cluster(&clusters, &target, d).unwrap();
+        assert_eq!((rank, votes), (3, 10));
+        assert!(
+            (dt - 15.0).abs() < 1e-3 && (dr - 20.0).abs() < 1e-3,
+            "{dt} {dr}"
+        );
+        assert_eq!(nearest_cluster(&[], &target, d), None);
         let named: Vec<String> = [1, 2, 3, 4, 11, 12, 13, 21, 22, 32].map(ordinal).into();
         assert_eq!(
             named,
