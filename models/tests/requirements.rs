@@ -80,10 +80,11 @@ impl Setup {
 /// near the camera would otherwise come before a part. The scene is one where the poses of all
 /// three instances pass the filters: a pose that fails one is listed after those that pass,
 /// whatever its distance, and in more than half of the generated piles of three (seeds 30–49)
-/// one instance's pose fails the consistency filter.
+/// one instance's pose fails the consistency filter. Of those left, in seeds 43, 44 and 49
+/// the best scored is not the nearest.
 #[test]
 fn ordered_by_distance_the_nearest_instance_comes_first() {
-    let s = setup(42);
+    let s = setup(43);
     let by_score = s.detect(3, Requirements::default());
     let min_score = 0.4 * by_score.objects[0].hypotheses[0].score;
     let nearest_first = Requirements {

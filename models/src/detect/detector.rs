@@ -22,7 +22,9 @@ use crate::detect::filters::{is_consistent, FilterParams};
 use crate::detect::icp::{refine, IcpParams};
 use crate::detect::plane::{PlaneParams, SupportingPlane};
 use crate::detect::requirements::{Order, Requirements};
-use crate::detect::rescoring::{prescreen, score_poses, FitPoints, Outline, RescoringParams};
+use crate::detect::rescoring::{
+    prescreen, score_poses, score_refined, FitPoints, Outline, RescoringParams,
+};
 use crate::detect::scene::{prepare, prepare_within, PreparedScene, SceneImage, SceneParams};
 use crate::detect::silhouette::{EdgeMap, SilhouetteFilter};
 use crate::detect::voting::{vote_from, Selection, VotingParams};
@@ -888,24 +890,25 @@ impl Detector {
         let p = &self.params;
         let d = v.diameter_mm;
         let t = Instant::now();
-        let refined: Vec<(Pose, u32)> = poses
+        let worst = p.icp.final_distance_fraction * d;
+        let refined: Vec<(Pose, u32, f32)> = poses
             .par_iter()
-            .map(|&(pose, votes)| (refine(&v.surface, &pose, scene, d, &p.icp).pose, votes))
+            .map(|&(pose, votes)| {
+                let r = refine(&v.surface, &pose, scene, d, &p.icp);
+                (r.pose, votes, r.residual_or(worst))
+            })
             .collect();
         timings.icp += t.elapsed();
 
         let t = Instant::now();
-        // Only the best `max_candidates` go through the filters.
-        let rescored = score_poses(
+        let rescored = score_refined(
             &refined,
             &v.fit_points,
-            None,
             scene,
             p.rescoring.refined_tolerance_mm(d),
             v.conflict_mm,
             &p.rescoring,
             &v.outline(p.filters.max_outline_px),
-            p.filters.max_candidates,
         );
         timings.rescoring += t.elapsed();
 

@@ -15,7 +15,9 @@ use crate::detect::detector::{DetectParams, Hint, RunOptions};
 use crate::detect::filters::is_consistent;
 use crate::detect::icp::refine;
 use crate::detect::plane::SupportingPlane;
-use crate::detect::rescoring::{score_poses, sparse_ranking, FitPoints, Outline, Scored};
+use crate::detect::rescoring::{
+    score_poses, score_refined, sparse_ranking, FitPoints, Outline, Scored,
+};
 use crate::detect::scene::{prepare, PreparedScene, SceneImage};
 use crate::detect::silhouette::{EdgeMap, SilhouetteFilter};
 use crate::detect::voting::{vote_from, Selection, VotedPose, VotingParams};
@@ -358,27 +360,24 @@ pub fn diagnose(
         return trace;
     }
 
-    // ICP on the best, re-scored with full outlines.
-    let refined: Vec<(Pose, u32)> = scored
+    // ICP on the best, re-scored with full outlines and the residuals.
+    let worst = p.icp.final_distance_fraction * d;
+    let refined: Vec<(Pose, u32, f32)> = scored
         .par_iter()
         .take(icp_cut)
         .map(|s| {
-            (
-                refine(&surface, &s.pose, frame.image, d, &p.icp).pose,
-                s.votes,
-            )
+            let r = refine(&surface, &s.pose, frame.image, d, &p.icp);
+            (r.pose, s.votes, r.residual_or(worst))
         })
         .collect();
-    let rescored = score_poses(
+    let rescored = score_refined(
         &refined,
         &fit_points,
-        None,
         frame.image,
         p.rescoring.refined_tolerance_mm(d),
         conflict,
         &p.rescoring,
         &outline,
-        refined.len(),
     );
     let found = first_near(rescored.iter().map(|s| s.pose), errors, d);
     let (kept, line) = match found {
@@ -397,7 +396,7 @@ pub fn diagnose(
                 .take(icp_cut)
                 .zip(&refined)
                 .filter(|(s, _)| near(&s.pose))
-                .map(|(_, (pose, _))| errors(pose))
+                .map(|(_, (pose, _, _))| errors(pose))
                 .min_by(|a, b| off_by(*a, d).total_cmp(&off_by(*b, d)));
             let ended = closest.map_or(String::new(), |(dt, dr)| {
                 format!("; the closest ended {dt:.1} mm, {dr:.1}° from it")

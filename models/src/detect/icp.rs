@@ -71,6 +71,9 @@ impl IcpParams {
     }
 }
 
+/// An iteration with fewer correspondences than this solves nothing (six unknowns).
+pub const MIN_CORRESPONDENCES: u32 = 6;
+
 /// What one ICP run did.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct IcpResult {
@@ -80,6 +83,18 @@ pub struct IcpResult {
     /// Root mean square point-to-plane distance in the last iteration, mm.
     pub rms_mm: f32,
     pub iterations: u32,
+}
+
+impl IcpResult {
+    /// The residual of the last iteration that solved, mm; `worst` when none did (too few
+    /// correspondences to trust a root mean square).
+    pub fn residual_or(&self, worst: f32) -> f32 {
+        if self.correspondences >= MIN_CORRESPONDENCES && self.rms_mm.is_finite() {
+            self.rms_mm
+        } else {
+            worst
+        }
+    }
 }
 
 /// The mean of the surface points (the origin for an empty surface).
@@ -165,7 +180,7 @@ pub fn refine(
         result.correspondences = count;
         result.iterations += 1;
         it += 1;
-        if count < 6 {
+        if count < MIN_CORRESPONDENCES {
             if coarse {
                 it = coarse_until; // too few in the sample: try with every point
                 continue;

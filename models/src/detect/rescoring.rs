@@ -84,6 +84,16 @@ pub struct RescoringParams {
     /// and takes re-scoring from about 260 to 180 ms on the LM-O frame; 24 loses a target of
     /// synth-lmo-dev (docs/METHOD.md §3.2).
     pub coarse_outline_px: u32,
+    /// After ICP, of one object's refined poses the one with the smallest residual (ICP's root
+    /// mean square point-to-plane distance, mm) keeps its score, and each other's score is
+    /// multiplied by `((residual_scale_mm + r₀) / (residual_scale_mm + r))^residual_weight`,
+    /// `r₀` the smallest residual and `r` its own: of poses that fit as much of the scene, the
+    /// one that fits it more tightly wins. A right pose's residual is the sensor's noise; a
+    /// model fitted to something it only resembles (a distractor box or cylinder, another
+    /// object) leaves more. Weight 0 leaves the scores as re-scoring gives them (METHOD.md
+    /// §3.3).
+    pub residual_scale_mm: f32,
+    pub residual_weight: f32,
 }
 
 impl RescoringParams {
@@ -128,6 +138,8 @@ impl Default for RescoringParams {
             prescore_stride: 4,
             prescore_keep: 200,
             coarse_outline_px: 40,
+            residual_scale_mm: 0.5,
+            residual_weight: 2.0,
         }
     }
 }
@@ -632,6 +644,68 @@ pub fn score_poses(
     scored
 }
 
+/// The re-scoring of refined poses, each with its votes and ICP's residual (mm): [`score_poses`]
+/// over them all, then [`with_residuals`]. Best first.
+#[allow(clippy::too_many_arguments)]
+pub fn score_refined(
+    refined: &[(Pose, u32, f32)],
+    points: &FitPoints,
+    scene: &SceneImage,
+    tolerance: f32,
+    conflict_mm: f32,
+    params: &RescoringParams,
+    outline: &Outline,
+) -> Vec<Scored> {
+    let poses: Vec<(Pose, u32)> = refined
+        .iter()
+        .map(|&(pose, votes, _)| (pose, votes))
+        .collect();
+    let mut scored = score_poses(
+        &poses,
+        points,
+        None,
+        scene,
+        tolerance,
+        conflict_mm,
+        params,
+        outline,
+        poses.len(),
+    );
+    // A refined pose is found by its value: each scored pose is a copy of one of them (equal
+    // poses had equal residuals).
+    with_residuals(
+        &mut scored,
+        |pose| {
+            refined
+                .iter()
+                .find(|r| r.0 == *pose)
+                .map_or(f32::INFINITY, |r| r.2)
+        },
+        params,
+    );
+    scored
+}
+
+/// Folds ICP's residuals into the scores of refined poses, as
+/// [`RescoringParams::residual_weight`] says, and sorts them best first (ties: more votes
+/// first). `residual_of(pose)` is the residual of the refinement that gave `pose`, mm.
+pub fn with_residuals(
+    scored: &mut [Scored],
+    residual_of: impl Fn(&Pose) -> f32,
+    params: &RescoringParams,
+) {
+    if params.residual_weight <= 0.0 || scored.is_empty() {
+        return;
+    }
+    let s = params.residual_scale_mm;
+    let residuals: Vec<f32> = scored.iter().map(|x| residual_of(&x.pose)).collect();
+    let tightest = residuals.iter().copied().fold(f32::INFINITY, f32::min);
+    for (x, r) in scored.iter_mut().zip(&residuals) {
+        x.score *= ((s + tightest) / (s + r)).powf(params.residual_weight);
+    }
+    scored.sort_by(|a, b| b.score.total_cmp(&a.score).then(b.votes.cmp(&a.votes)));
+}
+
 /// Measures the silhouette agreement of the poses in `scored` (rendering the outline's mesh
 /// against the scene's depth edges), folds it into the score with exponent
 /// `params.silhouette_weight`, sorts best first (ties: more votes first) and keeps the `keep`
@@ -700,6 +774,52 @@ pub fn with_silhouettes(
 mod tests {
     use super::*;
     use crate::detect::filters::FilterParams;
+
+    /// Of refined poses, the tightest fit keeps its score and the others lose by how much
+    /// looser they fit: of two equal scores the smaller residual ranks first, a pose far ahead
+    /// stays ahead of a slightly tighter one, and weight 0 changes nothing.
+    #[test]
+    fn residuals_rank_the_tighter_of_equal_fits_first() {
+        let scored = |x: f32, score: f32, votes: u32| Scored {
+            pose: Pose::from_parts(
+                nalgebra::Translation3::new(x, 0.0, 800.0),
+                nalgebra::UnitQuaternion::identity(),
+            ),
+            votes,
+            fit: Fit::default(),
+            fit_score: score,
+            support_score: score,
+            outline: None,
+            score,
+        };
+        // Residuals by pose: x = 0 → 1.0 mm, x = 1 → 0.5 mm, x = 2 → 0.6 mm.
+        let residual = |p: &Pose| [1.0, 0.5, 0.6][p.translation.vector.x as usize];
+        let params = RescoringParams::default();
+        let (s, k) = (params.residual_scale_mm, params.residual_weight);
+        let mut poses = vec![
+            scored(0.0, 0.2, 50),
+            scored(1.0, 0.2, 10),
+            scored(2.0, 0.5, 5),
+        ];
+        with_residuals(&mut poses, residual, &params);
+        let order: Vec<f32> = poses.iter().map(|p| p.pose.translation.vector.x).collect();
+        assert_eq!(order, [2.0, 1.0, 0.0]);
+        // The tightest (0.5 mm) keeps its score; the others are scaled from it.
+        assert_eq!(poses[1].score, 0.2);
+        let scale = |r: f32| ((s + 0.5) / (s + r)).powf(k);
+        assert!((poses[0].score - 0.5 * scale(0.6)).abs() < 1e-6);
+        assert!((poses[2].score - 0.2 * scale(1.0)).abs() < 1e-6);
+        assert!(poses[2].score < 0.2 && poses[0].score < 0.5);
+
+        let off = RescoringParams {
+            residual_weight: 0.0,
+            ..params
+        };
+        let mut same = vec![scored(0.0, 0.2, 50), scored(1.0, 0.2, 10)];
+        with_residuals(&mut same, residual, &off);
+        assert_eq!(same[0].score, 0.2);
+        assert_eq!(same[0].votes, 50);
+    }
     use crate::detect::scene::{prepare, SceneParams};
     use crate::detect::silhouette::EdgeMap;
     use crate::geometry::render::bounding_sphere;

@@ -163,6 +163,8 @@ settings! {
     "rescoring.prescore_stride" => rescoring.prescore_stride in 1..=64;
     "rescoring.prescore_keep" => rescoring.prescore_keep in 0..=100000;
     "rescoring.coarse_outline_px" => rescoring.coarse_outline_px in 0..=100000;
+    "rescoring.residual_scale_mm" => rescoring.residual_scale_mm in 0.001..=1000.0;
+    "rescoring.residual_weight" => rescoring.residual_weight in 0.0..=100.0;
     "icp.top_poses" => icp.top_poses in 0..=100000;
     "icp.iterations" => icp.iterations in 0..=1000;
     "icp.initial_distance_fraction" => icp.initial_distance_fraction in 0.0..=1.0;
