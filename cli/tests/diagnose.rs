@@ -32,8 +32,8 @@ fn diagnose_counts_the_reference_points_that_propose_the_right_pose() {
         return;
     };
     let cache = std::env::temp_dir().join(format!("ppf-diagnose-cache-{}", std::process::id()));
-    // The driller and the glue are found; the egg box is lost at voting.
-    let run = diagnose(&dataset, "8,11,10", &cache);
+    // The driller and the glue are found; the ape is lost at voting.
+    let run = diagnose(&dataset, "8,11,1", &cache);
     let _ = std::fs::remove_dir_all(&cache);
     let stdout = String::from_utf8_lossy(&run.stdout);
     assert!(
@@ -106,6 +106,9 @@ fn diagnose_counts_the_reference_points_that_propose_the_right_pose() {
         assert!(proposing <= n(references), "{voting} / {row:?}");
         // An object lost at voting is told by how much: where the target stands among the
         // reference points' peaks, or that it is among none of them.
+        if row[object] == "1" {
+            assert_eq!(row[lost_at], "voting", "{stdout}");
+        }
         if row[lost_at] == "voting" {
             assert!(
                 voting.contains("the nearest it comes is a reference point's")

@@ -196,9 +196,10 @@ pub fn diagnose(
     let best_near = raw.iter().filter(|h| near(&h.pose)).map(|h| h.votes).max();
     let line = match best_near {
         Some(v) => format!(
-            "{} of {} reference points propose a pose near the target (best {v} votes; the most any got {most})",
+            "{} of {} reference points {} a pose near the target (best {v} votes; the most any got {most})",
             proposing.len(),
-            selection.references.len()
+            selection.references.len(),
+            if proposing.len() == 1 { "proposes" } else { "propose" }
         ),
         None => {
             // By how much: the same votes with every peak of each reference point kept, and
