@@ -75,7 +75,9 @@ pub struct RescoringParams {
     /// silhouettes (a keep of 0 or a stride of 1: every cluster does). A sparse fit ranks
     /// the clusters nearly as the full one does, for a quarter of its cost; but the silhouette
     /// still lifts a right pose from far down: on the LM-O frame the glue's is kept with 200
-    /// and lost with 100 (docs/METHOD.md §3.2).
+    /// and lost with 100. With the refined scores of METHOD.md §3.3, 250 is the fewest that
+    /// give the four data sets what every cluster's full fit gives (synth-lmo-dev 0.954, 0.949
+    /// with 200 and 225), for about 4 % more time on the LM-O frame (docs/METHOD.md §3.2).
     pub prescore_stride: usize,
     pub prescore_keep: usize,
     /// Before ICP, outlines wider than this many pixels are drawn at a coarser scale (0:
@@ -137,7 +139,7 @@ impl Default for RescoringParams {
             min_visible_outline: 0.5,
             silhouette_mesh_cell_fraction: 0.04,
             prescore_stride: 4,
-            prescore_keep: 200,
+            prescore_keep: 250,
             coarse_outline_px: 40,
             residual_scale_mm: 0.5,
             residual_weight: 2.0,
