@@ -611,7 +611,43 @@ mod tests {
     use crate::detect::detector::{Detector, RunOptions};
     use crate::detect::scene::prepare;
     use crate::synthetic::parts::Part;
-    use crate::synthetic::scene::{NoiseModel, SceneSpec};
+    use crate::synthetic::scene::{NoiseModel, SceneSpec, SyntheticScene};
+
+    /// A generated frame as [`diagnose`] takes it, for one model.
+    struct Prepared {
+        image: SceneImage,
+        planes: Vec<SupportingPlane>,
+        edges: EdgeMap,
+        cloud: PreparedScene,
+    }
+
+    impl Prepared {
+        fn new(scene: &SyntheticScene, params: &DetectParams, model: &ObjectModel) -> Prepared {
+            let image = prepare(&scene.frame.view(), &params.scene).unwrap();
+            let points = image.oriented_points();
+            let planes = SupportingPlane::find_all(&points, &params.plane);
+            let edges = EdgeMap::new(&image, &params.filters);
+            let cloud = params
+                .prepare_clouds(&points, &planes, &[model])
+                .unwrap()
+                .0
+                .remove(0);
+            Prepared {
+                image,
+                planes,
+                edges,
+                cloud,
+            }
+        }
+
+        fn frame(&self) -> PreparedFrame<'_> {
+            PreparedFrame {
+                image: &self.image,
+                planes: &self.planes,
+                edges: &self.edges,
+            }
+        }
+    }
 
     fn errors_to(target: Pose) -> impl Fn(&Pose) -> (f32, f32) {
         move |p: &Pose| {
@@ -655,19 +691,8 @@ mod tests {
             "the detector finds the part: {dt} mm, {dr}°"
         );
 
-        let image = prepare(&scene.frame.view(), &params.scene).unwrap();
-        let points = image.oriented_points();
-        let planes = SupportingPlane::find_all(&points, &params.plane);
-        let edges = EdgeMap::new(&image, &params.filters);
-        let frame = PreparedFrame {
-            image: &image,
-            planes: &planes,
-            edges: &edges,
-        };
-        let cloud = &params
-            .prepare_clouds(&points, &planes, &[&model])
-            .unwrap()
-            .0[0];
+        let prepared = Prepared::new(&scene, &params, &model);
+        let (frame, cloud) = (prepared.frame(), &prepared.cloud);
 
         let found = diagnose(&params, &frame, cloud, &model, &errors_to(truth), 1);
         assert_eq!(found.lost_at(), None, "{:#?}", found.lines());
@@ -733,19 +758,8 @@ mod tests {
             .unwrap();
         let model = part.model().unwrap();
         let params = DetectParams::default();
-        let image = prepare(&scene.frame.view(), &params.scene).unwrap();
-        let points = image.oriented_points();
-        let planes = SupportingPlane::find_all(&points, &params.plane);
-        let edges = EdgeMap::new(&image, &params.filters);
-        let frame = PreparedFrame {
-            image: &image,
-            planes: &planes,
-            edges: &edges,
-        };
-        let cloud = &params
-            .prepare_clouds(&points, &planes, &[&model])
-            .unwrap()
-            .0[0];
+        let prepared = Prepared::new(&scene, &params, &model);
+        let (frame, cloud) = (prepared.frame(), &prepared.cloud);
         let truths: Vec<Pose> = scene.ground_truth.iter().map(|&(_, pose)| pose).collect();
         assert_eq!(truths.len(), 2);
         let one: Vec<Diagnosis> = truths
