@@ -890,12 +890,11 @@ impl Detector {
         let p = &self.params;
         let d = v.diameter_mm;
         let t = Instant::now();
-        let worst = p.icp.final_distance_fraction * d;
         let refined: Vec<(Pose, u32, f32)> = poses
             .par_iter()
             .map(|&(pose, votes)| {
                 let r = refine(&v.surface, &pose, scene, d, &p.icp);
-                (r.pose, votes, r.residual_or(worst))
+                (r.pose, votes, r.residual_mm(&p.icp, d))
             })
             .collect();
         timings.icp += t.elapsed();

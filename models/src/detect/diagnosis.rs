@@ -362,13 +362,12 @@ pub fn diagnose(
     }
 
     // ICP on the best, re-scored with full outlines and the residuals.
-    let worst = p.icp.final_distance_fraction * d;
     let refined: Vec<(Pose, u32, f32)> = scored
         .par_iter()
         .take(icp_cut)
         .map(|s| {
             let r = refine(&surface, &s.pose, frame.image, d, &p.icp);
-            (r.pose, s.votes, r.residual_or(worst))
+            (r.pose, s.votes, r.residual_mm(&p.icp, d))
         })
         .collect();
     let rescored = score_refined(

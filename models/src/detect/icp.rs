@@ -86,13 +86,14 @@ pub struct IcpResult {
 }
 
 impl IcpResult {
-    /// The residual of the last iteration that solved, mm; `worst` when none did (too few
-    /// correspondences to trust a root mean square).
-    pub fn residual_or(&self, worst: f32) -> f32 {
+    /// The residual of the last iteration, mm, for a run with `params` on a model of diameter
+    /// `diameter_mm`; when it had too few correspondences to trust a root mean square, the
+    /// final pair distance limit, the farthest a pair may lie apart.
+    pub fn residual_mm(&self, params: &IcpParams, diameter_mm: f32) -> f32 {
         if self.correspondences >= MIN_CORRESPONDENCES && self.rms_mm.is_finite() {
             self.rms_mm
         } else {
-            worst
+            params.final_distance_fraction * diameter_mm
         }
     }
 }
