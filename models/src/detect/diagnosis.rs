@@ -112,8 +112,9 @@ pub fn pose_errors(model: &ObjectModel, pose: &Pose, target: &Pose) -> (f32, f32
 /// object; `targets` name only objects of `models`) the stages one by one ([`diagnose`]),
 /// against that pose through the object's symmetry. In the order of `models`, objects without
 /// a target left out. `opts` gives the hypotheses per object, and the deadline and
-/// cancellation, looked at before the scene is prepared and before each object as the
-/// detector does: a diagnosis runs every stage again, about as long as a detection.
+/// cancellation, looked at before the scene is prepared, before each object and within it
+/// ([`diagnose`]) as the detector does: a diagnosis runs every stage again, about as long as a
+/// detection, and longer by a vote for each target lost at voting.
 pub fn diagnose_targets(
     params: &DetectParams,
     frame: &DepthFrame,
@@ -156,7 +157,8 @@ pub fn diagnose_targets(
             model,
             &errors,
             opts.hypotheses_per_object,
-        ));
+            &|| opts.check_stop(start),
+        )?);
     }
     Ok(out)
 }
@@ -165,6 +167,8 @@ pub fn diagnose_targets(
 /// after each where the best candidate near the target stands. `errors(pose)` is a pose's
 /// translation (mm) and rotation (degrees) error against the target (the smallest over the
 /// object's symmetries, if it has any); `hypotheses` is how many the detection returns.
+/// `stop` is asked where the detector asks whether to go on (after voting and clustering) and
+/// before voting again for the margin of a target lost at voting; its error ends the diagnosis.
 pub fn diagnose(
     params: &DetectParams,
     frame: &PreparedFrame,
@@ -172,7 +176,8 @@ pub fn diagnose(
     model: &ObjectModel,
     errors: &dyn Fn(&Pose) -> (f32, f32),
     hypotheses: usize,
-) -> Diagnosis {
+    stop: &dyn Fn() -> Result<()>,
+) -> Result<Diagnosis> {
     let p = params;
     let d = model.diameter_mm();
     let near = |pose: &Pose| {
@@ -203,7 +208,8 @@ pub fn diagnose(
         ),
         None => {
             // By how much: the same votes with every peak of each reference point kept, and
-            // the target's best place among them.
+            // the target's best place among them. Voting again costs as much as voting did.
+            stop()?;
             let deeper = VotingParams {
                 peaks_per_reference: DEEPEST_PEAK,
                 peak_ratio: 0.0,
@@ -236,7 +242,7 @@ pub fn diagnose(
         }
     };
     if !trace.report("voting", best_near.is_some(), line) {
-        return trace;
+        return Ok(trace);
     }
 
     // Clustering, and the cut to the clusters re-scored.
@@ -270,8 +276,9 @@ pub fn diagnose(
         }
     };
     if !trace.report("clustering", kept, line) {
-        return trace;
+        return Ok(trace);
     }
+    stop()?;
 
     let surface = model.surface_points();
     let fit_points = FitPoints::new(&surface, &p.rescoring, d);
@@ -321,7 +328,7 @@ pub fn diagnose(
                 None => (false, "no candidate near the target left".into()),
             };
         if !trace.report("sparse fit", kept, line) {
-            return trace;
+            return Ok(trace);
         }
         sparse.into_iter().take(keep).collect()
     } else {
@@ -358,7 +365,7 @@ pub fn diagnose(
         None => (false, "no candidate near the target left".into()),
     };
     if !trace.report("re-scoring", kept, line) {
-        return trace;
+        return Ok(trace);
     }
 
     // ICP on the best, re-scored with full outlines and the residuals.
@@ -411,7 +418,7 @@ pub fn diagnose(
         }
     };
     if !trace.report("ICP", kept, line) {
-        return trace;
+        return Ok(trace);
     }
     let (rank, ..) = found.expect("kept");
     let s = &rescored[rank - 1];
@@ -444,7 +451,7 @@ pub fn diagnose(
         p.filters.min_silhouette_fraction
     );
     if !trace.report("filters", passed, line) {
-        return trace;
+        return Ok(trace);
     }
 
     // What is returned: the poses that pass come first, in score order, one per instance (a
@@ -503,7 +510,7 @@ pub fn diagnose(
         )
     };
     trace.report("result", kept, line);
-    trace
+    Ok(trace)
 }
 
 /// How many peaks per reference point the voting line looks through when the detector's own
@@ -693,7 +700,16 @@ mod tests {
         let prepared = Prepared::new(&scene, &params, &model);
         let (frame, cloud) = (prepared.frame(), &prepared.cloud);
 
-        let found = diagnose(&params, &frame, cloud, &model, &errors_to(truth), 1);
+        let found = diagnose(
+            &params,
+            &frame,
+            cloud,
+            &model,
+            &errors_to(truth),
+            1,
+            &|| Ok(()),
+        )
+        .unwrap();
         assert_eq!(found.lost_at(), None, "{:#?}", found.lines());
         let stages: Vec<&str> = found.stages.iter().map(|s| s.stage).collect();
         // Two parts give fewer clusters than the sparse fit keeps: it cuts nothing and has no
@@ -726,7 +742,16 @@ mod tests {
             ),
             truth.rotation,
         );
-        let lost = diagnose(&params, &frame, cloud, &model, &errors_to(elsewhere), 1);
+        let lost = diagnose(
+            &params,
+            &frame,
+            cloud,
+            &model,
+            &errors_to(elsewhere),
+            1,
+            &|| Ok(()),
+        )
+        .unwrap();
         assert_eq!(lost.lost_at(), Some("voting"));
         let lines = lost.lines();
         assert_eq!(lines.len(), 2, "{lines:?}");
@@ -740,6 +765,25 @@ mod tests {
             lines[1].ends_with("nor is it among the 32 highest peaks of any reference point"),
             "{lines:?}"
         );
+
+        // A request that must stop (its deadline passed) ends the diagnosis where the detector
+        // would stop, after clustering, and before the target lost at voting is voted for again.
+        let asked = std::cell::Cell::new(0);
+        let late = || {
+            asked.set(asked.get() + 1);
+            Err(Error::DeadlineExceeded {
+                elapsed: std::time::Duration::ZERO,
+            })
+        };
+        for target in [truth, elsewhere] {
+            asked.set(0);
+            let stopped = diagnose(&params, &frame, cloud, &model, &errors_to(target), 1, &late);
+            assert!(
+                matches!(stopped, Err(Error::DeadlineExceeded { .. })),
+                "{stopped:?}"
+            );
+            assert_eq!(asked.get(), 1);
+        }
     }
 
     /// Two instances of one part and one hypothesis asked for: the instance the detection
@@ -763,7 +807,9 @@ mod tests {
         assert_eq!(truths.len(), 2);
         let one: Vec<Diagnosis> = truths
             .iter()
-            .map(|&t| diagnose(&params, &frame, cloud, &model, &errors_to(t), 1))
+            .map(|&t| {
+                diagnose(&params, &frame, cloud, &model, &errors_to(t), 1, &|| Ok(())).unwrap()
+            })
             .collect();
         let lost: Vec<Option<&str>> = one.iter().map(Diagnosis::lost_at).collect();
         assert!(
@@ -785,7 +831,8 @@ mod tests {
         assert_eq!(scores.len(), 2, "{line}");
         assert!(scores[0] >= scores[1], "{line}");
         for &t in &truths {
-            let both = diagnose(&params, &frame, cloud, &model, &errors_to(t), 2);
+            let both =
+                diagnose(&params, &frame, cloud, &model, &errors_to(t), 2, &|| Ok(())).unwrap();
             assert_eq!(both.lost_at(), None, "{:#?}", both.lines());
         }
     }
