@@ -2,8 +2,8 @@
 //!
 //! Correspondences come from projecting each visible model surface point into the depth image
 //! and taking the scene point measured at that pixel: no search. Each iteration solves the
-//! linearised point-to-plane problem (a 6×6 system) and rejects pairs farther apart than a
-//! distance that shrinks from iteration to iteration.
+//! linearised point-to-plane problem (a 6×6 system) over the motions its pairs constrain, and
+//! rejects pairs farther apart than a distance that shrinks from iteration to iteration.
 
 use nalgebra::{Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
 
@@ -37,6 +37,14 @@ pub struct IcpParams {
     /// the coarse phase moves on to the fine one. `coarse_stride` 1 uses every point throughout.
     pub coarse_iterations: usize,
     pub coarse_stride: usize,
+    /// A motion the pairs constrain less than this fraction of the motion they constrain best
+    /// (an eigenvalue of the 6×6 system against its largest, rotations counted by the arc they
+    /// turn the model's farthest surface point through, so that both are in mm) is left out of
+    /// the step. Point-to-plane pairs on a flat face say nothing of sliding along it or turning
+    /// about its normal; solved anyway, those motions follow the sensor's noise (a face laid in
+    /// a noisy table top slid 10 mm and turned 6.5°, 2.8 mm and 0.4° with 10⁻³: docs/METHOD.md
+    /// §3.3). 0 keeps every motion the pairs constrain at all.
+    pub min_constraint_ratio: f32,
 }
 
 impl Default for IcpParams {
@@ -51,6 +59,7 @@ impl Default for IcpParams {
             convergence_rotation: 1e-4,
             coarse_iterations: 4,
             coarse_stride: 4,
+            min_constraint_ratio: 1e-3,
         }
     }
 }
@@ -106,6 +115,37 @@ fn surface_centroid(surface: &OrientedPoints) -> nalgebra::Point3<f32> {
         .iter()
         .fold(Vector3::zeros(), |acc, p| acc + p.coords);
     nalgebra::Point3::from(sum / n)
+}
+
+/// The least-squares solution `(ω, δt)` of `ata · x = atb` over the motions the pairs
+/// constrain: in coordinates where a rotation counts by the arc it turns a point `radius` mm
+/// from the centre through, the eigenvectors of `ata` whose eigenvalues are at least
+/// `min_ratio` of the largest (and above 0). `None` when the pairs constrain no motion.
+fn constrained_step(
+    ata: &Matrix6<f64>,
+    atb: &Vector6<f64>,
+    radius: f32,
+    min_ratio: f32,
+) -> Option<Vector6<f64>> {
+    let r = f64::from(radius.max(f32::MIN_POSITIVE));
+    // x = S y with S = diag(1/r, 1/r, 1/r, 1, 1, 1): the system in y is Sᵀ ata S y = Sᵀ atb.
+    let scale = Vector6::new(1.0 / r, 1.0 / r, 1.0 / r, 1.0, 1.0, 1.0);
+    let scaled = Matrix6::from_fn(|i, j| ata[(i, j)] * scale[i] * scale[j]);
+    let rhs = atb.component_mul(&scale);
+    let eigen = scaled.symmetric_eigen();
+    let largest = eigen.eigenvalues.max();
+    if !(largest > 0.0 && largest.is_finite()) {
+        return None;
+    }
+    let floor = (f64::from(min_ratio) * largest).max(f64::MIN_POSITIVE);
+    let mut y = Vector6::zeros();
+    for (i, &value) in eigen.eigenvalues.iter().enumerate() {
+        if value >= floor {
+            let v = eigen.eigenvectors.column(i);
+            y += v * (v.dot(&rhs) / value);
+        }
+    }
+    Some(y.component_mul(&scale))
 }
 
 /// Refines `pose` of the model `surface` against `scene`.
@@ -189,7 +229,7 @@ pub fn refine(
             break;
         }
         result.rms_mm = (sq / count as f64).sqrt() as f32;
-        let Some(x) = ata.cholesky().map(|c| c.solve(&atb)) else {
+        let Some(x) = constrained_step(&ata, &atb, radius, params.min_constraint_ratio) else {
             break;
         };
         let mut omega = Vector3::new(x[0] as f32, x[1] as f32, x[2] as f32);

@@ -172,6 +172,7 @@ settings! {
     "icp.max_normal_angle_deg" => icp.max_normal_angle_deg in 0.0..=180.0;
     "icp.coarse_iterations" => icp.coarse_iterations in 0..=1000;
     "icp.coarse_stride" => icp.coarse_stride in 1..=1000;
+    "icp.min_constraint_ratio" => icp.min_constraint_ratio in 0.0..=1.0;
     "filters.max_see_through_fraction" => filters.max_see_through_fraction in 0.0..=1.0;
     "filters.min_support_fraction" => filters.min_support_fraction in 0.0..=1.0;
     "filters.edge_jump_mm" => filters.edge_jump_mm in 0.0..=1000.0;
