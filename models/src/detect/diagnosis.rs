@@ -444,10 +444,16 @@ pub fn diagnose(
         None => "not measurable (too little outline in view)".into(),
     };
     let passed = consistent && outline_ok;
+    // By how much: the two shares the consistency check compares with its limits.
+    let share = |part: u32, whole: u32| 100.0 * part as f32 / whole.max(1) as f32;
     let line = format!(
-        "{} (fit {}consistent; silhouette {silhouette_text}, at least {:.2} needed)",
+        "{} (fit {}consistent: {:.0} % of its measured points seen through, at most {:.0} %, and {:.0} % of those in view inliers, at least {:.0} %; silhouette {silhouette_text}, at least {:.2} needed)",
         if passed { "passed" } else { "rejected" },
         if consistent { "" } else { "not " },
+        share(s.fit.see_through, s.fit.measured),
+        100.0 * p.filters.max_see_through_fraction,
+        share(s.fit.inliers, s.fit.visible()),
+        100.0 * p.filters.min_support_fraction,
         p.filters.min_silhouette_fraction
     );
     if !trace.report("filters", passed, line) {
@@ -733,6 +739,28 @@ mod tests {
             found.stages[5].line.contains("hypothesis 1 of 1"),
             "{:?}",
             found.stages[5]
+        );
+        // The filters' line gives the shares the consistency check compares with its limits.
+        let filters = &found.stages[4].line;
+        let shares: Vec<f32> = filters
+            .split('%')
+            .filter_map(|w| w.trim_end().rsplit(' ').next()?.parse().ok())
+            .collect();
+        assert!(
+            filters.starts_with("passed (fit consistent: ") && shares.len() == 4,
+            "{filters}"
+        );
+        assert!(
+            shares[0] <= shares[1] && shares[2] >= shares[3],
+            "{filters}"
+        );
+        assert_eq!(
+            (shares[1], shares[3]),
+            (
+                (100.0 * params.filters.max_see_through_fraction).round(),
+                (100.0 * params.filters.min_support_fraction).round()
+            ),
+            "{filters}"
         );
 
         // Half a metre beside the part: nothing there proposes it.
