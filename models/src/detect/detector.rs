@@ -18,7 +18,7 @@ use rayon::prelude::*;
 
 use crate::detect::clustering::{cluster_poses, ClusteringParams};
 use crate::detect::exclusion::{Claim, ExclusionParams};
-use crate::detect::filters::{is_consistent, FilterParams};
+use crate::detect::filters::{consistency_off_edges, FilterParams};
 use crate::detect::icp::{refine, IcpParams};
 use crate::detect::plane::{PlaneParams, SupportingPlane};
 use crate::detect::requirements::{Order, Requirements};
@@ -944,7 +944,16 @@ impl Detector {
                 continue;
             }
             let mut checks = Checks(Checks::RESCORED | Checks::REFINED);
-            if is_consistent(&s.fit, &p.filters) {
+            let (consistent, _) = consistency_off_edges(
+                &s.fit,
+                &v.surface,
+                &s.pose,
+                scene,
+                v.edges,
+                v.conflict_mm,
+                &p.filters,
+            );
+            if consistent {
                 checks.0 |= Checks::CONSISTENT;
             }
             if silhouette.passes(silhouette.fraction(s.outline, &mut renderer, &s.pose)) {

@@ -12,14 +12,14 @@
 
 use crate::detect::clustering::{cluster_poses, PoseCluster};
 use crate::detect::detector::{DetectParams, Hint, RunOptions};
-use crate::detect::filters::is_consistent;
+use crate::detect::filters::{consistency_off_edges, is_consistent, see_through_off_edges};
 use crate::detect::icp::refine;
 use crate::detect::plane::SupportingPlane;
 use crate::detect::rescoring::{
     score_poses, score_refined, sparse_ranking, FitPoints, Outline, Scored,
 };
 use crate::detect::scene::{prepare, PreparedScene, SceneImage};
-use crate::detect::silhouette::{EdgeMap, SilhouetteFilter};
+use crate::detect::silhouette::{EdgeMap, Fit, SilhouetteFilter};
 use crate::detect::voting::{vote_from, Selection, VotedPose, VotingParams};
 use crate::geometry::camera::DepthFrame;
 use crate::geometry::render::{bounding_sphere, Renderer};
@@ -423,8 +423,16 @@ pub fn diagnose(
     let (rank, ..) = found.expect("kept");
     let s = &rescored[rank - 1];
 
-    // The filters, on the candidate near the target.
-    let consistent = is_consistent(&s.fit, &p.filters);
+    // The filters, on the candidate near the target. Points seen through count away from
+    // depth edges as the detector counts them (always counted here, for the line).
+    let off_edges = see_through_off_edges(&surface, &s.pose, frame.image, frame.edges, conflict);
+    let consistent = is_consistent(
+        &Fit {
+            see_through: off_edges,
+            ..s.fit
+        },
+        &p.filters,
+    );
     let filter = SilhouetteFilter {
         mesh: &mesh,
         sphere: &sphere,
@@ -444,12 +452,13 @@ pub fn diagnose(
         None => "not measurable (too little outline in view)".into(),
     };
     let passed = consistent && outline_ok;
-    // By how much: the two shares the consistency check compares with its limits.
+    // By how much: the shares the consistency check compares with its limits.
     let share = |part: u32, whole: u32| 100.0 * part as f32 / whole.max(1) as f32;
     let line = format!(
-        "{} (fit {}consistent: {:.0} % of its measured points seen through, at most {:.0} %, and {:.0} % of those in view inliers, at least {:.0} %; silhouette {silhouette_text}, at least {:.2} needed)",
+        "{} (fit {}consistent: {:.0} % of its measured points seen through away from depth edges ({:.0} % in all), at most {:.0} %, and {:.0} % of those in view inliers, at least {:.0} %; silhouette {silhouette_text}, at least {:.2} needed)",
         if passed { "passed" } else { "rejected" },
         if consistent { "" } else { "not " },
+        share(off_edges, s.fit.measured),
         share(s.fit.see_through, s.fit.measured),
         100.0 * p.filters.max_see_through_fraction,
         share(s.fit.inliers, s.fit.visible()),
@@ -472,9 +481,16 @@ pub fn diagnose(
         {
             continue;
         }
-        if is_consistent(&o.fit, &p.filters)
-            && filter.passes(filter.fraction(o.outline, &mut renderer, &o.pose))
-        {
+        let (consistent, _) = consistency_off_edges(
+            &o.fit,
+            &surface,
+            &o.pose,
+            frame.image,
+            frame.edges,
+            conflict,
+            &p.filters,
+        );
+        if consistent && filter.passes(filter.fraction(o.outline, &mut renderer, &o.pose)) {
             passed_ahead.push(o);
         }
     }
@@ -740,22 +756,30 @@ mod tests {
             "{:?}",
             found.stages[5]
         );
-        // The filters' line gives the shares the consistency check compares with its limits.
+        // The filters' line gives the shares the consistency check compares with its limits:
+        // points seen through away from depth edges (and in all), and inliers among those in
+        // view.
         let filters = &found.stages[4].line;
         let shares: Vec<f32> = filters
             .split('%')
-            .filter_map(|w| w.trim_end().rsplit(' ').next()?.parse().ok())
+            .filter_map(|w| {
+                let last = w.trim_end().rsplit(' ').next()?;
+                last.trim_start_matches('(').parse().ok()
+            })
             .collect();
         assert!(
-            filters.starts_with("passed (fit consistent: ") && shares.len() == 4,
+            filters.starts_with("passed (fit consistent: ") && shares.len() == 5,
             "{filters}"
         );
+        let [off_edges, all, most, inliers, least] = shares[..] else {
+            unreachable!()
+        };
         assert!(
-            shares[0] <= shares[1] && shares[2] >= shares[3],
+            off_edges <= all && off_edges <= most && inliers >= least,
             "{filters}"
         );
         assert_eq!(
-            (shares[1], shares[3]),
+            (most, least),
             (
                 (100.0 * params.filters.max_see_through_fraction).round(),
                 (100.0 * params.filters.min_support_fraction).round()
