@@ -2,7 +2,8 @@
 //! §3.4).
 //!
 //! - **Non-consistent points**: a pose that fits part of the scene but puts model surface where
-//!   the sensor sees through it, or whose visible surface is mostly unsupported, is dropped.
+//!   the sensor sees through it (away from depth edges, where sensors lose thin rims), or whose
+//!   visible surface is mostly unsupported, is dropped.
 //! - **Silhouette vs. scene edges**: the outline of the model rendered at the pose must lie on
 //!   depth discontinuities of the scene at a sufficient rate. A model slid along a table top
 //!   fits the plane well but its outline crosses no edge.
@@ -20,7 +21,8 @@ use crate::Pose;
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FilterParams {
     /// Drop a pose when more than this fraction of its measured facing points have the scene
-    /// well behind them (the sensor sees through the model).
+    /// well behind them (the sensor sees through the model) away from depth edges
+    /// ([`consistency_off_edges`]).
     pub max_see_through_fraction: f32,
     /// Drop a pose when fewer than this fraction of its visible (measured, not occluded) points
     /// are inliers.
