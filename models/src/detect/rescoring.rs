@@ -245,7 +245,7 @@ pub fn judge_point(
 /// branches they are often mispredicted; counted as flags, re-scoring takes about 7 % less
 /// (docs/METHOD.md §3.2). Every point reads a depth (pixel 0 for one that faces away or falls
 /// outside the image, not counted); only a point within the tolerance reads the scene's normal.
-/// Points are moved and projected four at a time ([`Moved::four`]), with the same operations
+/// Points are moved and projected four at a time (`Moved::four`), with the same operations
 /// in the same order as one at a time, so to the bit. `fit_counts_what_judge_point_judges`
 /// checks the tally.
 pub fn fit(

@@ -68,7 +68,7 @@ pub fn sample_surface(mesh: &Mesh, count: usize, seed: u64) -> Result<OrientedPo
 /// along some direction; the points extreme along 64 directions, each paired with every point,
 /// find it (or a pair within a fraction of a percent of it) in O(64·N).
 ///
-/// The points are taken in blocks of [`DIAMETER_BLOCK`] with their bounding boxes: a block
+/// The points are taken in blocks of `DIAMETER_BLOCK` with their bounding boxes: a block
 /// whose farthest corner is no farther from a candidate than the best pair so far cannot hold a
 /// farther point, and is skipped. The result is the same maximum of the same distances; a model
 /// store checks every file's diameter against its mesh on load, so this is paid on every load.
