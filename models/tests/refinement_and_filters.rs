@@ -8,7 +8,7 @@ use ppfd_models::detect::filters::is_consistent;
 use ppfd_models::detect::icp::refine;
 use ppfd_models::detect::rescoring::fit;
 use ppfd_models::detect::scene::{prepare, SceneImage};
-use ppfd_models::detect::silhouette::{EdgeMap, SilhouetteFilter};
+use ppfd_models::detect::silhouette::{EdgeMap, Fit, SilhouetteFilter};
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::geometry::render::{bounding_sphere, Renderer};
 use ppfd_models::model::subsample::OrientedPoints;
@@ -58,6 +58,25 @@ fn silhouette_filter<'a>(
         min_visible: params.rescoring.min_visible_outline,
         min_fraction: params.filters.min_silhouette_fraction,
     }
+}
+
+/// The fit of `surface` at `pose` as the filters judge a refined pose: the refined inlier
+/// tolerance and the conflict distance of the default parameters for a model of diameter `d`.
+fn refined_fit(
+    params: &DetectParams,
+    surface: &OrientedPoints,
+    pose: &Pose,
+    image: &SceneImage,
+    d: f32,
+) -> Fit {
+    fit(
+        surface,
+        pose,
+        image,
+        params.rescoring.refined_tolerance_mm(d),
+        params.rescoring.conflict_mm(d),
+        params.rescoring.max_normal_angle_deg,
+    )
 }
 
 /// The turn that puts `mesh`'s largest flat face facing up (world z), and where a point of that
@@ -307,14 +326,7 @@ fn filters_reject_a_planar_impostor_and_keep_the_true_pose() {
     let sphere = bounding_sphere(&mesh);
     let mut renderer = Renderer::new();
     let check = |pose: &Pose, renderer: &mut Renderer| {
-        let f = fit(
-            &surface,
-            pose,
-            &image,
-            params.rescoring.refined_tolerance_mm(d),
-            params.rescoring.conflict_mm(d),
-            params.rescoring.max_normal_angle_deg,
-        );
+        let f = refined_fit(&params, &surface, pose, &image, d);
         let s = silhouette_filter(&params, &mesh, &sphere, &surface, &image, &edges, d)
             .fraction(None, renderer, pose);
         (f, is_consistent(&f, &params.filters), s)
@@ -408,14 +420,7 @@ fn an_impostor_flush_in_the_table_at_its_border_fails_the_silhouette_filter() {
             let rotation = yaw * up;
             let at = Vector3::new(560.0 + 5.0 * step as f32, 0.0, 0.0) - yaw * lifted;
             let impostor = world_to_camera * Pose::from_parts(Translation3::from(at), rotation);
-            let f = fit(
-                &surface,
-                &impostor,
-                &image,
-                params.rescoring.refined_tolerance_mm(d),
-                params.rescoring.conflict_mm(d),
-                params.rescoring.max_normal_angle_deg,
-            );
+            let f = refined_fit(&params, &surface, &impostor, &image, d);
             let Some(counts) = outline_counts(
                 &mut renderer,
                 &mesh,
@@ -695,14 +700,7 @@ fn icp_barely_slides_along_a_face_that_pins_nothing_else() {
                 let t =
                     Vector3::new(world.translation.x + dx, world.translation.y + dy, 0.0) - lifted;
                 let start = scene.world_to_camera * Pose::from_parts(Translation3::from(t), up);
-                let f = fit(
-                    &surface,
-                    &start,
-                    &image,
-                    params.rescoring.refined_tolerance_mm(d),
-                    params.rescoring.conflict_mm(d),
-                    params.rescoring.max_normal_angle_deg,
-                );
+                let f = refined_fit(&params, &surface, &start, &image, d);
                 // Only where the face lies on the table top (not off its edge).
                 if f.inliers < 100 || (f.inliers as f32) < 0.6 * f.visible() as f32 {
                     continue;
@@ -791,14 +789,7 @@ fn the_rims_a_sensor_loses_do_not_fail_a_right_pose() {
     let edges = EdgeMap::new(&image, &params.filters);
     let surface = model.surface_points();
     let judge = |pose: &Pose| {
-        let f = fit(
-            &surface,
-            pose,
-            &image,
-            params.rescoring.refined_tolerance_mm(d),
-            params.rescoring.conflict_mm(d),
-            params.rescoring.max_normal_angle_deg,
-        );
+        let f = refined_fit(&params, &surface, pose, &image, d);
         let (consistent, judged) = consistency_off_edges(
             &f,
             &surface,
