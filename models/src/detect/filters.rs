@@ -89,8 +89,9 @@ pub fn is_consistent(fit: &Fit, params: &FilterParams) -> bool {
 /// rims of surfaces, and the floor beyond shows through there; the right pose of a thin
 /// bracket left 24 % of its points seen through on a generated Kinect-like frame, all within
 /// two pixels of a depth edge, and the LM-O glue's 19 % (of which 11 of 156 points are away
-/// from edges). A pose that floats before the scene is seen through across its surface, not
-/// only along its rims. The points are counted again only when all of them are too many.
+/// from edges; docs/METHOD.md §3.4). A pose that floats before the scene is seen through
+/// across its surface, not only along its rims. The points are counted again only when all of
+/// them are too many.
 pub fn consistency_off_edges(
     fit: &Fit,
     surface: &OrientedPoints,
