@@ -308,6 +308,7 @@ impl DetectionEngine for PpfEngine {
                 &object_models,
                 &targets,
                 &opts,
+                Some(&found),
             )
             .map_err(model_error)?
             .iter()

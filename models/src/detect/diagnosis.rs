@@ -11,7 +11,9 @@
 //! are known too.
 
 use crate::detect::clustering::{cluster_poses, PoseCluster};
-use crate::detect::detector::{DetectParams, Hint, RunOptions};
+use crate::detect::detector::{
+    Checks, DetectParams, Detections, Hint, ObjectDetections, RunOptions,
+};
 use crate::detect::filters::{consistency_off_edges, is_consistent, see_through_off_edges};
 use crate::detect::icp::refine;
 use crate::detect::plane::SupportingPlane;
@@ -55,6 +57,38 @@ impl Diagnosis {
     /// detection returns it first.
     pub fn lost_at(&self) -> Option<&'static str> {
         self.stages.iter().find(|s| !s.kept).map(|s| s.stage)
+    }
+
+    /// Settles the result stage with what the detection of the same request returned for the
+    /// object: `returned`, its poses that passed the filters, in order, as many as the request
+    /// asked for. The stages run object by object and cannot see the exclusion across objects
+    /// (METHOD.md §3.5), under which a pose lying on another object's surface gives way to the
+    /// object's next pose, the only way the objects of one request change each other's poses.
+    /// A trace that ends before the result, or agrees with the detection, is left as it is.
+    pub fn settle_with(&mut self, returned: &[Pose], near: impl Fn(&Pose) -> bool) {
+        let Some(last) = self.stages.last_mut().filter(|s| s.stage == "result") else {
+            return;
+        };
+        let rank = returned.iter().position(near);
+        match (last.kept, rank) {
+            (false, Some(k)) => {
+                last.kept = true;
+                last.line = format!(
+                    "returned as hypothesis {} of {}: a pose ahead of it lay on another object's surface and gave way (by itself, {})",
+                    k + 1,
+                    returned.len(),
+                    last.line
+                );
+            }
+            (true, None) => {
+                last.kept = false;
+                last.line = format!(
+                    "not returned: it lay on another object's surface and gave way (by itself, {})",
+                    last.line
+                );
+            }
+            _ => {}
+        }
     }
 
     /// A heading and one line per stage, up to the one that lost the target.
@@ -114,13 +148,16 @@ pub fn pose_errors(model: &ObjectModel, pose: &Pose, target: &Pose) -> (f32, f32
 /// a target left out. `opts` gives the hypotheses per object, and the deadline and
 /// cancellation, looked at before the scene is prepared, before each object and within it
 /// ([`diagnose`]) as the detector does: a diagnosis runs every stage again, about as long as a
-/// detection, and longer by a vote for each target lost at voting.
+/// detection, and longer by a vote for each target lost at voting. With `detected`, the
+/// detection of the same request, each result stage is settled by what it returned
+/// ([`Diagnosis::settle_with`]).
 pub fn diagnose_targets(
     params: &DetectParams,
     frame: &DepthFrame,
     models: &[&ObjectModel],
     targets: &[Hint],
     opts: &RunOptions,
+    detected: Option<&Detections>,
 ) -> Result<Vec<Diagnosis>> {
     let start = Instant::now();
     if let Some(t) = targets
@@ -150,7 +187,7 @@ pub fn diagnose_targets(
         };
         opts.check_stop(start)?;
         let errors = |pose: &Pose| pose_errors(model, pose, &target.pose);
-        out.push(diagnose(
+        let mut diagnosis = diagnose(
             params,
             &prepared,
             &clouds[group],
@@ -158,9 +195,32 @@ pub fn diagnose_targets(
             &errors,
             opts.hypotheses_per_object,
             &|| opts.check_stop(start),
-        )?);
+        )?;
+        if let Some(found) =
+            detected.and_then(|d| d.objects.iter().find(|o| o.object_id == model.object_id()))
+        {
+            let d = model.diameter_mm();
+            diagnosis.settle_with(&returned_poses(found, opts.hypotheses_per_object), |p| {
+                let (dt, dr) = errors(p);
+                dt <= NEAR_TRANSLATION_FRACTION * d && dr <= NEAR_ROTATION_DEG
+            });
+        }
+        out.push(diagnosis);
     }
     Ok(out)
+}
+
+/// The poses a detection returned for an object that passed both filters, in order, at most
+/// `hypotheses`: what the result stage of a diagnosis compares with.
+pub fn returned_poses(found: &ObjectDetections, hypotheses: usize) -> Vec<Pose> {
+    let both = Checks::CONSISTENT | Checks::SILHOUETTE;
+    found
+        .hypotheses
+        .iter()
+        .filter(|h| h.checks.0 & both == both)
+        .take(hypotheses)
+        .map(|h| h.pose)
+        .collect()
 }
 
 /// Runs the detector's stages on `cloud` (the object's subsampled scene) for `model`, and says
@@ -976,6 +1036,123 @@ mod tests {
         );
     }
 
+    /// Settling changes only a result stage the detection disagrees with, either way.
+    #[test]
+    fn settling_changes_only_a_result_the_detection_disagrees_with() {
+        let at = |x: f32| {
+            Pose::from_parts(
+                nalgebra::Translation3::new(x, 0.0, 800.0),
+                nalgebra::UnitQuaternion::identity(),
+            )
+        };
+        let near = |p: &Pose| p.translation.x.abs() < 5.0;
+        let trace = |stage: &'static str, kept: bool| Diagnosis {
+            object_id: 3,
+            stages: vec![
+                StageReport {
+                    stage: "voting",
+                    kept: true,
+                    line: "v".into(),
+                },
+                StageReport {
+                    stage,
+                    kept,
+                    line: "by the stages".into(),
+                },
+            ],
+        };
+        let mut lost = trace("result", false);
+        lost.settle_with(&[at(1.0)], near);
+        assert_eq!(lost.lost_at(), None);
+        assert!(lost.stages[1]
+            .line
+            .starts_with("returned as hypothesis 1 of 1: "));
+        let mut kept = trace("result", true);
+        kept.settle_with(&[at(300.0)], near);
+        assert_eq!(kept.lost_at(), Some("result"));
+        assert!(kept.stages[1].line.starts_with("not returned: "));
+        for (stage, kept, returned) in [
+            ("result", true, at(0.0)),
+            ("result", false, at(300.0)),
+            ("ICP", false, at(0.0)),
+        ] {
+            let mut same = trace(stage, kept);
+            same.settle_with(&[returned], near);
+            assert_eq!(same, trace(stage, kept));
+        }
+    }
+
+    /// The objects of one request change each other's poses only through the exclusion across
+    /// objects, which the stages run object by object cannot see: on the generated parts scene
+    /// of seed 47, the L-bracket's right pose scores below a pose lying on another part, which
+    /// gives way to it in the detection. By itself the diagnosis says the target is lost at the
+    /// result; settled by the detection of the same request, it says it is returned first and
+    /// why.
+    #[test]
+    fn the_detection_settles_the_result_across_objects() {
+        let mut spec = SceneSpec::new(47).noise(Some(NoiseModel::kinect()));
+        let meshes: Vec<_> = Part::ALL
+            .iter()
+            .map(|p| (p.object_id(), p.mesh()))
+            .collect();
+        for (id, mesh) in &meshes {
+            spec = spec.object(*id, mesh);
+        }
+        let scene = spec.build().unwrap();
+        let models: Vec<ObjectModel> = Part::ALL.iter().map(|p| p.model().unwrap()).collect();
+        let refs: Vec<&ObjectModel> = models.iter().collect();
+        let frame = scene.frame.view();
+        let targets: Vec<Hint> = scene
+            .ground_truth
+            .iter()
+            .map(|&(object_id, pose)| Hint { object_id, pose })
+            .collect();
+        let params = DetectParams::default();
+        let opts = RunOptions {
+            hypotheses_per_object: 1,
+            ..Default::default()
+        };
+        let detected = Detector::new(params.clone())
+            .detect(&frame, &refs, &opts)
+            .unwrap();
+        let bracket = Part::LBracket.object_id();
+        let of = |diagnoses: &[Diagnosis]| {
+            diagnoses
+                .iter()
+                .find(|d| d.object_id == bracket)
+                .unwrap()
+                .clone()
+        };
+        let alone = of(&diagnose_targets(&params, &frame, &refs, &targets, &opts, None).unwrap());
+        assert_eq!(alone.lost_at(), Some("result"), "{:#?}", alone.lines());
+        let settled =
+            of(
+                &diagnose_targets(&params, &frame, &refs, &targets, &opts, Some(&detected))
+                    .unwrap(),
+            );
+        assert_eq!(settled.lost_at(), None, "{:#?}", settled.lines());
+        let line = &settled.stages.last().unwrap().line;
+        assert!(
+            line.starts_with(
+                "returned as hypothesis 1 of 1: a pose ahead of it lay on another object's surface"
+            ),
+            "{line}"
+        );
+        // The other parts' findings agree with the detection already and stay as they were.
+        for (a, b) in diagnose_targets(&params, &frame, &refs, &targets, &opts, None)
+            .unwrap()
+            .iter()
+            .zip(
+                &diagnose_targets(&params, &frame, &refs, &targets, &opts, Some(&detected))
+                    .unwrap(),
+            )
+        {
+            if a.object_id != bracket {
+                assert_eq!(a, b);
+            }
+        }
+    }
+
     /// A diagnosis gives up as a detection does: with the request cancelled, or its deadline
     /// passed, before any stage runs again; otherwise it diagnoses each target.
     #[test]
@@ -1007,7 +1184,7 @@ mod tests {
             cancel: Some(cancel.clone()),
             ..Default::default()
         };
-        match diagnose_targets(&params, &frame, &[&model], &targets, &cancelled) {
+        match diagnose_targets(&params, &frame, &[&model], &targets, &cancelled, None) {
             Err(Error::Cancelled { .. }) => {}
             other => panic!("expected Cancelled, got {other:?}"),
         }
@@ -1016,12 +1193,13 @@ mod tests {
             ..Default::default()
         };
         std::thread::sleep(std::time::Duration::from_millis(1));
-        match diagnose_targets(&params, &frame, &[&model], &targets, &late) {
+        match diagnose_targets(&params, &frame, &[&model], &targets, &late, None) {
             Err(Error::DeadlineExceeded { .. }) => {}
             other => panic!("expected DeadlineExceeded, got {other:?}"),
         }
         cancel.store(false, Ordering::Relaxed);
-        let diagnosed = diagnose_targets(&params, &frame, &[&model], &targets, &cancelled).unwrap();
+        let diagnosed =
+            diagnose_targets(&params, &frame, &[&model], &targets, &cancelled, None).unwrap();
         assert_eq!(diagnosed.len(), 1);
         let lines = diagnosed[0].lines();
         assert!(lines[0].starts_with("object 1: "), "{lines:?}");
