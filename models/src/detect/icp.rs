@@ -42,8 +42,9 @@ pub struct IcpParams {
     /// turn the model's farthest surface point through, so that both are in mm) is left out of
     /// the step. Point-to-plane pairs on a flat face say nothing of sliding along it or turning
     /// about its normal; solved anyway, those motions follow the sensor's noise (a face laid in
-    /// a noisy table top slid 10 mm and turned 6.5°, 2.8 mm and 0.4° with 10⁻³: docs/METHOD.md
-    /// §3.3). 0 keeps every motion the pairs constrain at all.
+    /// a noisy table top slid up to 10 mm and turned up to 6.5° with every motion solved, 2.8 mm
+    /// and 0.4° with 10⁻³: docs/METHOD.md §3.3). 0 keeps every motion the pairs constrain at
+    /// all.
     pub min_constraint_ratio: f32,
 }
 
