@@ -14,7 +14,7 @@ use ppfd_models::geometry::render::{bounding_sphere, Renderer};
 use ppfd_models::model::subsample::OrientedPoints;
 use ppfd_models::model::{ModelParams, ObjectModel};
 use ppfd_models::synthetic::parts::Part;
-use ppfd_models::synthetic::scene::{NoiseModel, Rng, SceneSpec};
+use ppfd_models::synthetic::scene::{NoiseModel, Rng, SceneSpec, SyntheticScene};
 use ppfd_models::Pose;
 
 fn errors(est: &Pose, gt: &Pose) -> (f32, f32) {
@@ -747,23 +747,13 @@ fn the_rims_a_sensor_loses_do_not_fail_a_right_pose() {
     use ppfd_models::detect::detector::{Detector, RunOptions};
     use ppfd_models::detect::filters::{consistency_off_edges, is_consistent};
     let params = DetectParams::new();
-    let mut spec = SceneSpec::new(47).noise(Some(NoiseModel::kinect()));
-    let meshes: Vec<(Part, Mesh)> = Part::ALL.iter().map(|p| (*p, p.mesh())).collect();
-    for (part, mesh) in &meshes {
-        spec = spec.object(part.object_id(), mesh);
-    }
-    let scene = spec.build().unwrap();
+    let scene = SyntheticScene::of_every_part(47, Some(NoiseModel::kinect())).unwrap();
     let models: Vec<ObjectModel> = Part::ALL.iter().map(|p| part_model(*p).1).collect();
     let refs: Vec<&ObjectModel> = models.iter().collect();
     let part = Part::LBracket;
     let model = &models[Part::ALL.iter().position(|p| *p == part).unwrap()];
     let d = model.diameter_mm();
-    let truth = scene
-        .ground_truth
-        .iter()
-        .find(|(id, _)| *id == part.object_id())
-        .unwrap()
-        .1;
+    let truth = scene.truth_of(part.object_id()).unwrap();
     let detections = Detector::new(params.clone())
         .detect(
             &scene.frame.view(),
