@@ -20,7 +20,7 @@ use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::store;
 use ppfd_models::model::ModelParams;
 use ppfd_models::synthetic::parts::Part;
-use ppfd_models::synthetic::scene::{NoiseModel, SceneSpec, SyntheticScene};
+use ppfd_models::synthetic::scene::{NoiseModel, SyntheticScene};
 use ppfd_models::Pose;
 
 use crate::common::{print_latency, ScratchDir, MAX_HYPOTHESES};
@@ -78,18 +78,9 @@ pub fn parts_scene(
     seed: u64,
     no_noise: bool,
 ) -> Result<(Vec<(Part, Mesh)>, SyntheticScene), String> {
-    let meshes: Vec<(Part, Mesh)> = Part::ALL.iter().map(|p| (*p, p.mesh())).collect();
-    let noise = if no_noise {
-        None
-    } else {
-        Some(NoiseModel::kinect())
-    };
-    let mut spec = SceneSpec::new(seed).noise(noise);
-    for (part, mesh) in &meshes {
-        spec = spec.object(part.object_id(), mesh);
-    }
-    let scene = spec.build().map_err(|e| e.to_string())?;
-    Ok((meshes, scene))
+    let noise = (!no_noise).then(NoiseModel::kinect);
+    let scene = SyntheticScene::of_every_part(seed, noise).map_err(|e| e.to_string())?;
+    Ok((Part::ALL.iter().map(|p| (*p, p.mesh())).collect(), scene))
 }
 
 /// The embedded default: the generated parts resting on a table, seen by a Kinect-like camera.

@@ -1,12 +1,15 @@
 //! `ppf generate`: writes the generated scene that `ppf demo` shows as a dataset in the BOP
 //! layout, so that tools outside this process read it as they read any BOP data: a daemon
 //! builds the parts' models from `models/`, `ppf replay` and the Python examples publish its
-//! depth, `ppf eval` scores against its ground truth.
+//! depth, `ppf eval` scores against its ground truth. With `--models`, a cell's own meshes
+//! rest on the table instead of the generated parts, and `--clutter` adds boxes and cylinders
+//! around them: a scene to try the detector on before a camera is wired.
 //!
 //! ```text
 //! out/
 //!   camera.json
-//!   models/obj_000001.ply …       the generated parts (ASCII PLY with normals)
+//!   models/obj_000001.ply …       the meshes placed (ASCII PLY with normals)
+//!          models_info.json      with --models, the source folder's entries for them, if any
 //!   test/000000/
 //!     scene_camera.json  scene_gt.json  depth/000000.png   (16-bit, 1 mm per unit)
 //! ```
@@ -14,10 +17,10 @@
 use std::path::{Path, PathBuf};
 
 use clap::Args;
-use ppfd_models::synthetic::scene::SyntheticScene;
+use ppfd_models::geometry::mesh::Mesh;
+use ppfd_models::synthetic::parts::Part;
+use ppfd_models::synthetic::scene::{NoiseModel, SceneSpec, SyntheticScene};
 use serde_json::json;
-
-use crate::demo::parts_scene;
 
 #[derive(Args, Debug)]
 pub struct GenerateArgs {
@@ -29,6 +32,75 @@ pub struct GenerateArgs {
     /// Render the scene without sensor noise.
     #[arg(long)]
     pub no_noise: bool,
+    /// Place these meshes instead of the generated parts: a folder of PLY meshes in mm, named
+    /// by object id as `ppfd --models` takes them (`obj_000005.ply` is object 5).
+    #[arg(long, value_name = "DIR")]
+    pub models: Option<PathBuf>,
+    /// With --models: only these object ids, comma separated (default: every mesh of the
+    /// folder).
+    #[arg(long, value_delimiter = ',', requires = "models")]
+    pub objects: Vec<u32>,
+    /// Random boxes and cylinders placed on the table around the objects, hiding parts of
+    /// them (the generated scene of `ppf demo` has none).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=50))]
+    pub clutter: u32,
+}
+
+/// The meshes of `dir` with their object ids, in id order: those of `only` when it names any.
+/// Refuses a folder without meshes, a file without an id, and an id that has no mesh there.
+fn read_meshes(dir: &Path, only: &[u32]) -> Result<Vec<(u32, Mesh)>, String> {
+    let entries =
+        std::fs::read_dir(dir).map_err(|e| format!("cannot read {}: {e}", dir.display()))?;
+    let mut paths: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.extension()
+                .and_then(|e| e.to_str())
+                .is_some_and(|e| e.eq_ignore_ascii_case("ply"))
+        })
+        .collect();
+    paths.sort();
+    if paths.is_empty() {
+        return Err(format!("{}: no PLY meshes (*.ply) in it", dir.display()));
+    }
+    let ids = crate::model::object_ids(&paths, None)?;
+    if let Some(missing) = only.iter().find(|id| !ids.contains(id)) {
+        let mut have = ids.clone();
+        have.sort_unstable();
+        let have: Vec<String> = have.iter().map(u32::to_string).collect();
+        return Err(format!(
+            "object {missing} has no mesh in {} (it has {})",
+            dir.display(),
+            have.join(", ")
+        ));
+    }
+    let mut meshes = Vec::new();
+    for (id, path) in ids.into_iter().zip(&paths) {
+        if only.is_empty() || only.contains(&id) {
+            let mesh = Mesh::from_ply_file(path).map_err(|e| format!("{}: {e}", path.display()))?;
+            meshes.push((id, mesh));
+        }
+    }
+    meshes.sort_by_key(|(id, _)| *id);
+    Ok(meshes)
+}
+
+/// The entries of `source`'s `models_info.json` for `ids` (diameters and symmetries, which
+/// `ppf eval` and `ppf score` read), or `None` when it has none.
+fn models_info_for(source: &Path, ids: &[u32]) -> Result<Option<serde_json::Value>, String> {
+    let path = source.join("models_info.json");
+    if !path.is_file() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+    let all: serde_json::Map<String, serde_json::Value> = serde_json::from_str(&text)
+        .map_err(|e| format!("{}: not a models_info.json: {e}", path.display()))?;
+    let kept: serde_json::Map<_, _> = all
+        .into_iter()
+        .filter(|(k, _)| k.parse::<u32>().is_ok_and(|id| ids.contains(&id)))
+        .collect();
+    Ok((!kept.is_empty()).then_some(serde_json::Value::Object(kept)))
 }
 
 fn write(path: &Path, bytes: &[u8]) -> Result<(), String> {
@@ -100,13 +172,37 @@ fn write_dataset(
 }
 
 pub fn run(args: GenerateArgs) -> Result<(), String> {
-    let (meshes, scene) = parts_scene(args.seed, args.no_noise)?;
-    let meshes: Vec<_> = meshes.iter().map(|(p, m)| (p.object_id(), m)).collect();
-    write_dataset(&args.out, &meshes, &scene)?;
+    let meshes: Vec<(u32, Mesh)> = match &args.models {
+        Some(dir) => read_meshes(dir, &args.objects)?,
+        None => Part::ALL
+            .iter()
+            .map(|p| (p.object_id(), p.mesh()))
+            .collect(),
+    };
+    // The recipe of `SyntheticScene::of_every_part` (the demo's scene) for any meshes.
+    let mut spec = SceneSpec::new(args.seed)
+        .noise((!args.no_noise).then(NoiseModel::kinect))
+        .clutter(args.clutter as usize);
+    for (id, mesh) in &meshes {
+        spec = spec.object(*id, mesh);
+    }
+    let scene = spec.build().map_err(|e| e.to_string())?;
+    let ids: Vec<u32> = meshes.iter().map(|(id, _)| *id).collect();
+    let info = match &args.models {
+        Some(dir) => models_info_for(dir, &ids)?,
+        None => None,
+    };
+    let refs: Vec<_> = meshes.iter().map(|(id, m)| (*id, m)).collect();
+    write_dataset(&args.out, &refs, &scene)?;
+    if let Some(info) = info {
+        let pretty = serde_json::to_vec_pretty(&info).expect("JSON values print");
+        write(&args.out.join("models").join("models_info.json"), &pretty)?;
+    }
     println!(
-        "wrote the generated scene of seed {} ({} objects) as a BOP dataset in {}",
+        "wrote the generated scene of seed {} ({} objects, {} pieces of clutter) as a BOP dataset in {}",
         args.seed,
         scene.ground_truth.len(),
+        args.clutter,
         args.out.display()
     );
     Ok(())
@@ -115,20 +211,26 @@ pub fn run(args: GenerateArgs) -> Result<(), String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::demo::parts_scene;
     use ppfd_bop::dataset::BopDataset;
-    use ppfd_models::geometry::mesh::Mesh;
+
+    fn args(out: &Path, seed: u64) -> GenerateArgs {
+        GenerateArgs {
+            out: out.to_owned(),
+            seed,
+            no_noise: false,
+            models: None,
+            objects: Vec::new(),
+            clutter: 0,
+        }
+    }
 
     /// What `ppf generate` writes reads back through the BOP reader as the scene it generated:
     /// the same depth values, intrinsics, truth and meshes.
     #[test]
     fn the_written_dataset_reads_back_as_the_generated_scene() {
         let dir = crate::common::ScratchDir::create("ppf-generate-test").unwrap();
-        run(GenerateArgs {
-            out: dir.path().to_owned(),
-            seed: 3,
-            no_noise: false,
-        })
-        .unwrap();
+        run(args(dir.path(), 3)).unwrap();
         let (meshes, scene) = parts_scene(3, false).unwrap();
         let data = BopDataset::open(dir.path()).unwrap();
         assert_eq!(data.scene_ids(), [0]);
@@ -158,5 +260,121 @@ mod tests {
             assert_eq!(read.positions, mesh.positions, "{}", part.name());
             assert_eq!(read.faces, mesh.faces, "{}", part.name());
         }
+    }
+
+    /// A folder of three meshes, named by id, with a models_info.json that also names an object
+    /// without a mesh.
+    fn mesh_folder(dir: &Path) -> PathBuf {
+        let models = dir.join("source");
+        for part in [Part::LBracket, Part::ToothedDisc, Part::TPipe] {
+            let path = models.join(format!("obj_{:06}.ply", part.object_id()));
+            write(&path, part.mesh().to_ply_ascii().as_bytes()).unwrap();
+        }
+        let entry = |diameter: f32| {
+            json!({"diameter": diameter, "min_x": -50.0, "min_y": -50.0, "min_z": -50.0,
+                   "size_x": 100.0, "size_y": 100.0, "size_z": 100.0})
+        };
+        let info =
+            json!({"1": entry(150.0), "3": entry(140.0), "4": entry(120.0), "9": entry(99.0)});
+        write(
+            &models.join("models_info.json"),
+            info.to_string().as_bytes(),
+        )
+        .unwrap();
+        models
+    }
+
+    /// With --models and --objects, the scene holds exactly the meshes asked for, each in view,
+    /// their models_info entries come along, and --clutter puts more in view than the objects.
+    #[test]
+    fn a_cells_own_meshes_make_the_scene() {
+        let dir = crate::common::ScratchDir::create("ppf-generate-models").unwrap();
+        let source = mesh_folder(dir.path());
+        let scene_of = |name: &str, clutter: u32| {
+            let out = dir.path().join(name);
+            run(GenerateArgs {
+                models: Some(source.clone()),
+                objects: vec![4, 1],
+                clutter,
+                ..args(&out, 11)
+            })
+            .unwrap();
+            BopDataset::open(&out).unwrap()
+        };
+        let plain = scene_of("plain", 0);
+        assert_eq!(plain.object_ids(), [1, 4]);
+        let truth = plain.ground_truth(0, 0).unwrap();
+        let ids: Vec<u32> = truth.iter().map(|g| g.obj_id).collect();
+        assert_eq!(ids, [1, 4]);
+        let frame = plain.depth_frame(0, 0).unwrap();
+        for g in truth {
+            let c = g.pose.translation.vector;
+            let k = frame.intrinsics;
+            let (u, v) = (k.fx * c.x / c.z + k.cx, k.fy * c.y / c.z + k.cy);
+            assert!(
+                (0.0..frame.width as f32).contains(&u) && (0.0..frame.height as f32).contains(&v),
+                "object {} at pixel ({u}, {v}), out of view",
+                g.obj_id
+            );
+        }
+        let info: serde_json::Map<String, serde_json::Value> = serde_json::from_slice(
+            &std::fs::read(dir.path().join("plain/models/models_info.json")).unwrap(),
+        )
+        .unwrap();
+        let keys: Vec<&str> = info.keys().map(String::as_str).collect();
+        assert_eq!(keys, ["1", "4"]);
+        assert_eq!(plain.model_info(4).unwrap().diameter_mm, 120.0);
+        let read = Mesh::from_ply_file(plain.model_path(4).unwrap()).unwrap();
+        assert_eq!(read.positions, Part::TPipe.mesh().positions);
+
+        // Clutter stands between the table and the camera: nearer depth where there was table.
+        let cluttered = scene_of("cluttered", 4);
+        let near = |d: &BopDataset| {
+            let f = d.depth_frame(0, 0).unwrap();
+            f.depth.iter().filter(|&&z| z > 0 && z < 900).count()
+        };
+        assert_eq!(cluttered.ground_truth(0, 0).unwrap().len(), 2);
+        let depth_plain = plain.depth_frame(0, 0).unwrap().depth;
+        let depth_cluttered = cluttered.depth_frame(0, 0).unwrap().depth;
+        let changed = depth_plain
+            .iter()
+            .zip(&depth_cluttered)
+            .filter(|(a, b)| a.abs_diff(**b) > 20)
+            .count();
+        assert!(
+            changed > 2_000,
+            "4 pieces of clutter changed only {changed} pixels (near: {} against {})",
+            near(&cluttered),
+            near(&plain)
+        );
+    }
+
+    /// An object id without a mesh, and a folder without meshes, are refused with what is there.
+    #[test]
+    fn a_missing_mesh_is_named() {
+        let dir = crate::common::ScratchDir::create("ppf-generate-missing").unwrap();
+        let source = mesh_folder(dir.path());
+        let e = run(GenerateArgs {
+            models: Some(source),
+            objects: vec![1, 2],
+            ..args(&dir.path().join("out"), 1)
+        })
+        .unwrap_err();
+        assert!(
+            e.contains("object 2 has no mesh") && e.contains("(it has 1, 3, 4)"),
+            "{e}"
+        );
+        let empty = dir.path().join("empty");
+        std::fs::create_dir_all(&empty).unwrap();
+        let e = run(GenerateArgs {
+            models: Some(empty),
+            ..args(&dir.path().join("out"), 1)
+        })
+        .unwrap_err();
+        assert!(e.contains("no PLY meshes"), "{e}");
+        assert!(
+            !dir.path().join("out").exists(),
+            "nothing is written on a refusal"
+        );
     }
 }

@@ -50,8 +50,8 @@ enum Command {
     Stats(daemon::StatsArgs),
     /// Start a daemon, publish a generated scene, detect, compare with the truth, stop.
     Demo(demo::DemoArgs),
-    /// Write the generated scene `demo` shows as a BOP dataset: the parts' meshes, the depth
-    /// image, its camera and ground truth.
+    /// Write the generated scene `demo` shows as a BOP dataset: the parts' meshes (or a
+    /// folder's own, `--models`), the depth image, its camera and ground truth.
     Generate(generate::GenerateArgs),
     /// Run the ppfd daemon in this process, with ppfd's flags (what `ppf demo` starts);
     /// `ppf serve --help` prints ppfd's help.

@@ -140,7 +140,7 @@ fn check_mesh_path(path: &Path) -> Result<(), String> {
 /// name, by `ppfd`'s own rule (`obj_000005.ply` → 5, `duck7.ply` → 7), so that a model built
 /// here has the id the daemon gives the mesh. Refuses, naming the file, a folder, a name
 /// without an id, id 0, and two meshes of one id (two models of one object).
-fn object_ids(meshes: &[PathBuf], id: Option<u32>) -> Result<Vec<u32>, String> {
+pub(crate) fn object_ids(meshes: &[PathBuf], id: Option<u32>) -> Result<Vec<u32>, String> {
     if id.is_some() && meshes.len() > 1 {
         let e = "--id applies to a single mesh; with several, the digits ending each file's \
                  name give its object id (obj_000005.ply is object 5)";

@@ -15,7 +15,7 @@ use ppfd::engine::{
 };
 use ppfd_models::model::ObjectModel;
 use ppfd_models::synthetic::parts::Part;
-use ppfd_models::synthetic::scene::{NoiseModel, SceneSpec, SyntheticScene};
+use ppfd_models::synthetic::scene::{NoiseModel, SyntheticScene};
 use ppfd_protocol::control::ModelInfo;
 use ppfd_protocol::detect::{checks, DetectCounts, LatencyBreakdown, PoseHypothesis, Status};
 use ppfd_protocol::text;
@@ -344,12 +344,7 @@ pub fn fake_model_dir(test: &str, ids: &[u32]) -> WorkDir {
 /// with Kinect-like noise when `noisy`. Deterministic: the camera process and the test that
 /// holds the truth build the same frame from the same seed.
 pub fn parts_scene(seed: u64, noisy: bool) -> SyntheticScene {
-    let meshes: Vec<_> = Part::ALL.iter().map(Part::mesh).collect();
-    let mut spec = SceneSpec::new(seed).noise(noisy.then(NoiseModel::kinect));
-    for (part, mesh) in Part::ALL.iter().zip(&meshes) {
-        spec = spec.object(part.object_id(), mesh);
-    }
-    spec.build()
+    SyntheticScene::of_every_part(seed, noisy.then(NoiseModel::kinect))
         .expect("the generated parts make a valid scene")
 }
 
