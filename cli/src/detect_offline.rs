@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 use ppfd_bop::dataset::BopDataset;
-use ppfd_models::detect::detector::{Detector, RunOptions};
+use ppfd_models::detect::detector::{Detector, Hint, RunOptions};
 
 use crate::offline::{dataset_models, symmetric_pose_errors};
 
@@ -392,12 +392,8 @@ fn ms(d: std::time::Duration) -> f64 {
 /// where the best candidate near the ground truth stands after each, and where it was lost.
 pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
     use ppfd_models::detect::diagnosis::{
-        diagnose, returned_poses, PreparedFrame, NEAR_ROTATION_DEG, NEAR_TRANSLATION_FRACTION,
+        diagnose_targets, NEAR_ROTATION_DEG, NEAR_TRANSLATION_FRACTION,
     };
-    use ppfd_models::detect::plane::SupportingPlane;
-    use ppfd_models::detect::scene::{prepare, PreparedScene};
-    use ppfd_models::detect::silhouette::EdgeMap;
-    use ppfd_models::detect::voting::Selection;
     let dataset = BopDataset::open(&args.dataset)?;
     let gt = dataset.ground_truth(args.scene, args.image)?.to_vec();
     let ids = if args.objects.is_empty() {
@@ -420,10 +416,38 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
     }
     let models = dataset_models(&dataset, &ids)?;
     let frame = dataset.depth_frame(args.scene, args.image)?;
-    let scene = prepare(&frame.view(), &p.scene)?;
-    let points = scene.oriented_points();
-    let planes = SupportingPlane::find_all(&points, &p.plane);
-    for pl in &planes {
+    let model_refs: Vec<&ppfd_models::model::ObjectModel> = models.iter().collect();
+    // The first true instance of each object is its target.
+    let targets: Vec<Hint> = ids
+        .iter()
+        .filter_map(|&id| gt.iter().find(|g| g.obj_id == id))
+        .map(|g| Hint {
+            object_id: g.obj_id,
+            pose: g.pose,
+        })
+        .collect();
+    let opts = RunOptions {
+        hypotheses_per_object: args.top.max(1),
+        ..Default::default()
+    };
+    // The objects of one detection change each other's poses only through the exclusion across
+    // objects, which the stages run object by object cannot see: the detection itself settles
+    // each result stage.
+    let detected = if models.len() > 1 {
+        Some(Detector::new(p.clone()).detect(&frame.view(), &model_refs, &opts)?)
+    } else {
+        None
+    };
+    // No deadline here: the command runs every stage to its end.
+    let diagnosis = diagnose_targets(
+        &p,
+        &frame.view(),
+        &model_refs,
+        &targets,
+        &opts,
+        detected.as_ref(),
+    )?;
+    for pl in &diagnosis.planes {
         println!(
             "large plane: normal ({:.3}, {:.3}, {:.3}), {:.0} mm from the camera, {:.0} mm wide, {:.0} % of the scene on it",
             pl.normal.x,
@@ -434,106 +458,33 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
             100.0 * pl.inlier_fraction
         );
     }
-    let edges = EdgeMap::new(&scene, &p.filters);
-    let prepared = PreparedFrame {
-        image: &scene,
-        planes: &planes,
-        edges: &edges,
-    };
-    // The clouds the detector would build for these objects together.
-    let model_refs: Vec<&ppfd_models::model::ObjectModel> = models.iter().collect();
-    let (clouds, cloud_of): (Vec<PreparedScene>, _) =
-        p.prepare_clouds(&points, &planes, &model_refs)?;
-    // The objects of one detection change each other's poses only through the exclusion across
-    // objects, which the stages run object by object cannot see: the detection itself settles
-    // each result stage.
-    let hypotheses = args.top.max(1);
-    let detected = if models.len() > 1 {
-        let opts = RunOptions {
-            hypotheses_per_object: hypotheses,
-            ..Default::default()
-        };
-        Some(Detector::new(p.clone()).detect(&frame.view(), &model_refs, &opts)?)
-    } else {
-        None
-    };
     println!("| object | cloud points | on object | normal error (median °) | reference points on object | lost at |");
     println!("|---:|---:|---:|---:|---:|---|");
-    let mut lines = Vec::new();
-    let mut found = 0;
-    for (model, &group) in models.iter().zip(&cloud_of) {
-        let d = model.diameter_mm();
-        let truth = gt
-            .iter()
-            .find(|g| g.obj_id == model.object_id())
-            .map(|g| g.pose)
-            .ok_or("no ground truth")?; // checked above
-        let syms = dataset
-            .model_info(model.object_id())
-            .map(|i| i.symmetries_discrete.clone())
-            .unwrap_or_default();
-        let cloud = &clouds[group];
-        // The model's surface at the true pose, the side facing the camera only: the back of a
-        // thin part (a handle, a spout) lies within millimetres of its front, with the opposite
-        // normal. A cloud point within 3 mm of it is on the object; its normal error is the
-        // angle to the nearest such surface point's normal.
-        let front: Vec<_> = surface_of(model)
-            .into_iter()
-            .map(|(q, n)| (truth * q, truth * n))
-            .filter(|(q, n)| n.dot(&q.coords) < 0.0)
-            .collect();
-        let surface_normals: Vec<Option<nalgebra::Vector3<f32>>> = cloud
-            .points
-            .positions
-            .iter()
-            .map(|q| {
-                front
-                    .iter()
-                    .filter(|(m, _)| (m - q).norm() < 3.0)
-                    .min_by(|a, b| (a.0 - q).norm().total_cmp(&(b.0 - q).norm()))
-                    .map(|(_, n)| *n)
-            })
-            .collect();
-        let mut errs: Vec<f32> = surface_normals
-            .iter()
-            .zip(&cloud.points.normals)
-            .filter_map(|(mn, n)| mn.map(|mn| n.dot(&mn).clamp(-1.0, 1.0).acos().to_degrees()))
-            .collect();
-        errs.sort_by(f32::total_cmp);
-        let median = errs.get(errs.len() / 2).copied().unwrap_or(f32::NAN);
-        let references_on_object = Selection::new(cloud, &p.voting, &planes, d)
-            .references
-            .iter()
-            .filter(|&&r| surface_normals[r].is_some())
-            .count();
-        let errors = |pose: &ppfd_models::Pose| symmetric_pose_errors(pose, &truth, &syms);
-        // No deadline here: the command runs every stage to its end.
-        let mut diagnosis = diagnose(&p, &prepared, cloud, model, &errors, hypotheses, &|| Ok(()))?;
-        if let Some(o) = detected
-            .as_ref()
-            .and_then(|d| d.objects.iter().find(|o| o.object_id == model.object_id()))
-        {
-            diagnosis.settle_with(&returned_poses(o, hypotheses), |pose| {
-                let (dt, dr) = errors(pose);
-                dt <= NEAR_TRANSLATION_FRACTION * d && dr <= NEAR_ROTATION_DEG
-            });
-        }
-        if diagnosis.lost_at().is_none() {
-            found += 1;
-        }
+    for d in &diagnosis.objects {
+        let c = &d.cloud;
+        let median = c
+            .normal_error_median_deg
+            .map_or("–".to_string(), |e| format!("{e:.1}"));
         println!(
-            "| {} | {} | {} | {median:.1} | {references_on_object} | {} |",
-            model.object_id(),
-            cloud.points.len(),
-            errs.len(),
-            diagnosis.lost_at().unwrap_or("found"),
+            "| {} | {} | {} | {median} | {} | {} |",
+            d.object_id,
+            c.cloud_points,
+            c.on_object,
+            c.references_on_object,
+            d.lost_at().unwrap_or("found"),
         );
-        lines.extend(diagnosis.lines());
     }
     println!();
-    for line in lines {
-        println!("{line}");
+    for d in &diagnosis.objects {
+        for line in d.lines() {
+            println!("{line}");
+        }
     }
+    let found = diagnosis
+        .objects
+        .iter()
+        .filter(|d| d.lost_at().is_none())
+        .count();
     println!(
         "\n{found} of {} objects found near the ground truth (within {} D and {}°)",
         models.len(),
@@ -541,11 +492,4 @@ pub fn diagnose(args: &DatasetDetectArgs) -> Result<(), Box<dyn std::error::Erro
         NEAR_ROTATION_DEG
     );
     Ok(())
-}
-
-fn surface_of(
-    model: &ppfd_models::model::ObjectModel,
-) -> Vec<(nalgebra::Point3<f32>, nalgebra::Vector3<f32>)> {
-    let s = model.surface_points();
-    s.positions.into_iter().zip(s.normals).collect()
 }

@@ -311,6 +311,7 @@ impl DetectionEngine for PpfEngine {
                 Some(&found),
             )
             .map_err(model_error)?
+            .objects
             .iter()
             .flat_map(|d| d.lines())
             .collect()

@@ -49,7 +49,73 @@ pub struct StageReport {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Diagnosis {
     pub object_id: u32,
+    /// What the object's scene cloud holds of it at the target.
+    pub cloud: CloudOnTarget,
     pub stages: Vec<StageReport>,
+}
+
+/// An object's subsampled scene cloud against the target: its points within 3 mm of the model's
+/// camera-facing surface at the target pose ("on the object"), the median angle between their
+/// normals and that surface's, and how many of them are reference points. Only the facing side
+/// counts: the back of a thin part (a handle, a spout) lies within millimetres of its front,
+/// with the opposite normal.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CloudOnTarget {
+    pub cloud_points: usize,
+    pub on_object: usize,
+    /// `None` when no point is on the object.
+    pub normal_error_median_deg: Option<f32>,
+    pub references_on_object: usize,
+}
+
+/// The distance within which a cloud point is on the target's surface, mm.
+const ON_SURFACE_MM: f32 = 3.0;
+
+impl CloudOnTarget {
+    fn measure(
+        model: &ObjectModel,
+        cloud: &PreparedScene,
+        references: &[usize],
+        target: &Pose,
+    ) -> Self {
+        let surface = model.surface_points();
+        let front: Vec<_> = surface
+            .positions
+            .iter()
+            .zip(&surface.normals)
+            .map(|(q, n)| (target * q, target * n))
+            .filter(|(q, n)| n.dot(&q.coords) < 0.0)
+            .collect();
+        // The nearest facing surface point's normal, for each cloud point on the surface.
+        let surface_normal: Vec<Option<nalgebra::Vector3<f32>>> = cloud
+            .points
+            .positions
+            .par_iter()
+            .map(|q| {
+                front
+                    .iter()
+                    .map(|(m, n)| ((m - q).norm(), n))
+                    .filter(|(dist, _)| *dist < ON_SURFACE_MM)
+                    .min_by(|a, b| a.0.total_cmp(&b.0))
+                    .map(|(_, n)| *n)
+            })
+            .collect();
+        let mut errors: Vec<f32> = surface_normal
+            .iter()
+            .zip(&cloud.points.normals)
+            .filter_map(|(m, n)| m.map(|m| n.dot(&m).clamp(-1.0, 1.0).acos().to_degrees()))
+            .collect();
+        errors.sort_by(f32::total_cmp);
+        CloudOnTarget {
+            cloud_points: cloud.points.len(),
+            on_object: errors.len(),
+            normal_error_median_deg: errors.get(errors.len() / 2).copied(),
+            references_on_object: references
+                .iter()
+                .filter(|&&r| surface_normal[r].is_some())
+                .count(),
+        }
+    }
 }
 
 impl Diagnosis {
@@ -158,7 +224,7 @@ pub fn diagnose_targets(
     targets: &[Hint],
     opts: &RunOptions,
     detected: Option<&Detections>,
-) -> Result<Vec<Diagnosis>> {
+) -> Result<FrameDiagnosis> {
     let start = Instant::now();
     if let Some(t) = targets
         .iter()
@@ -186,13 +252,12 @@ pub fn diagnose_targets(
             continue;
         };
         opts.check_stop(start)?;
-        let errors = |pose: &Pose| pose_errors(model, pose, &target.pose);
         let mut diagnosis = diagnose(
             params,
             &prepared,
             &clouds[group],
             model,
-            &errors,
+            &target.pose,
             opts.hypotheses_per_object,
             &|| opts.check_stop(start),
         )?;
@@ -201,13 +266,24 @@ pub fn diagnose_targets(
         {
             let d = model.diameter_mm();
             diagnosis.settle_with(&returned_poses(found, opts.hypotheses_per_object), |p| {
-                let (dt, dr) = errors(p);
+                let (dt, dr) = pose_errors(model, p, &target.pose);
                 dt <= NEAR_TRANSLATION_FRACTION * d && dr <= NEAR_ROTATION_DEG
             });
         }
         out.push(diagnosis);
     }
-    Ok(out)
+    Ok(FrameDiagnosis {
+        planes,
+        objects: out,
+    })
+}
+
+/// A frame's diagnosis: the large planes the detector finds in it (§2.3 of METHOD.md), and each
+/// target's [`Diagnosis`].
+#[derive(Clone, Debug)]
+pub struct FrameDiagnosis {
+    pub planes: Vec<SupportingPlane>,
+    pub objects: Vec<Diagnosis>,
 }
 
 /// The poses a detection returned for an object that passed both filters, in order, at most
@@ -224,9 +300,8 @@ pub fn returned_poses(found: &ObjectDetections, hypotheses: usize) -> Vec<Pose> 
 }
 
 /// Runs the detector's stages on `cloud` (the object's subsampled scene) for `model`, and says
-/// after each where the best candidate near the target stands. `errors(pose)` is a pose's
-/// translation (mm) and rotation (degrees) error against the target (the smallest over the
-/// object's symmetries, if it has any); `hypotheses` is how many the detection returns.
+/// after each where the best candidate near `target` stands, compared through the object's
+/// symmetry ([`pose_errors`]); `hypotheses` is how many the detection returns.
 /// `stop` is asked where the detector asks whether to go on (after voting and clustering) and
 /// before voting again for the margin of a target lost at voting; its error ends the diagnosis.
 pub fn diagnose(
@@ -234,23 +309,26 @@ pub fn diagnose(
     frame: &PreparedFrame,
     cloud: &PreparedScene,
     model: &ObjectModel,
-    errors: &dyn Fn(&Pose) -> (f32, f32),
+    target: &Pose,
     hypotheses: usize,
     stop: &dyn Fn() -> Result<()>,
 ) -> Result<Diagnosis> {
     let p = params;
     let d = model.diameter_mm();
+    let errors_to_target = |pose: &Pose| pose_errors(model, pose, target);
+    let errors: &dyn Fn(&Pose) -> (f32, f32) = &errors_to_target;
     let near = |pose: &Pose| {
         let (dt, dr) = errors(pose);
         dt <= NEAR_TRANSLATION_FRACTION * d && dr <= NEAR_ROTATION_DEG
     };
+    let selection = Selection::new(cloud, &p.voting, frame.planes, d);
     let mut trace = Diagnosis {
         object_id: model.object_id(),
+        cloud: CloudOnTarget::measure(model, cloud, &selection.references, target),
         stages: Vec::new(),
     };
 
     // Voting: how many reference points propose the target, against the best proposal.
-    let selection = Selection::new(cloud, &p.voting, frame.planes, d);
     let (raw, _) = vote_from(model, cloud, &selection, &p.voting);
     let most = raw.iter().map(|h| h.votes).max().unwrap_or(0);
     let proposing: std::collections::BTreeSet<u32> = raw
@@ -790,17 +868,18 @@ mod tests {
         let prepared = Prepared::new(&scene, &params, &model);
         let (frame, cloud) = (prepared.frame(), &prepared.cloud);
 
-        let found = diagnose(
-            &params,
-            &frame,
-            cloud,
-            &model,
-            &errors_to(truth),
-            1,
-            &|| Ok(()),
-        )
-        .unwrap();
+        let found = diagnose(&params, &frame, cloud, &model, &truth, 1, &|| Ok(())).unwrap();
         assert_eq!(found.lost_at(), None, "{:#?}", found.lines());
+        // At the truth, points of the cloud lie on the part's facing surface with normals near
+        // its own, and some of them are reference points.
+        let c = &found.cloud;
+        assert_eq!(c.cloud_points, cloud.points.len());
+        assert!(
+            c.on_object >= 10
+                && (1..=c.on_object).contains(&c.references_on_object)
+                && c.normal_error_median_deg.is_some_and(|e| e < 30.0),
+            "{c:?}"
+        );
         let stages: Vec<&str> = found.stages.iter().map(|s| s.stage).collect();
         // Two parts give fewer clusters than the sparse fit keeps: it cuts nothing and has no
         // line.
@@ -862,17 +941,14 @@ mod tests {
             ),
             truth.rotation,
         );
-        let lost = diagnose(
-            &params,
-            &frame,
-            cloud,
-            &model,
-            &errors_to(elsewhere),
-            1,
-            &|| Ok(()),
-        )
-        .unwrap();
+        let lost = diagnose(&params, &frame, cloud, &model, &elsewhere, 1, &|| Ok(())).unwrap();
         assert_eq!(lost.lost_at(), Some("voting"));
+        let c = &lost.cloud;
+        assert_eq!(
+            (c.on_object, c.references_on_object, c.normal_error_median_deg),
+            (0, 0, None),
+            "{c:?}"
+        );
         let lines = lost.lines();
         assert_eq!(lines.len(), 2, "{lines:?}");
         assert_eq!(
@@ -897,7 +973,7 @@ mod tests {
         };
         for target in [truth, elsewhere] {
             asked.set(0);
-            let stopped = diagnose(&params, &frame, cloud, &model, &errors_to(target), 1, &late);
+            let stopped = diagnose(&params, &frame, cloud, &model, &target, 1, &late);
             assert!(
                 matches!(stopped, Err(Error::DeadlineExceeded { .. })),
                 "{stopped:?}"
@@ -927,9 +1003,7 @@ mod tests {
         assert_eq!(truths.len(), 2);
         let one: Vec<Diagnosis> = truths
             .iter()
-            .map(|&t| {
-                diagnose(&params, &frame, cloud, &model, &errors_to(t), 1, &|| Ok(())).unwrap()
-            })
+            .map(|&t| diagnose(&params, &frame, cloud, &model, &t, 1, &|| Ok(())).unwrap())
             .collect();
         let lost: Vec<Option<&str>> = one.iter().map(Diagnosis::lost_at).collect();
         assert!(
@@ -951,8 +1025,7 @@ mod tests {
         assert_eq!(scores.len(), 2, "{line}");
         assert!(scores[0] >= scores[1], "{line}");
         for &t in &truths {
-            let both =
-                diagnose(&params, &frame, cloud, &model, &errors_to(t), 2, &|| Ok(())).unwrap();
+            let both = diagnose(&params, &frame, cloud, &model, &t, 2, &|| Ok(())).unwrap();
             assert_eq!(both.lost_at(), None, "{:#?}", both.lines());
         }
     }
@@ -1046,6 +1119,12 @@ mod tests {
         let near = |p: &Pose| p.translation.x.abs() < 5.0;
         let trace = |stage: &'static str, kept: bool| Diagnosis {
             object_id: 3,
+            cloud: CloudOnTarget {
+                cloud_points: 0,
+                on_object: 0,
+                normal_error_median_deg: None,
+                references_on_object: 0,
+            },
             stages: vec![
                 StageReport {
                     stage: "voting",
@@ -1109,7 +1188,7 @@ mod tests {
             |detected| diagnose_targets(&params, &frame, &refs, &targets, &opts, detected).unwrap();
         let (alone, settled) = (diagnosed(None), diagnosed(Some(&detected)));
         let bracket = Part::LBracket.object_id();
-        for (a, s) in alone.iter().zip(&settled) {
+        for (a, s) in alone.objects.iter().zip(&settled.objects) {
             if a.object_id != bracket {
                 // The other parts' findings agree with the detection already.
                 assert_eq!(a, s);
@@ -1125,7 +1204,7 @@ mod tests {
                 "{line}"
             );
         }
-        assert!(alone.iter().any(|a| a.object_id == bracket));
+        assert!(alone.objects.iter().any(|a| a.object_id == bracket));
     }
 
     /// A diagnosis gives up as a detection does: with the request cancelled, or its deadline
@@ -1175,8 +1254,8 @@ mod tests {
         cancel.store(false, Ordering::Relaxed);
         let diagnosed =
             diagnose_targets(&params, &frame, &[&model], &targets, &cancelled, None).unwrap();
-        assert_eq!(diagnosed.len(), 1);
-        let lines = diagnosed[0].lines();
+        assert_eq!(diagnosed.objects.len(), 1);
+        let lines = diagnosed.objects[0].lines();
         assert!(lines[0].starts_with("object 1: "), "{lines:?}");
         assert!(lines.len() > 2, "a line per stage it reached: {lines:?}");
     }
