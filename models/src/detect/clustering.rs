@@ -22,7 +22,7 @@ pub struct ClusteringParams {
     pub rotation_deg: f32,
     /// After grouping, a cluster's pose is averaged again, `refine_iterations` times, over only
     /// the members within `refine_translation_fraction` of the diameter and an angle of the
-    /// current average, starting from the member with the most votes around it. The angle is
+    /// current average, starting from the average of all members. The angle is
     /// `refine_rotation_deg` and shrinks by `refine_rotation_shrink` each time. The wide grouping
     /// thresholds take in members one feature period away (a gear's tooth, a bolt hole), and
     /// poses whose rotation about a near-symmetry axis is barely determined; a plain average
