@@ -8,7 +8,7 @@ use ppfd_models::detect::detector::{DetectParams, Detections, Detector, RunOptio
 use ppfd_models::geometry::render::bounding_sphere;
 use ppfd_models::model::ObjectModel;
 use ppfd_models::synthetic::parts::Part;
-use ppfd_models::synthetic::scene::{NoiseModel, SceneSpec, SyntheticScene};
+use ppfd_models::synthetic::scene::{NoiseModel, SyntheticScene};
 
 /// A part's model with the centre of its mesh's bounding sphere.
 struct Known {
@@ -40,18 +40,12 @@ fn centre_errors(parts: &[Known], scene: &SyntheticScene, d: &Detections) -> Vec
 
 #[test]
 fn a_pose_on_another_parts_surface_gives_way_to_the_parts_own() {
-    let meshes: Vec<_> = Part::ALL.iter().map(Part::mesh).collect();
-    let mut spec = SceneSpec::new(4).noise(Some(NoiseModel::kinect()));
-    for (part, mesh) in Part::ALL.iter().zip(&meshes) {
-        spec = spec.object(part.object_id(), mesh);
-    }
-    let scene = spec.build().unwrap();
+    let scene = SyntheticScene::of_every_part(4, Some(NoiseModel::kinect())).unwrap();
     let parts: Vec<Known> = Part::ALL
         .iter()
-        .zip(&meshes)
-        .map(|(part, mesh)| Known {
+        .map(|part| Known {
             model: part.model().unwrap(),
-            centre: bounding_sphere(mesh).0,
+            centre: bounding_sphere(&part.mesh()).0,
         })
         .collect();
     let refs: Vec<&ObjectModel> = parts.iter().map(|k| &k.model).collect();

@@ -945,7 +945,11 @@ mod tests {
         assert_eq!(lost.lost_at(), Some("voting"));
         let c = &lost.cloud;
         assert_eq!(
-            (c.on_object, c.references_on_object, c.normal_error_median_deg),
+            (
+                c.on_object,
+                c.references_on_object,
+                c.normal_error_median_deg
+            ),
             (0, 0, None),
             "{c:?}"
         );
