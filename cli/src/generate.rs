@@ -18,6 +18,7 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 use ppfd_models::geometry::mesh::Mesh;
+use ppfd_models::model::sanity;
 use ppfd_models::synthetic::parts::Part;
 use ppfd_models::synthetic::scene::{NoiseModel, SceneSpec, SyntheticScene};
 use serde_json::json;
@@ -77,7 +78,10 @@ fn read_meshes(dir: &Path, only: &[u32]) -> Result<Vec<(u32, Mesh)>, String> {
     let mut meshes = Vec::new();
     for (id, path) in ids.into_iter().zip(&paths) {
         if only.is_empty() || only.contains(&id) {
-            let mesh = Mesh::from_ply_file(path).map_err(|e| format!("{}: {e}", path.display()))?;
+            // The reader's errors name the file; the checks of `ppf model build` refuse a mesh
+            // in another unit, which would render as a speck or fill the room.
+            let mesh = Mesh::from_ply_file(path).map_err(|e| e.to_string())?;
+            sanity::check_mesh(&mesh).map_err(|e| format!("{}: {e}", path.display()))?;
             meshes.push((id, mesh));
         }
     }
@@ -349,7 +353,8 @@ mod tests {
         );
     }
 
-    /// An object id without a mesh, and a folder without meshes, are refused with what is there.
+    /// An object id without a mesh, a folder without meshes and a mesh in metres are refused
+    /// with what is there.
     #[test]
     fn a_missing_mesh_is_named() {
         let dir = crate::common::ScratchDir::create("ppf-generate-missing").unwrap();
@@ -372,6 +377,27 @@ mod tests {
         })
         .unwrap_err();
         assert!(e.contains("no PLY meshes"), "{e}");
+        // A mesh in metres is refused with the file's name, before anything is written.
+        let metres = dir.path().join("metres");
+        let mut mesh = Part::TPipe.mesh();
+        for p in &mut mesh.positions {
+            p.coords /= 1000.0;
+        }
+        write(
+            &metres.join("obj_000004.ply"),
+            mesh.to_ply_ascii().as_bytes(),
+        )
+        .unwrap();
+        let e = run(GenerateArgs {
+            models: Some(metres.clone()),
+            ..args(&dir.path().join("out"), 1)
+        })
+        .unwrap_err();
+        assert!(
+            e.starts_with(&format!("{}: ", metres.join("obj_000004.ply").display()))
+                && e.contains("mm"),
+            "{e}"
+        );
         assert!(
             !dir.path().join("out").exists(),
             "nothing is written on a refusal"
