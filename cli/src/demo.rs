@@ -72,15 +72,17 @@ struct DemoScene {
 }
 
 /// The generated parts ([`Part::ALL`]) resting on a table, seen from a viewpoint drawn from
-/// `seed`, with Kinect-like noise unless `no_noise`; and each part's mesh. `ppf demo` shows it
-/// and `ppf generate` writes it.
+/// `seed`, with Kinect-like noise unless `no_noise` ([`SyntheticScene::of_every_part`]); and
+/// each part's mesh. `ppf demo` shows it and `ppf generate` writes it.
 pub fn parts_scene(
     seed: u64,
     no_noise: bool,
 ) -> Result<(Vec<(Part, Mesh)>, SyntheticScene), String> {
+    let meshes: Vec<(Part, Mesh)> = Part::ALL.iter().map(|p| (*p, p.mesh())).collect();
+    let objects: Vec<(u32, &Mesh)> = meshes.iter().map(|(p, m)| (p.object_id(), m)).collect();
     let noise = (!no_noise).then(NoiseModel::kinect);
-    let scene = SyntheticScene::of_every_part(seed, noise).map_err(|e| e.to_string())?;
-    Ok((Part::ALL.iter().map(|p| (*p, p.mesh())).collect(), scene))
+    let scene = SyntheticScene::resting(seed, noise, 0, &objects).map_err(|e| e.to_string())?;
+    Ok((meshes, scene))
 }
 
 /// The embedded default: the generated parts resting on a table, seen by a Kinect-like camera.

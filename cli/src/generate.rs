@@ -20,7 +20,7 @@ use clap::Args;
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::sanity;
 use ppfd_models::synthetic::parts::Part;
-use ppfd_models::synthetic::scene::{NoiseModel, SceneSpec, SyntheticScene};
+use ppfd_models::synthetic::scene::{NoiseModel, SyntheticScene};
 use serde_json::json;
 
 #[derive(Args, Debug)]
@@ -132,7 +132,7 @@ fn depth_png(width: u32, height: u32, depth: &[u16]) -> Result<Vec<u8>, String> 
 /// Writes `scene` and the meshes of its objects into `out` in the BOP layout.
 fn write_dataset(
     out: &Path,
-    meshes: &[(u32, &ppfd_models::geometry::mesh::Mesh)],
+    meshes: &[(u32, &Mesh)],
     scene: &SyntheticScene,
 ) -> Result<(), String> {
     let f = &scene.frame;
@@ -183,20 +183,16 @@ pub fn run(args: GenerateArgs) -> Result<(), String> {
             .map(|p| (p.object_id(), p.mesh()))
             .collect(),
     };
-    // The recipe of `SyntheticScene::of_every_part` (the demo's scene) for any meshes.
-    let mut spec = SceneSpec::new(args.seed)
-        .noise((!args.no_noise).then(NoiseModel::kinect))
-        .clutter(args.clutter as usize);
-    for (id, mesh) in &meshes {
-        spec = spec.object(*id, mesh);
-    }
-    let scene = spec.build().map_err(|e| e.to_string())?;
     let ids: Vec<u32> = meshes.iter().map(|(id, _)| *id).collect();
+    // Read before the scene is drawn: a malformed file is refused before any work.
     let info = match &args.models {
         Some(dir) => models_info_for(dir, &ids)?,
         None => None,
     };
-    let refs: Vec<_> = meshes.iter().map(|(id, m)| (*id, m)).collect();
+    let refs: Vec<(u32, &Mesh)> = meshes.iter().map(|(id, m)| (*id, m)).collect();
+    let noise = (!args.no_noise).then(NoiseModel::kinect);
+    let scene = SyntheticScene::resting(args.seed, noise, args.clutter as usize, &refs)
+        .map_err(|e| e.to_string())?;
     write_dataset(&args.out, &refs, &scene)?;
     if let Some(info) = info {
         let pretty = serde_json::to_vec_pretty(&info).expect("JSON values print");

@@ -86,12 +86,26 @@ impl CloudOnTarget {
             .map(|(q, n)| (target * q, target * n))
             .filter(|(q, n)| n.dot(&q.coords) < 0.0)
             .collect();
+        // Only cloud points within the facing surface's bounding sphere are searched: most of
+        // the cloud lies on other things.
+        let centre = front
+            .iter()
+            .fold(nalgebra::Vector3::zeros(), |sum, (m, _)| sum + m.coords)
+            / front.len().max(1) as f32;
+        let reach = front
+            .iter()
+            .map(|(m, _)| (m.coords - centre).norm())
+            .fold(0.0f32, f32::max)
+            + ON_SURFACE_MM;
         // The nearest facing surface point's normal, for each cloud point on the surface.
         let surface_normal: Vec<Option<nalgebra::Vector3<f32>>> = cloud
             .points
             .positions
             .par_iter()
             .map(|q| {
+                if (q.coords - centre).norm() > reach {
+                    return None;
+                }
                 front
                     .iter()
                     .map(|(m, n)| ((m - q).norm(), n))

@@ -608,9 +608,24 @@ impl SyntheticScene {
     pub fn of_every_part(seed: u64, noise: Option<NoiseModel>) -> Result<SyntheticScene> {
         use crate::synthetic::parts::Part;
         let meshes: Vec<Mesh> = Part::ALL.iter().map(Part::mesh).collect();
-        let mut spec = SceneSpec::new(seed).noise(noise);
-        for (part, mesh) in Part::ALL.iter().zip(&meshes) {
-            spec = spec.object(part.object_id(), mesh);
+        let objects: Vec<(u32, &Mesh)> =
+            Part::ALL.iter().map(Part::object_id).zip(&meshes).collect();
+        SyntheticScene::resting(seed, noise, 0, &objects)
+    }
+
+    /// `objects` (object id, mesh in mm), once each, resting on a table among `clutter` random
+    /// boxes and cylinders ([`SceneSpec::clutter`]), seen from a viewpoint drawn from `seed`,
+    /// with `noise`: the recipe of [`SyntheticScene::of_every_part`] for any meshes, which
+    /// `ppf generate --models` writes.
+    pub fn resting(
+        seed: u64,
+        noise: Option<NoiseModel>,
+        clutter: usize,
+        objects: &[(u32, &Mesh)],
+    ) -> Result<SyntheticScene> {
+        let mut spec = SceneSpec::new(seed).noise(noise).clutter(clutter);
+        for &(id, mesh) in objects {
+            spec = spec.object(id, mesh);
         }
         spec.build()
     }
