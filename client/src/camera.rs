@@ -3,7 +3,8 @@
 use std::mem::MaybeUninit;
 use std::time::{Duration, Instant};
 
-use iceoryx2::node::Node;
+use iceoryx2::identifiers::UniqueNodeId;
+use iceoryx2::node::{Node, NodeState, NodeView};
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::{Publisher, PublisherCreateError};
 use iceoryx2::port::update_connections::UpdateConnections;
@@ -92,10 +93,19 @@ impl CameraPublisher {
             .map_err(|e| match e {
                 PublisherCreateError::ExceedsMaxSupportedPublishers => Error::CameraTaken {
                     camera: camera.to_owned(),
-                    drivers: limits::MAX_CAMERA_PUBLISHERS,
                 },
                 e => transport("cannot create the camera publisher")(e),
             })?;
+        // The second publisher slot is for a driver that replaces a dead one, whose publisher
+        // iceoryx2 keeps until someone cleans up after it. Two live drivers would interleave
+        // their frames, and the daemon would detect in whichever came last. The check runs
+        // after this publisher exists, so that of two drivers starting at once neither misses
+        // the other (both are refused then).
+        if another_live_publisher(&service, node.id())? {
+            return Err(Error::CameraTaken {
+                camera: camera.to_owned(),
+            });
+        }
         // Wake a running daemon so that it subscribes before the first frame.
         let wake_service = services::daemon_wake_builder(&node).open_or_create().ok();
         let wake = wake_service
@@ -238,6 +248,37 @@ impl ReadyFrame<'_> {
 }
 
 /// A node of its own under `prefix`, for one camera port.
+/// Whether a publisher of `service` belongs to a live node other than `own`. A node whose state
+/// cannot be read (another user's) counts as live.
+fn another_live_publisher(service: &CameraService<Ipc>, own: &UniqueNodeId) -> Result<bool> {
+    let mut publishers = Vec::new();
+    service.dynamic_config().list_publishers(|p| {
+        if p.node_id != *own {
+            publishers.push(p.node_id);
+        }
+        CallbackProgression::Continue
+    });
+    if publishers.is_empty() {
+        return Ok(false);
+    }
+    let mut live = false;
+    service
+        .nodes(|state| {
+            live = match &state {
+                NodeState::Alive(view) => publishers.contains(view.id()),
+                NodeState::Inaccessible(id) => publishers.contains(id),
+                NodeState::Dead(_) | NodeState::Undefined(_) => false,
+            };
+            if live {
+                CallbackProgression::Stop
+            } else {
+                CallbackProgression::Continue
+            }
+        })
+        .map_err(transport("cannot list the camera's drivers"))?;
+    Ok(live)
+}
+
 fn node(prefix: Option<&str>) -> Result<Node<Ipc>> {
     NodeBuilder::new()
         .config(&iceoryx_config(prefix)?)

@@ -563,10 +563,16 @@ impl Client {
                 let h = *response.user_header();
                 let status = Status::from_code(h.status).unwrap_or(Status::Internal);
                 if status != Status::Ok {
+                    // A control answer has no value field: the one value a control refusal
+                    // has, the unknown object's id, is the request's own.
+                    let value = match status {
+                        Status::UnknownObject => request.object_id as u64,
+                        _ => 0,
+                    };
                     return Err(Error::Refused {
                         status,
                         message: h.message().into_owned(),
-                        value: 0,
+                        value,
                     });
                 }
                 return Ok((h, response.payload().to_vec()));

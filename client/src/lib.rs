@@ -72,14 +72,12 @@ pub enum Error {
         /// The iceoryx2 prefix the client looked under.
         prefix: String,
     },
-    /// The camera already has as many drivers as it may (its driver, and one that replaces a
-    /// dead one): another process publishes under that name.
-    #[error("another driver already publishes as camera {camera:?} (a camera takes {drivers} drivers at most: its own and one replacing a dead one): stop that driver, or publish under another camera name")]
+    /// A live driver already publishes under that camera name. A camera has one live driver;
+    /// a driver that replaces a dead one is let in.
+    #[error("another driver already publishes as camera {camera:?} (a camera has one live driver; one that replaces a dead driver is let in): stop that driver, or publish under another camera name")]
     CameraTaken {
         /// The camera's name.
         camera: String,
-        /// Drivers one camera may have at once.
-        drivers: usize,
     },
     /// The request was malformed before it was sent.
     #[error("{0}")]

@@ -97,6 +97,9 @@ def test_models_and_stats(client, scene):
 def test_a_dropped_model_is_unknown_until_loaded_again(client, camera, scene):
     client.drop_model(4)
     try:
+        with pytest.raises(ppfd.UnknownObject) as again:
+            client.drop_model(4)
+        assert again.value.value == 4
         with pytest.raises(ppfd.UnknownObject) as refused:
             detect_when_subscribed(client, camera, scene.depth, [4])
         assert refused.value.value == 4

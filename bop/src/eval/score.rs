@@ -238,6 +238,39 @@ pub fn score_results(
     })
 }
 
+/// The error for results of which no row names an image with targets: results of another
+/// dataset, or of another split, would otherwise score as a detector that found nothing.
+fn no_estimate_is_for_a_target<E, T>(
+    dataset: &BopDataset,
+    estimates: &BTreeMap<(u32, u32), E>,
+    targets: &BTreeMap<(u32, u32), T>,
+) -> Error {
+    let some = |keys: Vec<&(u32, u32)>| {
+        let shown: Vec<String> = keys
+            .iter()
+            .take(3)
+            .map(|(scene, image)| format!("scene {scene} image {image}"))
+            .collect();
+        let more = keys.len().saturating_sub(shown.len());
+        if more > 0 {
+            format!("{} and {more} more", shown.join(", "))
+        } else if shown.is_empty() {
+            "none".to_string()
+        } else {
+            shown.join(", ")
+        }
+    };
+    Error::Dataset {
+        path: dataset.root().to_path_buf(),
+        reason: format!(
+            "no estimate is for an image with targets here: the results name {}, the targets {}; \
+             were the results made on another dataset or split?",
+            some(estimates.keys().collect()),
+            some(targets.keys().collect()),
+        ),
+    }
+}
+
 /// [`score_results`] with another depth renderer: `make_renderer` makes one per worker thread.
 pub fn score_results_with<F, R>(
     dataset: &BopDataset,
@@ -297,6 +330,14 @@ where
             .entry((row.scene_id, row.im_id))
             .or_default()
             .push(row);
+    }
+
+    if !rows.is_empty() && !rows_by_image.keys().any(|key| by_image.contains_key(key)) {
+        return Err(no_estimate_is_for_a_target(
+            dataset,
+            &rows_by_image,
+            &by_image,
+        ));
     }
 
     let images: Vec<_> = by_image.iter().collect();
@@ -1215,6 +1256,29 @@ mod lmo_tests {
         assert_eq!((report.estimates_read, report.estimates_ignored), (16, 8));
         assert_eq!(report.overall.recall_bop18, vec![0.0, 0.0]);
         assert_eq!(report.overall.ar, 0.0);
+    }
+
+    /// Results of another dataset name none of this one's images: refused with both sides'
+    /// images, where they would score as a detector that found nothing. No results at all
+    /// still score zero.
+    #[test]
+    fn results_for_no_image_with_targets_are_refused_and_none_score_zero() {
+        let Some(data) = lmo() else { return };
+        let mut rows = rows_from(data.ground_truth(2, 3).unwrap(), |g| g.pose);
+        for (i, r) in rows.iter_mut().enumerate() {
+            (r.scene_id, r.im_id) = (1, i as u32);
+        }
+        let e = score_results(&data, &rows, &ScoreOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("no estimate is for an image with targets here")
+                && e.contains("scene 1 image 0, scene 1 image 1, scene 1 image 2 and 5 more")
+                && e.contains("the targets scene 2 image 3;"),
+            "{e}"
+        );
+        let report = score_results(&data, &[], &ScoreOptions::default()).unwrap();
+        assert_eq!((report.overall.targets, report.overall.ar), (8, 0.0));
     }
 
     #[test]
