@@ -292,9 +292,12 @@ where
     let mut by_image: ImageTargets = BTreeMap::new();
     let mut skipped_targets = 0;
     for t in &targets {
-        let usable = dataset.has_depth(t.scene_id, t.im_id)
-            && dataset.ground_truth(t.scene_id, t.im_id).is_ok();
-        if usable {
+        // A dataset may hold part of its targets' images (the LM-O frame here: one of 200), so
+        // an image without depth is skipped. One with depth must have its ground truth: a
+        // malformed or missing scene_gt.json would otherwise score as a detector that found
+        // nothing.
+        if dataset.has_depth(t.scene_id, t.im_id) {
+            dataset.ground_truth(t.scene_id, t.im_id)?;
             by_image
                 .entry((t.scene_id, t.im_id))
                 .or_default()
@@ -302,6 +305,18 @@ where
         } else {
             skipped_targets += 1;
         }
+    }
+    if let (true, Some(t)) = (by_image.is_empty(), targets.first()) {
+        let depth = dataset
+            .depth_path(t.scene_id, t.im_id)
+            .map_or_else(|e| e.to_string(), |p| p.display().to_string());
+        return Err(Error::Dataset {
+            path: dataset.root().to_path_buf(),
+            reason: format!(
+                "none of the {} targets' images has a depth image (the first's would be {depth})",
+                targets.len()
+            ),
+        });
     }
 
     let object_ids: BTreeSet<u32> = by_image.values().flatten().map(|(o, _)| *o).collect();
@@ -1279,6 +1294,83 @@ mod lmo_tests {
         );
         let report = score_results(&data, &[], &ScoreOptions::default()).unwrap();
         assert_eq!((report.overall.targets, report.overall.ar), (8, 0.0));
+    }
+
+    /// The LM-O frame's files linked into a scratch dataset, with `scene_gt.json` as given (a
+    /// link to the real one when `None`) and the depth image only when `depth`.
+    fn lmo_copy(name: &str, scene_gt: Option<&str>, depth: bool) -> std::path::PathBuf {
+        let source = crate::shared_test_data("lmo").unwrap();
+        let root = std::env::temp_dir().join(format!("ppfd-score-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        let scene = root.join("test/000002");
+        std::fs::create_dir_all(scene.join("depth")).unwrap();
+        let link = |from: &str, to: std::path::PathBuf| {
+            std::os::unix::fs::symlink(source.join(from), to).unwrap()
+        };
+        for f in [
+            "camera.json",
+            "models",
+            "models_eval",
+            "test_targets_bop19.json",
+        ] {
+            link(f, root.join(f));
+        }
+        for f in ["scene_camera.json", "scene_gt_info.json"] {
+            link(&format!("test/000002/{f}"), scene.join(f));
+        }
+        match scene_gt {
+            Some(text) => std::fs::write(scene.join("scene_gt.json"), text).unwrap(),
+            None => link("test/000002/scene_gt.json", scene.join("scene_gt.json")),
+        }
+        if depth {
+            link(
+                "test/000002/depth/000003.png",
+                scene.join("depth/000003.png"),
+            );
+        }
+        root
+    }
+
+    /// An image with depth must have its ground truth, and some target must have depth: a
+    /// malformed `scene_gt.json` or a dataset without depth images is refused by name instead
+    /// of scoring as a detector that found nothing.
+    #[test]
+    fn a_malformed_ground_truth_or_no_depth_at_all_is_refused() {
+        let Some(data) = lmo() else { return };
+        let rows = rows_from(data.ground_truth(2, 3).unwrap(), |g| g.pose);
+        let whole = std::fs::read_to_string(
+            crate::shared_test_data("lmo")
+                .unwrap()
+                .join("test/000002/scene_gt.json"),
+        )
+        .unwrap();
+        let cases = [
+            ("cut", Some(&whole[..500]), true, "scene_gt.json"),
+            ("other", Some("{\"4\": []}"), true, "no image 3"),
+            (
+                "nodepth",
+                None,
+                false,
+                "none of the 1445 targets' images has a depth image",
+            ),
+        ];
+        for (name, scene_gt, depth, expected) in cases {
+            let root = lmo_copy(name, scene_gt, depth);
+            let result = BopDataset::open(&root)
+                .and_then(|d| score_results(&d, &rows, &ScoreOptions::default()));
+            let _ = std::fs::remove_dir_all(&root);
+            let e = result.expect_err(name).to_string();
+            assert!(e.contains(expected), "{name}: {e}");
+        }
+        // The same copy, whole, scores the ground truth as one.
+        let root = lmo_copy("whole", None, true);
+        let report = score_results(
+            &BopDataset::open(&root).unwrap(),
+            &rows,
+            &ScoreOptions::default(),
+        );
+        let _ = std::fs::remove_dir_all(&root);
+        assert_eq!(report.unwrap().overall.ar, 1.0);
     }
 
     #[test]

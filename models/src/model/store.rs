@@ -369,9 +369,20 @@ fn check_consistency(d: &ArchivedModelData) -> std::result::Result<(), String> {
     let finite = |v: &[rkyv::Archived<f32>; 3]| v.iter().all(|x| x.to_native().is_finite());
     if !d.points.iter().all(finite)
         || !d.normals.iter().all(finite)
+        || !d.surface_points.iter().all(finite)
+        || !d.surface_normals.iter().all(finite)
         || !d.mesh_positions.iter().all(finite)
     {
         return Err("non-finite coordinates".into());
+    }
+    // Features, re-scoring and ICP divide by nothing but assume unit normals: a zero normal
+    // turns every pose it touches into NaN.
+    let unit = |v: &[rkyv::Archived<f32>; 3]| {
+        let length = v.iter().map(|x| x.to_native().powi(2)).sum::<f32>().sqrt();
+        (length - 1.0).abs() < 1e-3
+    };
+    if !d.normals.iter().all(unit) || !d.surface_normals.iter().all(unit) {
+        return Err("normals that are not unit vectors".into());
     }
     Ok(())
 }
@@ -431,6 +442,48 @@ mod tests {
         let path = dir.join("true.ppfm");
         save(&model, &path).unwrap();
         assert_eq!(load(&path).unwrap().diameter_mm(), true_diameter);
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    /// A model file with a valid CRC whose normals or surface are not usable is refused: zero
+    /// normals turned every pose the detector returned into NaN.
+    #[test]
+    fn a_model_file_with_unusable_normals_or_surface_is_refused() {
+        let dir = temp_dir("normals");
+        type Forge = fn(&mut crate::model::ModelData);
+        let forgeries: [(Forge, &str); 4] = [
+            (
+                |d| d.normals.iter_mut().for_each(|n| *n = [0.0; 3]),
+                "unit vectors",
+            ),
+            (|d| d.surface_normals[3] = [0.0, 0.0, 2.0], "unit vectors"),
+            (|d| d.surface_normals[5] = [f32::NAN; 3], "non-finite"),
+            (|d| d.surface_points[0][1] = f32::INFINITY, "non-finite"),
+        ];
+        let model = built();
+        for (i, (forge, said)) in forgeries.into_iter().enumerate() {
+            let mut data =
+                rkyv::deserialize::<crate::model::ModelData, rkyv::rancor::Error>(model.data())
+                    .unwrap();
+            forge(&mut data);
+            let forged = ObjectModel {
+                backing: crate::model::Backing::Owned(
+                    rkyv::to_bytes::<rkyv::rancor::Error>(&data).unwrap(),
+                ),
+                silhouette: std::sync::Mutex::new(None),
+            };
+            let path = dir.join(format!("forged{i}.ppfm"));
+            save(&forged, &path).unwrap();
+            match load(&path) {
+                Err(Error::ModelStore { reason, .. }) => {
+                    assert!(reason.contains(said), "forgery {i}: {reason}")
+                }
+                r => panic!("forgery {i}: {r:?}"),
+            }
+        }
+        let path = dir.join("true.ppfm");
+        save(&model, &path).unwrap();
+        assert!(load(&path).is_ok());
         std::fs::remove_dir_all(dir).unwrap();
     }
 
