@@ -119,11 +119,8 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
     };
     let client = args.connect.client()?;
     // Subscribed before the request, so that the frame the daemon uses arrives here too.
-    let viewer = match &args.overlay {
-        Some(_) => Some(
-            ppfd_client::CameraViewer::open(args.connect.prefix().as_deref(), &args.camera)
-                .map_err(|e| e.to_string())?,
-        ),
+    let recorder = match &args.overlay {
+        Some(_) => Some(FrameRecorder::start(args.connect.prefix(), &args.camera)?),
         None => None,
     };
     let options = DetectOptions {
@@ -146,8 +143,8 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
             found => break found.map_err(|e| e.to_string())?,
         }
     };
-    if let (Some((path, models)), Some(viewer)) = (&args.overlay, &viewer) {
-        write_overlay(path, models, viewer, &found, &args.objects)?;
+    if let (Some((path, models)), Some(recorder)) = (&args.overlay, recorder) {
+        write_overlay(path, models, &recorder.finish()?, &found, &args.objects)?;
     }
     if args.json {
         let hyps: Vec<serde_json::Value> = found
@@ -214,11 +211,10 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
 fn write_overlay(
     path: &std::path::Path,
     models: &std::path::Path,
-    viewer: &ppfd_client::CameraViewer,
+    frames: &[Frame],
     found: &ppfd_client::Detections,
     objects: &[u32],
 ) -> Result<(), String> {
-    let frames = viewer.frames().map_err(|e| e.to_string())?;
     let (header, depth) = frames
         .iter()
         .find(|(h, _)| h.sequence == found.frame_sequence)
@@ -269,4 +265,70 @@ fn write_overlay(
     // On stderr: stdout may be the JSON answer.
     eprintln!("overlay written to {}", path.display());
     Ok(())
+}
+
+/// A camera frame as received: its header and depth.
+type Frame = (ppfd_client::FrameHeader, Vec<u16>);
+
+/// Receives a camera's frames on a thread of its own while the request runs, keeping the newest
+/// [`FrameRecorder::KEPT`]. The camera queues two frames per reader, and a detection outlasts
+/// two frames of a camera at 10 frames per second or more: read only after the answer, the
+/// frame the daemon used would be gone.
+struct FrameRecorder {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    thread: std::thread::JoinHandle<Result<Vec<Frame>, String>>,
+}
+
+impl FrameRecorder {
+    /// Frames kept: a second of a 30 frames-per-second camera, 18 MB of VGA depth.
+    const KEPT: usize = 30;
+
+    /// Subscribes to `camera` (an iceoryx2 subscriber is not `Send`, so the thread opens it)
+    /// and returns once subscribed.
+    fn start(prefix: Option<String>, camera: &str) -> Result<FrameRecorder, String> {
+        use std::sync::atomic::Ordering;
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let (ready, subscribed) = std::sync::mpsc::channel();
+        let (stopping, camera) = (stop.clone(), camera.to_owned());
+        let thread = std::thread::spawn(move || {
+            let viewer = match ppfd_client::CameraViewer::open(prefix.as_deref(), &camera) {
+                Ok(viewer) => {
+                    let _ = ready.send(Ok(()));
+                    viewer
+                }
+                Err(e) => {
+                    let _ = ready.send(Err(e.to_string()));
+                    return Ok(Vec::new());
+                }
+            };
+            let mut kept = std::collections::VecDeque::with_capacity(Self::KEPT + 2);
+            loop {
+                // Read once more after the stop is seen: the frames sent meanwhile count too.
+                let last = stopping.load(Ordering::Acquire);
+                for frame in viewer.frames().map_err(|e| e.to_string())? {
+                    if kept.len() == Self::KEPT {
+                        kept.pop_front();
+                    }
+                    kept.push_back(frame);
+                }
+                if last {
+                    return Ok(kept.into());
+                }
+                std::thread::sleep(std::time::Duration::from_millis(2));
+            }
+        });
+        match subscribed.recv() {
+            Ok(Ok(())) => Ok(FrameRecorder { stop, thread }),
+            Ok(Err(e)) => Err(e),
+            Err(_) => Err("the thread reading the camera's frames ended".into()),
+        }
+    }
+
+    /// Stops reading; the frames kept, oldest first.
+    fn finish(self) -> Result<Vec<Frame>, String> {
+        self.stop.store(true, std::sync::atomic::Ordering::Release);
+        self.thread
+            .join()
+            .map_err(|_| "the thread reading the camera's frames panicked".to_string())?
+    }
 }

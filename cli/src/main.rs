@@ -127,16 +127,16 @@ fn main() {
         Command::Detect(args) => match args.into_target() {
             Ok(detect_offline::DetectTarget::Camera(a)) => detect::run(a).map_err(Into::into),
             Ok(detect_offline::DetectTarget::Dataset(a)) => detect_offline::run(a),
-            Err(e) => {
-                // A usage error, as clap's own are.
-                eprintln!("error: {e}");
-                std::process::exit(2);
-            }
+            Err(e) => usage_error(&e),
         },
         Command::Bench(args) => bench::run(args).map_err(Into::into),
         Command::Models(args) => daemon::models(args).map_err(Into::into),
         Command::Stats(args) => daemon::stats(args).map_err(Into::into),
-        Command::Demo(args) => demo::run(args).map_err(Into::into),
+        // The request options are checked before the scene is drawn and the daemon started.
+        Command::Demo(args) => match args.requirements.wire() {
+            Ok(_) => demo::run(args).map_err(Into::into),
+            Err(e) => usage_error(&e),
+        },
         Command::Generate(args) => generate::run(args).map_err(Into::into),
         Command::Serve { .. } => unreachable!("handled above"),
         Command::Score(args) => score::run(args),
@@ -151,6 +151,12 @@ fn main() {
         eprintln!("error: {e}");
         std::process::exit(1);
     }
+}
+
+/// Ends with a usage error's code, 2, as clap's own errors do.
+fn usage_error(message: &str) -> ! {
+    eprintln!("error: {message}");
+    std::process::exit(2);
 }
 
 #[cfg(test)]

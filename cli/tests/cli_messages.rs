@@ -88,6 +88,24 @@ fn serve_refuses_a_bad_parameter_with_exit_code_2() {
     assert!(stderr(&out).contains("no_such_field"));
 }
 
+/// A models folder that does not exist is a bad setting as a bad parameter is: exit code 2,
+/// named, before the daemon serves.
+#[test]
+fn serve_refuses_a_missing_models_folder_with_exit_code_2() {
+    let prefix = format!("cf_nomodels_{}_", std::process::id());
+    let out = run(&mut ppf(&[
+        "serve",
+        "--models",
+        "/nonexistent/models",
+        "--prefix",
+        &prefix,
+    ]));
+    assert_eq!(out.status.code(), Some(2));
+    let e = stderr(&out);
+    assert!(e.contains("model directory /nonexistent/models"), "{e}");
+    assert!(String::from_utf8_lossy(&out.stdout).is_empty());
+}
+
 /// `--id 0` is refused by `ppf model build` as by `ppf models --load` (before any daemon is
 /// asked), and a folder is named as one.
 #[test]
@@ -376,6 +394,17 @@ fn demo_refuses_an_image_without_a_dataset() {
     assert_eq!(out.status.code(), Some(2));
     let e = stderr(&out);
     assert!(e.contains("--image") && e.contains("--dataset DIR"), "{e}");
+    assert!(String::from_utf8_lossy(&out.stdout).is_empty());
+}
+
+/// A request option out of its range is a usage error before the scene is drawn or the daemon
+/// started, as `ppf detect` has it.
+#[test]
+fn demo_refuses_a_request_option_out_of_range_before_it_starts() {
+    let out = run(&mut ppf(&["demo", "--min-score", "2"]));
+    assert_eq!(out.status.code(), Some(2));
+    let e = stderr(&out);
+    assert!(e.contains("minimum score 2 is out of range"), "{e}");
     assert!(String::from_utf8_lossy(&out.stdout).is_empty());
 }
 

@@ -99,7 +99,7 @@ pub(crate) fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::C
     let mut config = iceoryx2::config::Config::default();
     if let Some(prefix) = prefix {
         use iceoryx2::prelude::SemanticString;
-        ppfd_protocol::services::check_prefix(prefix).map_err(Error::Transport)?;
+        ppfd_protocol::services::check_prefix(prefix)?;
         config.global.prefix = iceoryx2::prelude::FileName::new(prefix.as_bytes())
             .map_err(|e| Error::Transport(format!("iceoryx2 prefix {prefix:?}: {e:?}")))?;
     }
@@ -114,7 +114,7 @@ pub use ppfd_protocol::services::prefix_from_env;
 /// own, made for one run (as `ppf demo` does), after its daemon, drivers and clients are gone;
 /// never for a prefix that processes still use. Returns how many entries were removed.
 pub fn remove_prefix_leftovers(prefix: &str) -> Result<usize> {
-    ppfd_protocol::services::check_prefix(prefix).map_err(Error::Transport)?;
+    ppfd_protocol::services::check_prefix(prefix)?;
     let mut removed = 0;
     for dir in [
         "/dev/shm",

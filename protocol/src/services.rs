@@ -264,15 +264,17 @@ pub fn prefix_from_env() -> Option<String> {
 /// Checks an iceoryx2 resource prefix as the daemon and its clients take it (`--prefix`,
 /// `PPFD_PREFIX`): a non-empty name of ASCII letters, digits, `_` and `-` (it becomes part of
 /// file names).
-pub fn check_prefix(prefix: &str) -> Result<(), String> {
+pub fn check_prefix(prefix: &str) -> Result<(), ProtocolError> {
     if prefix.is_empty()
         || !prefix
             .bytes()
             .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
     {
-        return Err(format!(
-            "prefix {prefix:?} may hold only ASCII letters, digits, '_' and '-'"
-        ));
+        return Err(ProtocolError::InvalidName {
+            field: "prefix",
+            name: prefix.escape_debug().to_string(),
+            reason: "may hold only ASCII letters, digits, '_' and '-' (and not be empty)",
+        });
     }
     Ok(())
 }

@@ -23,6 +23,8 @@ import ppfd
 def scene_folders(root: Path, split: str) -> list:
     if (root / "scene_camera.json").is_file():
         return [root]
+    if not (root / split).is_dir():
+        sys.exit(f"{root}: not a BOP dataset (no {split}/ folder) nor a scene folder (no scene_camera.json)")
     folders = sorted(p for p in (root / split).iterdir() if (p / "scene_camera.json").is_file())
     if not folders:
         sys.exit(f"{root}: no scene folder with a scene_camera.json under {split}/")

@@ -159,6 +159,13 @@ def test_bad_camera_settings_raise_protocol_error(prefix):
         ppfd.CameraPublisher("no spaces", 64, 48, 60.0, 60.0, 32.0, 24.0, prefix=prefix)
 
 
+def test_a_malformed_prefix_raises_protocol_error():
+    with pytest.raises(ppfd.ProtocolError, match="prefix name"):
+        ppfd.Client(prefix="bad prefix!")
+    with pytest.raises(ValueError, match="prefix name"):
+        ppfd.CameraPublisher("pycam", 64, 48, 60.0, 60.0, 32.0, 24.0, prefix="")
+
+
 def test_a_second_live_driver_is_refused_and_a_later_one_let_in(prefix):
     args = ("pycam", 64, 48, 60.0, 60.0, 32.0, 24.0)
     first = ppfd.CameraPublisher(*args, prefix=prefix)

@@ -89,3 +89,16 @@ def test_the_latency_bench_measures_the_call_around_the_transport(daemon, client
     # every order statistic.
     for q in ("p50", "max"):
         assert latency["call"][q] >= latency["end to end"][q] >= latency["overhead"][q], q
+
+
+def test_the_replay_example_names_a_folder_that_is_no_dataset(tmp_path):
+    done = subprocess.run(
+        [sys.executable, str(EXAMPLES / "camera_from_bop.py"), str(tmp_path / "nosuch"),
+         "--camera", "k"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 1
+    assert "nosuch: not a BOP dataset (no test/ folder)" in done.stderr, done.stderr
+    assert "Traceback" not in done.stderr

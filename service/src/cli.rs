@@ -83,7 +83,8 @@ impl Args {
         // The clients' variable too: `PPFD_PREFIX=cell2 ppfd` and `PPFD_PREFIX=cell2 ppf detect`
         // meet. The flag wins over the variable, the variable over the file.
         if let (None, Some(p)) = (&self.prefix, &env_prefix) {
-            ppfd_protocol::services::check_prefix(p).map_err(Error::PrefixVariable)?;
+            ppfd_protocol::services::check_prefix(p)
+                .map_err(|e| Error::PrefixVariable(e.to_string()))?;
         }
         if let Some(prefix) = self.prefix.clone().or(env_prefix) {
             c.prefix = Some(prefix);

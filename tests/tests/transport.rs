@@ -820,14 +820,17 @@ fn models_are_listed_loaded_and_dropped_at_run_time() {
     let (status, value, _) = refusal(client.detect("cam0", &[2], &opts));
     assert_eq!((status, value), (Status::UnknownObject, 2));
 
-    match client.load_model("/nonexistent/x.fake", 0) {
-        Err(ppfd_client::Error::Refused {
-            status, message, ..
-        }) => {
-            assert_eq!(status, Status::ModelError);
-            assert!(message.contains("/nonexistent/x.fake"), "{message}");
+    // A missing file is named as missing, also when its name carries no object id.
+    for missing in ["/nonexistent/x.fake", "/nonexistent/obj_000007.ply"] {
+        match client.load_model(missing, 0) {
+            Err(ppfd_client::Error::Refused {
+                status, message, ..
+            }) => {
+                assert_eq!(status, Status::ModelError);
+                assert_eq!(message, format!("{missing}: no such file"));
+            }
+            other => panic!("{other:?}"),
         }
-        other => panic!("{other:?}"),
     }
     match client.load_model(models.to_str().unwrap(), 0) {
         Err(ppfd_client::Error::Refused { message, .. }) => {

@@ -120,7 +120,16 @@ impl ServedPart {
 
     /// Publishes the scene's frame every 100 ms until `command` (started with its output
     /// piped) ends; its output.
-    pub fn publish_until_done(&mut self, mut command: std::process::Child) -> std::process::Output {
+    pub fn publish_until_done(&mut self, command: std::process::Child) -> std::process::Output {
+        self.publish_every_until_done(std::time::Duration::from_millis(100), command)
+    }
+
+    /// Publishes the scene's frame every `period` until `command` ends; its output.
+    pub fn publish_every_until_done(
+        &mut self,
+        period: std::time::Duration,
+        mut command: std::process::Child,
+    ) -> std::process::Output {
         loop {
             self.camera
                 .loan()
@@ -130,9 +139,7 @@ impl ServedPart {
             if command.try_wait().unwrap().is_some() {
                 break;
             }
-            self.camera
-                .idle(std::time::Duration::from_millis(100))
-                .unwrap();
+            self.camera.idle(period).unwrap();
         }
         command.wait_with_output().unwrap()
     }

@@ -54,7 +54,11 @@ impl Daemon {
             );
             return self.control_answer(active, Status::InvalidRequest, &m, &[]);
         }
-        if path.exists() && !path.is_dir() && !path.is_file() {
+        if !path.exists() {
+            let m = format!("{}: no such file", path.display());
+            return self.control_answer(active, Status::ModelError, &m, &[]);
+        }
+        if !path.is_dir() && !path.is_file() {
             // A FIFO or a device: reading it could block the loading thread forever.
             let m = format!(
                 "{} is not a regular file: give one model file (.ppfm) or mesh (.ply)",
