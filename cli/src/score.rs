@@ -104,10 +104,17 @@ pub fn format_report(
     let mut out = String::new();
     let _ = writeln!(out, "dataset  {}", dataset.display());
     let _ = writeln!(out, "results  {}", results.display());
+    let skipped = match &report.first_missing_depth {
+        Some(first) => format!(
+            "{} skipped (their images have no depth here; the first would be {first})",
+            report.skipped_targets
+        ),
+        None => "none skipped".to_string(),
+    };
     let _ = writeln!(
         out,
-        "targets  {targets}: {} scored in {} images, {} skipped (no depth or ground truth)",
-        report.overall.targets, report.images, report.skipped_targets
+        "targets  {targets}: {} scored in {} images, {skipped}",
+        report.overall.targets, report.images
     );
     let _ = writeln!(
         out,

@@ -48,7 +48,13 @@ pub fn diameter_out_of_range(diameter: f32) -> Option<String> {
     if (MIN_DIAMETER_MM..=MAX_DIAMETER_MM).contains(&diameter) {
         return None;
     }
-    let unit = if !diameter.is_finite() || diameter <= 0.0 {
+    let unit = if diameter.is_infinite() {
+        return Some(
+            "the diameter overflows: a vertex lies beyond 10^19 mm (a stray vertex, or a \
+             value that is not a coordinate)"
+                .to_string(),
+        );
+    } else if !diameter.is_finite() || diameter <= 0.0 {
         return Some(format!(
             "the diameter is {diameter} mm: the mesh has no extent"
         ));
@@ -86,6 +92,10 @@ mod tests {
             "{m}"
         );
         assert!(diameter_out_of_range(f32::NAN).is_some());
-        assert!(diameter_out_of_range(0.0).is_some());
+        let m = diameter_out_of_range(0.0).unwrap();
+        assert!(m.contains("no extent"), "{m}");
+        // A vertex so far out that the distance overflows is named as such, not as no extent.
+        let m = diameter_out_of_range(f32::INFINITY).unwrap();
+        assert!(m.contains("overflows") && m.contains("stray vertex"), "{m}");
     }
 }

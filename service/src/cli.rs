@@ -176,6 +176,18 @@ where
             return ExitCode::from(2);
         }
     };
+    // A models folder that cannot be listed is a bad setting too, found before the daemon
+    // takes its services.
+    if let Some(dir) = &config.models {
+        if let Err(source) = std::fs::read_dir(dir) {
+            let e = crate::Error::ModelDirectory {
+                path: dir.clone(),
+                source,
+            };
+            eprintln!("ppfd: {e}");
+            return ExitCode::from(2);
+        }
+    }
     let engine = match make_engine(&config) {
         Ok(e) => e,
         Err(e) => {

@@ -262,14 +262,6 @@ impl DaemonConfig {
         if let Some(p) = &self.prefix {
             ppfd_protocol::services::check_prefix(p).map_err(|e| Error::Prefix(e.to_string()))?;
         }
-        // A models folder that cannot be listed is a bad setting (exit code 2), found before
-        // the daemon takes its services.
-        if let Some(dir) = &self.models {
-            std::fs::read_dir(dir).map_err(|source| Error::ModelDirectory {
-                path: dir.clone(),
-                source,
-            })?;
-        }
         Ok(())
     }
 

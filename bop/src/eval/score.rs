@@ -198,8 +198,11 @@ pub struct ScoreReport {
     pub bop18_thresholds: Vec<f64>,
     /// Images scored.
     pub images: usize,
-    /// Targets skipped because their image has no depth or no ground truth in the dataset.
+    /// Targets skipped because their image has no depth in the dataset (a dataset may hold part
+    /// of its targets' images).
     pub skipped_targets: usize,
+    /// The depth image the first skipped target's image would have.
+    pub first_missing_depth: Option<String>,
     /// Lines of the results file.
     pub estimates_read: usize,
     /// Of those, lines for no target (another image or object) or beyond a target's
@@ -291,6 +294,7 @@ where
     };
     let mut by_image: ImageTargets = BTreeMap::new();
     let mut skipped_targets = 0;
+    let mut first_missing_depth = None;
     for t in &targets {
         // A dataset may hold part of its targets' images (the LM-O frame here: one of 200), so
         // an image without depth is skipped. One with depth must have its ground truth: a
@@ -304,6 +308,12 @@ where
                 .push((t.obj_id, t.inst_count));
         } else {
             skipped_targets += 1;
+            if first_missing_depth.is_none() {
+                first_missing_depth = dataset
+                    .depth_path(t.scene_id, t.im_id)
+                    .ok()
+                    .map(|p| p.display().to_string());
+            }
         }
     }
     if let (true, Some(t)) = (by_image.is_empty(), targets.first()) {
@@ -395,6 +405,7 @@ where
     }
     report.images = by_image.len();
     report.skipped_targets = skipped_targets;
+    report.first_missing_depth = first_missing_depth;
     report.estimates_read = rows.len();
     report.estimates_ignored = rows.len() - report.overall.estimates;
     let timed: Vec<(f64, usize)> = by_image
@@ -840,6 +851,7 @@ pub fn summarize(targets: &[TargetErrors], options: &ScoreOptions) -> ScoreRepor
         bop18_thresholds: options.bop18_thresholds.clone(),
         images: 0,
         skipped_targets: 0,
+        first_missing_depth: None,
         notes: Vec::new(),
         estimates_read: 0,
         estimates_ignored: 0,
@@ -1179,6 +1191,8 @@ mod lmo_tests {
             report.skipped_targets,
             data.test_targets().unwrap().len() - 8
         );
+        let first = report.first_missing_depth.as_deref().unwrap_or_default();
+        assert!(first.ends_with("test/000002/depth/000008.png"), "{first}");
         assert_eq!(
             report.overall.gt_count, 8,
             "all eight are at least 20 % visible"

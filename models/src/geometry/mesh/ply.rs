@@ -370,6 +370,14 @@ fn build_mesh(
             }
         }
     }
+    if skipped > 0 && triangles.is_empty() {
+        // A point cloud (no faces) is read as one; faces that are all degenerate are a broken
+        // mesh, named as such rather than as a mesh without faces.
+        return Err(format!(
+            "all {skipped} triangles of its faces are degenerate (a repeated vertex or zero area): no \
+             surface to sample"
+        ));
+    }
     if skipped > 0 {
         tracing::debug!(
             skipped,
@@ -822,6 +830,19 @@ mod tests {
             mesh.faces.len(),
             14,
             "12 cube triangles and the repeated quad's two"
+        );
+        // Faces that are all degenerate (every vertex at one place) are named as such.
+        let collapsed = Fixture {
+            vertices: with_normals
+                .vertices
+                .iter()
+                .map(|v| vec![1.0, 2.0, 3.0, v[3], v[4], v[5]])
+                .collect(),
+            ..with_normals
+        };
+        expect_ply_error(
+            read(&collapsed.bytes(Format::Ascii)),
+            &["all 17 triangles of its faces are degenerate"],
         );
     }
 
