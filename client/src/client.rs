@@ -444,6 +444,16 @@ impl Client {
         } else {
             header.set_diagnosis_poses(&options.diagnose)?;
         }
+        // 0 on the wire takes the daemon's limit, so a zero age is refused here rather than
+        // sent as that.
+        if options.max_frame_age == Some(Duration::ZERO) {
+            return Err(ppfd_protocol::ProtocolError::Requirement {
+                field: "maximum frame age",
+                value: "0 s".into(),
+                expected: "more than 0 (none takes the daemon's limit)".into(),
+            }
+            .into());
+        }
         header.max_frame_age_ns = options
             .max_frame_age
             .map(|d| u64::try_from(d.as_nanos()).unwrap_or(u64::MAX))

@@ -140,7 +140,8 @@ pub enum ProtocolError {
     DiagnoseWithoutPoses,
     /// Hints and poses to diagnose against in one request: they share one field.
     DiagnoseWithHints,
-    /// A value of [`detect::Requirements`] out of its range.
+    /// A request option out of its range: a value of [`detect::Requirements`], or the
+    /// maximum frame age.
     Requirement {
         field: &'static str,
         value: String,

@@ -17,7 +17,7 @@ pub fn seconds(py: Python<'_>, what: &str, value: f64) -> PyResult<Duration> {
     Duration::try_from_secs_f64(value).map_err(|_| {
         protocol_error(
             py,
-            format!("{what} must be a finite number of seconds, 0 or more; got {value}"),
+            format!("{what} must be a finite number of seconds, not negative; got {value}"),
         )
     })
 }
@@ -323,8 +323,8 @@ impl Client {
 
     /// Detects `object_ids` in the newest frame of `camera`; the GIL is released while the
     /// daemon works. `hypotheses` per object (1 to 16); `timeout` in seconds (None: the
-    /// client library's, 3 s); `max_frame_age` in seconds, the oldest frame accepted (None:
-    /// the daemon's limit).
+    /// client library's, 3 s); `max_frame_age` in seconds, above 0, the oldest frame accepted
+    /// (None: the daemon's limit).
     ///
     /// What the poses must satisfy (the defaults ask for nothing): `min_score`, 0 to 1;
     /// `instance_distance` in diameters, above 0 to 2 (None: the daemon's); `roi`, a pixel

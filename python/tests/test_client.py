@@ -39,6 +39,7 @@ def test_no_daemon_raises_no_daemon_naming_the_prefix(prefix):
         (("parts", [1]), {"timeout": -1.0}, "timeout must be a finite number of seconds"),
         (("parts", [1]), {"timeout": float("nan")}, "timeout must be a finite number"),
         (("parts", [1]), {"max_frame_age": -0.5}, "max_frame_age must be"),
+        (("parts", [1]), {"max_frame_age": 0.0}, "maximum frame age 0 s is out of range"),
     ],
 )
 def test_a_malformed_request_is_a_value_error_before_it_is_sent(prefix, args, options, says):
