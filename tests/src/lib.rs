@@ -303,9 +303,12 @@ impl Drop for Proc {
 pub struct WorkDir(PathBuf);
 
 impl WorkDir {
-    /// A fresh, existing directory for `test`.
+    /// A fresh, existing directory for `test`, its own also when tests running side by side
+    /// (in one process) share a helper that names it.
     pub fn new(test: &str) -> WorkDir {
-        let dir = std::env::temp_dir().join(format!("ppfd-e2e-{test}-{}", std::process::id()));
+        static MADE: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let n = MADE.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let dir = std::env::temp_dir().join(format!("ppfd-e2e-{test}-{}-{n}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         WorkDir(dir)

@@ -243,10 +243,10 @@ fn a_frame_published_before_the_daemon_started_is_served() {
 fn a_second_live_driver_of_a_camera_is_told_another_driver_publishes_under_its_name() {
     let prefix = Prefix::new("taken");
     let mut first = camera(&prefix, "cam0", &["--fps", "50"]);
-    let driver = || {
+    let driver = |name: &str| {
         ppfd_client::CameraPublisher::new(
             Some(&prefix.0),
-            "cam0",
+            name,
             7,
             640,
             480,
@@ -254,7 +254,7 @@ fn a_second_live_driver_of_a_camera_is_told_another_driver_publishes_under_its_n
             1.0,
         )
     };
-    match driver() {
+    match driver("cam0") {
         Err(e @ ppfd_client::Error::CameraTaken { .. }) => {
             let text = e.to_string();
             assert!(
@@ -270,24 +270,15 @@ fn a_second_live_driver_of_a_camera_is_told_another_driver_publishes_under_its_n
     first
         .wait_exit(Duration::from_secs(5))
         .expect("driver died");
-    let replacement = driver().expect("a driver replacing a dead one");
+    let replacement = driver("cam0").expect("a driver replacing a dead one");
     // ... and is then the camera's live driver.
     assert!(matches!(
-        driver(),
+        driver("cam0"),
         Err(ppfd_client::Error::CameraTaken { .. })
     ));
     drop(replacement);
     // Another name is free.
-    ppfd_client::CameraPublisher::new(
-        Some(&prefix.0),
-        "cam1",
-        7,
-        640,
-        480,
-        ppfd_client::Intrinsics::LMO,
-        1.0,
-    )
-    .expect("a driver under another name");
+    driver("cam1").expect("a driver under another name");
 }
 
 /// Detects on `camera` until served (a camera just started may not have published since the

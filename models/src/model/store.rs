@@ -408,6 +408,30 @@ mod tests {
         .unwrap()
     }
 
+    /// `model`'s data edited by `forge`, saved with a valid CRC to `path` and loaded back: the
+    /// refusal's reason (panics when the file loads).
+    fn forged_refusal(
+        model: &ObjectModel,
+        path: &std::path::Path,
+        forge: impl FnOnce(&mut crate::model::ModelData),
+    ) -> String {
+        let mut data =
+            rkyv::deserialize::<crate::model::ModelData, rkyv::rancor::Error>(model.data())
+                .unwrap();
+        forge(&mut data);
+        let forged = ObjectModel {
+            backing: crate::model::Backing::Owned(
+                rkyv::to_bytes::<rkyv::rancor::Error>(&data).unwrap(),
+            ),
+            silhouette: std::sync::Mutex::new(None),
+        };
+        save(&forged, path).unwrap();
+        match load(path) {
+            Err(Error::ModelStore { reason, .. }) => reason,
+            r => panic!("a forged model file was not refused: {r:?}"),
+        }
+    }
+
     /// A model file with a valid CRC whose diameter is not millimetres, or not what its own
     /// mesh measures, is refused: every distance of the method scales with it.
     #[test]
@@ -420,24 +444,10 @@ mod tests {
             (1e-6, "metres"),
             (2.0 * true_diameter, "its mesh measures"),
         ] {
-            let mut data =
-                rkyv::deserialize::<crate::model::ModelData, rkyv::rancor::Error>(model.data())
-                    .unwrap();
-            data.diameter_mm = claimed;
-            let forged = ObjectModel {
-                backing: crate::model::Backing::Owned(
-                    rkyv::to_bytes::<rkyv::rancor::Error>(&data).unwrap(),
-                ),
-                silhouette: std::sync::Mutex::new(None),
-            };
-            let path = dir.join("forged.ppfm");
-            save(&forged, &path).unwrap();
-            match load(&path) {
-                Err(Error::ModelStore { reason, .. }) => {
-                    assert!(reason.contains(said), "{claimed}: {reason}")
-                }
-                r => panic!("{claimed}: {r:?}"),
-            }
+            let reason = forged_refusal(&model, &dir.join("forged.ppfm"), |d| {
+                d.diameter_mm = claimed
+            });
+            assert!(reason.contains(said), "{claimed}: {reason}");
         }
         let path = dir.join("true.ppfm");
         save(&model, &path).unwrap();
@@ -462,24 +472,8 @@ mod tests {
         ];
         let model = built();
         for (i, (forge, said)) in forgeries.into_iter().enumerate() {
-            let mut data =
-                rkyv::deserialize::<crate::model::ModelData, rkyv::rancor::Error>(model.data())
-                    .unwrap();
-            forge(&mut data);
-            let forged = ObjectModel {
-                backing: crate::model::Backing::Owned(
-                    rkyv::to_bytes::<rkyv::rancor::Error>(&data).unwrap(),
-                ),
-                silhouette: std::sync::Mutex::new(None),
-            };
-            let path = dir.join(format!("forged{i}.ppfm"));
-            save(&forged, &path).unwrap();
-            match load(&path) {
-                Err(Error::ModelStore { reason, .. }) => {
-                    assert!(reason.contains(said), "forgery {i}: {reason}")
-                }
-                r => panic!("forgery {i}: {r:?}"),
-            }
+            let reason = forged_refusal(&model, &dir.join(format!("forged{i}.ppfm")), forge);
+            assert!(reason.contains(said), "forgery {i}: {reason}");
         }
         let path = dir.join("true.ppfm");
         save(&model, &path).unwrap();
@@ -516,23 +510,8 @@ mod tests {
         );
 
         // A forged file whose half turn moves the model by a metre.
-        let mut data =
-            rkyv::deserialize::<crate::model::ModelData, rkyv::rancor::Error>(model.data())
-                .unwrap();
-        data.symmetries_discrete[0][4] = 1000.0;
-        let forged = ObjectModel {
-            backing: crate::model::Backing::Owned(
-                rkyv::to_bytes::<rkyv::rancor::Error>(&data).unwrap(),
-            ),
-            silhouette: std::sync::Mutex::new(None),
-        };
-        save(&forged, &path).unwrap();
-        match load(&path) {
-            Err(Error::ModelStore { reason, .. }) => {
-                assert!(reason.contains("more than its diameter"), "{reason}")
-            }
-            r => panic!("{r:?}"),
-        }
+        let reason = forged_refusal(&model, &path, |d| d.symmetries_discrete[0][4] = 1000.0);
+        assert!(reason.contains("more than its diameter"), "{reason}");
         std::fs::remove_dir_all(dir).unwrap();
     }
 
