@@ -131,11 +131,13 @@ pub fn stats(args: StatsArgs) -> Result<(), String> {
         .strip_prefix("detector:")
         .unwrap_or(detector)
         .trim();
+    let failed = loading.strip_prefix("failed at start:").map(str::trim);
     let loading = loading.strip_prefix("loading models:").map(str::trim);
     if args.json {
         let mut json = stats_json(&s);
         json["detector"] = detector.into();
         json["loading"] = loading.into();
+        json["failed_at_start"] = failed.into();
         println!(
             "{}",
             serde_json::to_string_pretty(&json).map_err(|e| e.to_string())?
@@ -169,6 +171,9 @@ pub fn stats(args: StatsArgs) -> Result<(), String> {
     );
     if let Some(loading) = loading {
         println!("loading           {loading}; detections wait until every model is loaded");
+    }
+    if let Some(failed) = failed {
+        println!("failed at start   {failed}");
     }
     println!("resident memory   {:.1} MB", s.resident_bytes as f64 / 1e6);
     println!(

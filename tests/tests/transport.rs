@@ -133,12 +133,19 @@ fn a_second_model_file_with_a_loaded_id_is_refused_at_start() {
     // Object id 0 is no id.
     std::fs::write(models.join("obj_000000.fake"), "0 nought\n").unwrap();
     let _d = daemon(&prefix, &models, &[], "0");
-    let listed = connect(&prefix).models().expect("models listed");
+    let client = connect(&prefix);
+    let listed = client.models().expect("models listed");
     let names: Vec<(u32, String)> = listed
         .iter()
         .map(|m| (m.object_id, m.name().to_string()))
         .collect();
     assert_eq!(names, [(1, "dup".to_string()), (2, "part2".to_string())]);
+    // The statistics keep saying that files failed, long after the log's lines about them.
+    let (_, message) = client.statistics().expect("statistics");
+    assert!(
+        message.ends_with("\nfailed at start: 2 files of the models folder (the log names each)"),
+        "{message}"
+    );
 }
 
 /// The daemon takes its prefix from `PPFD_PREFIX` as the clients do: the variable set for both

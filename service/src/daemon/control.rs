@@ -65,11 +65,14 @@ impl Daemon {
             }
             ControlCommand::Statistics => {
                 // The message field holds MESSAGE_BYTES - 1 bytes and a NUL.
-                let loading = self
-                    .startup
-                    .as_ref()
-                    .map(|s| format!("\n{}", s.progress()))
-                    .unwrap_or_default();
+                let loading = match &self.startup {
+                    Some(s) => format!("\n{}", s.progress()),
+                    None if self.failed_at_start > 0 => format!(
+                        "\nfailed at start: {} files of the models folder (the log names each)",
+                        self.failed_at_start
+                    ),
+                    None => String::new(),
+                };
                 let mut m = self
                     .config
                     .detector_summary(ppfd_protocol::MESSAGE_BYTES - 1 - loading.len());

@@ -142,6 +142,7 @@ impl Daemon {
         }
         let mut startup = self.startup.take().expect("loading");
         startup.join();
+        self.failed_at_start = startup.failed;
         if startup.files == 0 {
             tracing::warn!(
                 dir = %startup.dir.display(),
