@@ -126,18 +126,28 @@ pub fn stats(args: StatsArgs) -> Result<(), String> {
         .connect
         .client_with(Duration::from_millis(args.timeout_ms))?;
     let (s, message) = client.statistics().map_err(|e| e.to_string())?;
-    let (detector, loading) = message.split_once('\n').unwrap_or((&message, ""));
+    let mut lines = message.lines();
+    let detector = lines.next().unwrap_or_default();
     let detector = detector
         .strip_prefix("detector:")
         .unwrap_or(detector)
         .trim();
-    let failed = loading.strip_prefix("failed at start:").map(str::trim);
-    let loading = loading.strip_prefix("loading models:").map(str::trim);
+    // The lines after the first, each named by its start.
+    let rest: Vec<&str> = lines.collect();
+    let line = |name: &str| {
+        rest.iter()
+            .find_map(|l| l.strip_prefix(name))
+            .map(str::trim)
+    };
+    let failed = line("failed at start:");
+    let loading = line("loading models:");
+    let loads = line("model loads:");
     if args.json {
         let mut json = stats_json(&s);
         json["detector"] = detector.into();
         json["loading"] = loading.into();
         json["failed_at_start"] = failed.into();
+        json["model_loads"] = loads.into();
         println!(
             "{}",
             serde_json::to_string_pretty(&json).map_err(|e| e.to_string())?
@@ -174,6 +184,9 @@ pub fn stats(args: StatsArgs) -> Result<(), String> {
     }
     if let Some(failed) = failed {
         println!("failed at start   {failed}");
+    }
+    if let Some(loads) = loads {
+        println!("model loads       {loads}");
     }
     println!("resident memory   {:.1} MB", s.resident_bytes as f64 / 1e6);
     println!(

@@ -110,6 +110,55 @@ fn statistics_are_answered_while_the_models_load() {
     assert!(!message.contains("loading"), "{message:?}");
 }
 
+/// Model loads run one at a time: while they do, the statistics say how many run and wait, so
+/// that a load slow to answer can be told from a lost one; once they are done, the line goes.
+#[test]
+fn statistics_show_the_model_loads_running_and_waiting() {
+    let prefix = Prefix::new("loadqueue");
+    let models = fake_model_dir("loadqueue", &[1, 2, 3, 4]);
+    let mut d = spawn_daemon(&prefix, &models, &[("PPFD_FAKE_LOAD_DELAY_MS", "400")]);
+    d.wait_line("ppfd ready", STARTUP);
+    let options = ClientOptions {
+        prefix: Some(prefix.0.clone()),
+        control_timeout: Duration::from_secs(20),
+        ..Default::default()
+    };
+    let loads: Vec<_> = [2u32, 3, 4]
+        .into_iter()
+        .map(|id| {
+            let (options, path) = (options.clone(), models.join(format!("obj_{id:06}.fake")));
+            std::thread::spawn(move || {
+                let client = Client::connect_with(&options).expect("client connects");
+                client
+                    .load_model(path.to_str().unwrap(), 0)
+                    .map(|m| m.object_id)
+            })
+        })
+        .collect();
+    let client = connect(&prefix);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    let seen = loop {
+        let (_, message) = client.statistics().expect("statistics");
+        if let Some(line) = message.lines().find(|l| l.starts_with("model loads:")) {
+            break line.to_owned();
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no model loads line: {message:?}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(seen.starts_with("model loads: 1 running, "), "{seen}");
+    let mut loaded: Vec<u32> = loads
+        .into_iter()
+        .map(|t| t.join().unwrap().expect("loaded"))
+        .collect();
+    loaded.sort();
+    assert_eq!(loaded, [2, 3, 4]);
+    let (_, message) = client.statistics().expect("statistics");
+    assert!(!message.contains("model loads"), "{message:?}");
+}
+
 /// While the daemon stops (here on SIGHUP, as when its terminal closes), a running detection
 /// finishes and is answered, and what comes meanwhile is answered at once: statistics and the
 /// model list as usual, detections and model loads "shutting down": no client waits out its

@@ -65,7 +65,7 @@ impl Daemon {
             }
             ControlCommand::Statistics => {
                 // The message field holds MESSAGE_BYTES - 1 bytes and a NUL.
-                let loading = match &self.startup {
+                let mut loading = match &self.startup {
                     Some(s) => format!("\n{}", s.progress()),
                     None if self.failed_at_start > 0 => format!(
                         "\nfailed at start: {} files of the models folder (the log names each)",
@@ -73,6 +73,14 @@ impl Daemon {
                     ),
                     None => String::new(),
                 };
+                // `LoadModel` requests run one at a time, beside the detections.
+                if self.loading.is_some() || !self.waiting_loads.is_empty() {
+                    loading.push_str(&format!(
+                        "\nmodel loads: {} running, {} waiting",
+                        usize::from(self.loading.is_some()),
+                        self.waiting_loads.len()
+                    ));
+                }
                 let mut m = self
                     .config
                     .detector_summary(ppfd_protocol::MESSAGE_BYTES - 1 - loading.len());
