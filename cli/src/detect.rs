@@ -271,9 +271,10 @@ fn write_overlay(
 type Frame = (ppfd_client::FrameHeader, Vec<u16>);
 
 /// Receives a camera's frames on a thread of its own while the request runs, keeping the newest
-/// [`FrameRecorder::KEPT`]. The camera queues two frames per reader, and a detection outlasts
-/// two frames of a camera at 10 frames per second or more: read only after the answer, the
-/// frame the daemon used would be gone.
+/// [`FrameRecorder::KEPT`] (fewer when they would take more than [`FrameRecorder::KEPT_BYTES`]).
+/// The camera queues two frames per reader, and a detection outlasts two frames of a camera at
+/// 10 frames per second or more: read only after the answer, the frame the daemon used would be
+/// gone.
 struct FrameRecorder {
     stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
     thread: std::thread::JoinHandle<Result<Vec<Frame>, String>>,
@@ -282,6 +283,9 @@ struct FrameRecorder {
 impl FrameRecorder {
     /// Frames kept: a second of a 30 frames-per-second camera, 18 MB of VGA depth.
     const KEPT: usize = 30;
+    /// ... and at most this many bytes of depth (but always the newest two frames): three 4K
+    /// frames.
+    const KEPT_BYTES: usize = 64 << 20;
 
     /// Subscribes to `camera` (an iceoryx2 subscriber is not `Send`, so the thread opens it)
     /// and returns once subscribed.
@@ -301,15 +305,19 @@ impl FrameRecorder {
                     return Ok(Vec::new());
                 }
             };
-            let mut kept = std::collections::VecDeque::with_capacity(Self::KEPT + 2);
+            let mut kept: std::collections::VecDeque<Frame> =
+                std::collections::VecDeque::with_capacity(Self::KEPT + 1);
+            let mut bytes = 0;
             loop {
                 // Read once more after the stop is seen: the frames sent meanwhile count too.
                 let last = stopping.load(Ordering::Acquire);
                 for frame in viewer.frames().map_err(|e| e.to_string())? {
-                    if kept.len() == Self::KEPT {
-                        kept.pop_front();
-                    }
+                    bytes += 2 * frame.1.len();
                     kept.push_back(frame);
+                    while kept.len() > Self::KEPT || (bytes > Self::KEPT_BYTES && kept.len() > 2) {
+                        let (_, depth) = kept.pop_front().expect("more than two frames kept");
+                        bytes -= 2 * depth.len();
+                    }
                 }
                 if last {
                     return Ok(kept.into());

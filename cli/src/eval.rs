@@ -8,7 +8,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use ppfd_bop::dataset::BopDataset;
 use ppfd_bop::eval::csv::{write_results_file, EstimateRow};
-use ppfd_bop::eval::score::{score_results, ScoreOptions};
+use ppfd_bop::eval::score::{score_results, targets_from_ground_truth, ScoreOptions};
 use ppfd_models::detect::detector::{Detector, RunOptions};
 
 use crate::common::scenes_there;
@@ -192,7 +192,23 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
     if args.no_score {
         return Ok(());
     }
-    let report = score_results(&dataset, &rows, &ScoreOptions::default())?;
+    let defaults = ScoreOptions::default();
+    // One scene evaluated is scored against that scene's targets, not the whole dataset's.
+    let targets = match args.scene {
+        Some(scene) => {
+            let all = match dataset.test_targets() {
+                Some(t) => t.to_vec(),
+                None => targets_from_ground_truth(&dataset, defaults.visib_gt_min)?,
+            };
+            Some(all.into_iter().filter(|t| t.scene_id == scene).collect())
+        }
+        None => None,
+    };
+    let options = ScoreOptions {
+        targets,
+        ..defaults
+    };
+    let report = score_results(&dataset, &rows, &options)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {

@@ -104,12 +104,12 @@ pub fn format_report(
     let mut out = String::new();
     let _ = writeln!(out, "dataset  {}", dataset.display());
     let _ = writeln!(out, "results  {}", results.display());
-    let skipped = match &report.first_missing_depth {
-        Some(first) => format!(
-            "{} skipped (their images have no depth here; the first would be {first})",
-            report.skipped_targets
-        ),
-        None => "none skipped".to_string(),
+    let skipped = match (report.skipped_targets, &report.first_missing_depth) {
+        (0, _) => "none skipped".to_string(),
+        (n, Some(first)) => {
+            format!("{n} skipped (their images have no depth here; the first would be {first})")
+        }
+        (n, None) => format!("{n} skipped (their images have no depth here)"),
     };
     let _ = writeln!(
         out,

@@ -85,3 +85,34 @@ fn a_run_that_fails_before_any_image_leaves_the_results_file_as_it_was() {
     assert_eq!(std::fs::read_to_string(&kept).unwrap(), before);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `--scene` scores the scene it evaluated against that scene's targets, not the whole
+/// dataset's (the other scenes' targets counted as misses). Reads `../shared/data/ycbv-real-dev`
+/// (scene 0: 5 images, 15 targets; scene 2: 5 images, 30).
+#[test]
+fn one_scene_is_scored_against_its_own_targets() {
+    let Some(dataset) = shared_test_data("ycbv-real-dev") else {
+        return;
+    };
+    let dir = std::env::temp_dir().join(format!("ppf-eval-scene-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let run = Command::new(env!("CARGO_BIN_EXE_ppf"))
+        .arg("eval")
+        .arg(&dataset)
+        .args(["--scene", "0", "--objects", "8", "--out"])
+        .arg(dir.join("scene0.csv"))
+        .env("PPFD_CACHE", dir.join("cache"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert!(
+        stdout.contains(": 15 scored in 5 images, none skipped"),
+        "{stdout}"
+    );
+}

@@ -115,7 +115,7 @@ fn the_demo_overlay_outlines_each_part_where_it_lies() {
 }
 
 /// `ppf detect --camera --overlay`: a daemon (`ppf serve`) over a part's model, this test
-/// publishing the part's scene as a camera at 100 frames per second; the picture, drawn over
+/// publishing the part's scene as a camera at 50 frames per second; the picture, drawn over
 /// the frame the detection used (not a later one: the camera's queue holds two frames, fewer
 /// than a detection lasts) from the models folder's mesh, outlines the part where it lies.
 #[test]
@@ -149,7 +149,7 @@ fn the_camera_overlay_outlines_the_part_on_the_cameras_frame() {
         detect.try_wait().unwrap().is_none(),
         "ppf detect gave up before the camera's first frame"
     );
-    let out = served.publish_every_until_done(std::time::Duration::from_millis(10), detect);
+    let out = served.publish_every_until_done(std::time::Duration::from_millis(20), detect);
     let status = out.status;
     eprintln!(
         "{status:?}\n{}\n{}",

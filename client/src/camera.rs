@@ -99,13 +99,14 @@ impl CameraPublisher {
         // The second publisher slot is for a driver that replaces a dead one, whose publisher
         // iceoryx2 keeps until someone cleans up after it. Two live drivers would interleave
         // their frames, and the daemon would detect in whichever came last. The check runs
-        // after this publisher exists, so that of two drivers starting at once neither misses
-        // the other (both are refused then).
+        // after this publisher exists, so that of two drivers starting at once the later one
+        // to check sees the other: they are never both let in.
         if another_live_publisher(&service, node.id())? {
             return Err(Error::CameraTaken {
                 camera: camera.to_owned(),
             });
         }
+        own_publisher_nodes().push(*node.id());
         // Wake a running daemon so that it subscribes before the first frame.
         let wake_service = services::daemon_wake_builder(&node).open_or_create().ok();
         let wake = wake_service
@@ -247,17 +248,40 @@ impl ReadyFrame<'_> {
     }
 }
 
-/// A node of its own under `prefix`, for one camera port.
-/// Whether a publisher of `service` belongs to a live node other than `own`. A node whose state
-/// cannot be read (another user's) counts as live.
+/// The nodes of this process's live camera publishers. A driver that makes its publisher anew
+/// (on a reconnect, or a notebook cell run twice) makes the new one before the old one is
+/// dropped; the two are one driver, not two.
+static OWN_PUBLISHER_NODES: std::sync::Mutex<Vec<UniqueNodeId>> = std::sync::Mutex::new(Vec::new());
+
+fn own_publisher_nodes() -> std::sync::MutexGuard<'static, Vec<UniqueNodeId>> {
+    // A panic elsewhere while the list was held leaves it whole: it is only pushed to and
+    // removed from.
+    OWN_PUBLISHER_NODES
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+impl Drop for CameraPublisher {
+    fn drop(&mut self) {
+        let id = *self._node.id();
+        own_publisher_nodes().retain(|n| *n != id);
+    }
+}
+
+/// Whether a publisher of `service` belongs to a live node of another driver: not `own`, and
+/// not another publisher of this process. A node whose state cannot be read (another user's)
+/// counts as live.
 fn another_live_publisher(service: &CameraService<Ipc>, own: &UniqueNodeId) -> Result<bool> {
     let mut publishers = Vec::new();
-    service.dynamic_config().list_publishers(|p| {
-        if p.node_id != *own {
-            publishers.push(p.node_id);
-        }
-        CallbackProgression::Continue
-    });
+    {
+        let ours = own_publisher_nodes();
+        service.dynamic_config().list_publishers(|p| {
+            if p.node_id != *own && !ours.contains(&p.node_id) {
+                publishers.push(p.node_id);
+            }
+            CallbackProgression::Continue
+        });
+    }
     if publishers.is_empty() {
         return Ok(false);
     }
@@ -279,6 +303,7 @@ fn another_live_publisher(service: &CameraService<Ipc>, own: &UniqueNodeId) -> R
     Ok(live)
 }
 
+/// A node of its own under `prefix`, for one camera port.
 fn node(prefix: Option<&str>) -> Result<Node<Ipc>> {
     NodeBuilder::new()
         .config(&iceoryx_config(prefix)?)

@@ -116,7 +116,7 @@ pub struct DetectOptions {
     /// (0.51 s on the LM-O frame, docs/BENCHMARKS.md): room for a busy host, larger frames and
     /// a diagnosis (twice the time), and a hung cycle still ends within a few picking cycles.
     pub timeout: Duration,
-    /// Oldest acceptable camera frame (`None`: the daemon's limit).
+    /// Oldest acceptable camera frame (`None`: the daemon's limit; zero is refused).
     pub max_frame_age: Option<Duration>,
     /// What the hypotheses must satisfy (minimum score, instance distance, region of
     /// interest, pose restriction), and their order; the default asks for nothing.

@@ -1,6 +1,9 @@
 """The package without a daemon: bad input, no daemon, the exception hierarchy, and the type
 hints against what the module has."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -169,11 +172,27 @@ def test_a_malformed_prefix_raises_protocol_error():
 
 def test_a_second_live_driver_is_refused_and_a_later_one_let_in(prefix):
     args = ("pycam", 64, 48, 60.0, 60.0, 32.0, 24.0)
+    # Another process publishing under the name: refused while it runs.
+    script = (
+        "import sys, ppfd\n"
+        f"p = ppfd.CameraPublisher(*{args!r}, prefix={prefix!r})\n"
+        "print('ready', flush=True)\n"
+        "sys.stdin.read()\n"
+    )
+    other = subprocess.Popen([sys.executable, "-c", script], stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, text=True)
+    try:
+        assert other.stdout.readline() == "ready\n"
+        with pytest.raises(ppfd.CameraTaken, match="another driver already publishes"):
+            ppfd.CameraPublisher(*args, prefix=prefix)
+    finally:
+        other.stdin.close()
+        other.wait(10)
+    # Once it has gone, a driver is let in; and the same process may make its publisher anew
+    # (a cell run twice) before the old one is dropped.
     first = ppfd.CameraPublisher(*args, prefix=prefix)
-    with pytest.raises(ppfd.CameraTaken, match="another driver already publishes"):
-        ppfd.CameraPublisher(*args, prefix=prefix)
-    del first
     second = ppfd.CameraPublisher(*args, prefix=prefix)
+    del first
     assert second.publish(np.zeros((48, 64), dtype=np.uint16)) == 1
 
 

@@ -201,7 +201,8 @@ pub struct ScoreReport {
     /// Targets skipped because their image has no depth in the dataset (a dataset may hold part
     /// of its targets' images).
     pub skipped_targets: usize,
-    /// The depth image the first skipped target's image would have.
+    /// The depth image the first skipped target's image would have (`None` also when its
+    /// scene folder is missing too).
     pub first_missing_depth: Option<String>,
     /// Lines of the results file.
     pub estimates_read: usize,
@@ -357,7 +358,10 @@ where
             .push(row);
     }
 
-    if !rows.is_empty() && !rows_by_image.keys().any(|key| by_image.contains_key(key)) {
+    if !rows.is_empty()
+        && !by_image.is_empty()
+        && !rows_by_image.keys().any(|key| by_image.contains_key(key))
+    {
         return Err(no_estimate_is_for_a_target(
             dataset,
             &rows_by_image,

@@ -54,9 +54,17 @@ impl Daemon {
             );
             return self.control_answer(active, Status::InvalidRequest, &m, &[]);
         }
-        if !path.exists() {
-            let m = format!("{}: no such file", path.display());
-            return self.control_answer(active, Status::ModelError, &m, &[]);
+        match path.try_exists() {
+            Ok(true) => {}
+            Ok(false) => {
+                let m = format!("{}: no such file", path.display());
+                return self.control_answer(active, Status::ModelError, &m, &[]);
+            }
+            // Permission denied on a folder above it, say: the daemon runs as its own user.
+            Err(e) => {
+                let m = format!("{}: {e}", path.display());
+                return self.control_answer(active, Status::ModelError, &m, &[]);
+            }
         }
         if !path.is_dir() && !path.is_file() {
             // A FIFO or a device: reading it could block the loading thread forever.
