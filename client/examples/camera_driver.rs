@@ -11,7 +11,18 @@ use std::time::{Duration, Instant};
 
 use ppfd_client::{monotonic_now_ns, CameraPublisher, Intrinsics};
 
-fn main() -> Result<(), Box<dyn std::error::Error>> {
+/// Ends with the error's message (its `Display`), as a command-line tool says it.
+fn main() -> std::process::ExitCode {
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
     let camera = args.next().unwrap_or_else(|| "kinect".into());
     let fps: f64 = args.next().and_then(|v| v.parse().ok()).unwrap_or(30.0);

@@ -7,7 +7,18 @@
 
 use ppfd_client::{isometry, Client, DetectOptions};
 
-fn main() -> Result<(), Box<dyn std::error::Error>> {
+/// Ends with the error's message (its `Display`), as a command-line tool says it.
+fn main() -> std::process::ExitCode {
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
     let camera = args.next().unwrap_or_else(|| "kinect".into());
     let objects: Vec<u32> = args.filter_map(|a| a.parse().ok()).collect();

@@ -19,7 +19,18 @@ use ppfd_client::{
     checks, isometry, Client, DetectOptions, Error, PoseHint, PoseHypothesis, Status,
 };
 
-fn main() -> Result<(), Box<dyn std::error::Error>> {
+/// Ends with the error's message (its `Display`), as a command-line tool says it.
+fn main() -> std::process::ExitCode {
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run() -> Result<(), Box<dyn std::error::Error>> {
     // `--timeout-ms=N` anywhere sets the detect timeout (default: the library's).
     let (timeouts, args): (Vec<String>, Vec<String>) = std::env::args()
         .skip(1)
