@@ -81,9 +81,12 @@ def main() -> None:
         sys.exit(f"{args.dataset}: no depth image")
     _, _, intrinsics, scale, first = frames[0]
     height, width = read_depth(first).shape
-    publisher = ppfd.CameraPublisher(
-        args.camera, width, height, *intrinsics, scale, prefix=args.prefix
-    )
+    try:
+        publisher = ppfd.CameraPublisher(
+            args.camera, width, height, *intrinsics, scale, prefix=args.prefix
+        )
+    except ppfd.Error as e:  # another live driver under the name, a malformed prefix, ...
+        sys.exit(f"camera {args.camera!r}: {e}")
     print(f"publishing {len(frames)} frames of {args.dataset} as camera {args.camera!r}, "
           f"{width}x{height} at {args.fps} fps", flush=True)
     decoded = {}

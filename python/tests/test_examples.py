@@ -9,7 +9,7 @@ import threading
 
 import numpy as np
 
-from conftest import PYTHON_DIR
+from conftest import PYTHON_DIR, fresh_prefix
 
 EXAMPLES = PYTHON_DIR / "examples"
 
@@ -102,3 +102,28 @@ def test_the_replay_example_names_a_folder_that_is_no_dataset(tmp_path):
     assert done.returncode == 1
     assert "nosuch: not a BOP dataset (no test/ folder)" in done.stderr, done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_the_replay_example_names_a_camera_another_driver_publishes(scene):
+    prefix = fresh_prefix("taken")
+    first = subprocess.Popen(
+        [sys.executable, str(EXAMPLES / "camera_from_bop.py"), str(scene.root),
+         "--camera", "taken", "--loop", "--prefix", prefix],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert first.stdout.readline().startswith("publishing"), "the first driver did not start"
+        second = subprocess.run(
+            [sys.executable, str(EXAMPLES / "camera_from_bop.py"), str(scene.root),
+             "--camera", "taken", "--prefix", prefix],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+    finally:
+        first.terminate()
+        first.wait(10)
+    assert second.returncode == 1
+    assert "camera 'taken': another driver already publishes" in second.stderr, second.stderr
+    assert "Traceback" not in second.stderr
