@@ -240,7 +240,13 @@ pub struct Client {
     _wake_service: EventService<Ipc>,
     _replies_service: EventService<Ipc>,
     _node: Node<Ipc>,
+    /// Asked when a signal interrupts a wait for an answer: `true` ends the wait with
+    /// [`Error::Interrupted`]; without one, the wait goes on.
+    interrupt_check: Option<InterruptCheck>,
 }
+
+/// A caller's check, run when a signal interrupts the wait for an answer: `true` stops waiting.
+pub type InterruptCheck = Box<dyn Fn() -> bool>;
 
 /// Whether the daemon's process still lives, checked every [`ALIVE_CHECK_PERIOD`] while a
 /// client waits.
@@ -255,16 +261,19 @@ impl AliveCheck {
         }
     }
 
-    /// True once no live node of the daemon's name is left under the client's prefix. A
-    /// listing that fails, or a node whose state cannot be read, counts as alive: the timeout
-    /// still ends the wait.
-    fn daemon_gone(&mut self, node: &Node<Ipc>) -> bool {
+    /// True once no live node of the daemon's name is attached to the detect service. A listing
+    /// that fails, or a node whose state cannot be read, counts as alive: the timeout still ends
+    /// the wait. Only the service's nodes (the daemon and its clients) are listed, not every
+    /// node on the host: the check runs on the waiting thread, and a host whose node folder
+    /// held 2 500 entries (dead processes of other prefixes) held an answer back by up to
+    /// 30 ms while the whole folder was read.
+    fn daemon_gone(&mut self, service: &DetectService<Ipc>) -> bool {
         if Instant::now() < self.next {
             return false;
         }
         self.next = Instant::now() + ALIVE_CHECK_PERIOD;
         let mut alive = false;
-        let listed = Node::<Ipc>::list(node.config(), |state| {
+        let listed = service.nodes(|state| {
             alive = match &state {
                 // A live node whose details cannot be read may be the daemon.
                 NodeState::Alive(view) => view
@@ -357,6 +366,7 @@ impl Client {
             _wake_service: wake_service,
             _replies_service: replies_service,
             _node: node,
+            interrupt_check: None,
         })
     }
 
@@ -486,7 +496,7 @@ impl Client {
             // Whether the daemon still holds the request, read before looking for the answer:
             // it answers before it lets go, so an answer sent before is found below.
             let held = pending.is_connected();
-            let gone = alive.daemon_gone(&self._node);
+            let gone = alive.daemon_gone(&self._detect_service);
             while let Some(response) = pending
                 .receive()
                 .map_err(transport("cannot receive the response"))?
@@ -511,11 +521,26 @@ impl Client {
         }
     }
 
+    /// Sets what decides, when a signal interrupts the wait for an answer, whether to stop
+    /// waiting. Without a check a signal only wakes the wait, which goes on: a program's own
+    /// handlers (a watchdog timer, a SIGTERM handler that sets a flag) would otherwise cost it
+    /// the request. A binding for a language that runs its handlers between calls (Python)
+    /// runs them here, and stops when one raises.
+    pub fn set_interrupt_check(&mut self, check: InterruptCheck) {
+        self.interrupt_check = Some(check);
+    }
+
     fn wait_reply(&self, left: Duration) -> Result<()> {
-        self.replies
-            .timed_wait(|_| {}, left)
-            .map_err(transport("waiting for the response failed"))?;
-        Ok(())
+        use iceoryx2::port::listener::ListenerWaitError;
+        match self.replies.timed_wait(|_| {}, left) {
+            Ok(_) => Ok(()),
+            // The caller's loop looks for the answer again.
+            Err(ListenerWaitError::InterruptSignal) => match &self.interrupt_check {
+                Some(check) if check() => Err(Error::Interrupted),
+                _ => Ok(()),
+            },
+            Err(e) => Err(transport("waiting for the response failed")(e)),
+        }
     }
 
     fn control(
@@ -565,7 +590,7 @@ impl Client {
         let mut alive = AliveCheck::new();
         loop {
             let held = pending.is_connected();
-            let gone = alive.daemon_gone(&self._node);
+            let gone = alive.daemon_gone(&self._detect_service);
             if let Some(response) = pending
                 .receive()
                 .map_err(transport("cannot receive the response"))?

@@ -29,7 +29,8 @@ mod client;
 
 pub use camera::{CameraPublisher, CameraViewer, FrameLoan, ReadyFrame};
 pub use client::{
-    isometry, Client, ClientOptions, DetectOptions, Detections, Latency, ModelListing,
+    isometry, Client, ClientOptions, DetectOptions, Detections, InterruptCheck, Latency,
+    ModelListing,
 };
 pub use ppfd_protocol as protocol;
 pub use ppfd_protocol::clock::monotonic_now_ns;
@@ -64,6 +65,11 @@ pub enum Error {
     /// answer.
     #[error("ppfd exited while the request waited for its answer (killed or crashed); the request is lost, send it again once a daemon serves")]
     DaemonGone,
+    /// A signal arrived while the request waited, and the client's interrupt check
+    /// ([`crate::Client::set_interrupt_check`]) asked to stop waiting: the request is abandoned
+    /// (the daemon finishes it and counts it abandoned).
+    #[error("interrupted by a signal while the request waited for its answer")]
+    Interrupted,
     /// No daemon serves under this client's prefix.
     #[error("no ppfd daemon is serving {service} under the iceoryx2 prefix {prefix:?}; start one (ppfd --models <dir>), or give the daemon's prefix (--prefix, or PPFD_PREFIX)")]
     NoDaemon {

@@ -103,12 +103,22 @@ impl CameraPublisher {
     }
 
     /// Waits `seconds` without publishing, handing the newest frame every 20 ms to a daemon
-    /// that subscribes meanwhile. The GIL is released while it waits.
+    /// that subscribes meanwhile. The GIL is released while it waits. Python's signal handlers
+    /// run every 50 ms, so Ctrl-C ends it as it ends `time.sleep`.
     fn idle(&self, py: Python<'_>, seconds: f64) -> PyResult<()> {
+        const STEP: std::time::Duration = std::time::Duration::from_millis(50);
         let duration = crate::client::seconds(py, "seconds", seconds)?;
+        let until = std::time::Instant::now() + duration;
         let publisher = &self.inner;
-        py.detach(|| publisher.get().map(|p| p.idle(duration)))?
-            .map_err(|e| to_py(py, e))
+        loop {
+            let left = until.saturating_duration_since(std::time::Instant::now());
+            py.detach(|| publisher.get().map(|p| p.idle(left.min(STEP))))?
+                .map_err(|e| to_py(py, e))?;
+            if left <= STEP {
+                return Ok(());
+            }
+            py.check_signals()?;
+        }
     }
 
     /// Image width, pixels.

@@ -315,7 +315,9 @@ impl Client {
         if prefix.is_some() {
             options.prefix = prefix;
         }
-        let client = ppfd_client::Client::connect_with(&options).map_err(|e| to_py(py, e))?;
+        let mut client =
+            ppfd_client::Client::connect_with(&options).map_err(|e| to_py(py, e))?;
+        client.set_interrupt_check(crate::errors::interrupt_check());
         Ok(Client {
             inner: ThreadBound::new("ppfd.Client", client),
         })

@@ -165,6 +165,29 @@ pub fn to_py(py: Python<'_>, error: Error) -> PyErr {
     }
 }
 
+thread_local! {
+    /// What a Python signal handler raised while this thread's request waited
+    /// ([`interrupt_check`]), for [`to_py`] to raise in place of `Error::Interrupted`.
+    static RAISED_BY_A_HANDLER: std::cell::RefCell<Option<PyErr>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// The client's interrupt check: runs Python's signal handlers when a signal wakes the wait for
+/// an answer. A handler that returns lets the wait go on (a watchdog timer, a SIGTERM handler
+/// that sets a flag); one that raises (Ctrl-C's `KeyboardInterrupt`) ends it, and its exception
+/// is what the call raises. Handlers run only on the main thread; elsewhere the wait goes on.
+pub fn interrupt_check() -> ppfd_client::InterruptCheck {
+    Box::new(|| {
+        Python::attach(|py| match py.check_signals() {
+            Ok(()) => false,
+            Err(e) => {
+                RAISED_BY_A_HANDLER.with(|slot| *slot.borrow_mut() = Some(e));
+                true
+            }
+        })
+    })
+}
+
 fn raise(py: Python<'_>, error: &Error) -> PyResult<PyErr> {
     let c = classes(py)?;
     let message = error.to_string();
@@ -187,6 +210,12 @@ fn raise(py: Python<'_>, error: &Error) -> PyResult<PyErr> {
         Error::CameraTaken { .. } => &c.camera_taken,
         Error::Protocol(_) => &c.protocol,
         Error::Transport(_) => &c.transport,
+        // What the handler raised, as Python would have raised it between two calls.
+        Error::Interrupted => {
+            let raised = RAISED_BY_A_HANDLER.with(|slot| slot.borrow_mut().take());
+            return Ok(raised
+                .unwrap_or_else(|| pyo3::exceptions::PyKeyboardInterrupt::new_err(message)));
+        }
     };
     Ok(PyErr::from_value(class.bind(py).call1((message,))?))
 }

@@ -2,7 +2,9 @@
 against the truth, control requests, refusals as exceptions, the GIL released while waiting."""
 
 import math
+import signal
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -152,6 +154,67 @@ def test_the_gil_is_released_while_the_daemon_works(client, camera, scene):
     # GIL throughout would let the counter run for none of it.
     assert found.latency["detection_ns"] > 10_000_000
     assert during > 1000, f"the counter ran {during} times during the detection"
+
+
+class Alarm(Exception):
+    pass
+
+
+def test_a_signal_handler_that_returns_leaves_the_request_waiting(client, camera, scene):
+    # A watchdog timer firing every 20 ms through a whole detection: each signal wakes the
+    # wait, which goes on to the answer.
+    fired = 0
+
+    def tick(*_):
+        nonlocal fired
+        fired += 1
+
+    camera.publish(scene.depth)
+    previous = signal.signal(signal.SIGALRM, tick)
+    signal.setitimer(signal.ITIMER_REAL, 0.02, 0.02)
+    try:
+        found = client.detect("parts", scene.object_ids, timeout=DETECTION_S)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+    assert fired > 0 and len(found) == len(scene.truth), (fired, len(found))
+
+
+def test_a_signal_handler_that_raises_ends_the_request_with_its_exception(client, camera, scene):
+    def ring(*_):
+        raise Alarm("rang during the detection")
+
+    camera.publish(scene.depth)
+    stats = client.stats()
+    previous = signal.signal(signal.SIGALRM, ring)
+    signal.setitimer(signal.ITIMER_REAL, 0.02)
+    try:
+        with pytest.raises(Alarm):
+            client.detect("parts", scene.object_ids, timeout=DETECTION_S)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+    # The same client serves the next request.
+    found = client.detect("parts", scene.object_ids, timeout=DETECTION_S)
+    assert len(found) == len(scene.truth)
+    assert client.stats()["requests_served"] > stats["requests_served"]
+
+
+def test_idle_ends_when_a_signal_handler_raises(camera):
+    def ring(*_):
+        raise Alarm("rang while idle")
+
+    previous = signal.signal(signal.SIGALRM, ring)
+    signal.setitimer(signal.ITIMER_REAL, 0.05)
+    started = time.monotonic()
+    try:
+        with pytest.raises(Alarm):
+            camera.idle(60.0)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+    # Well before the minute it was asked to wait.
+    assert time.monotonic() - started < 30.0
 
 
 def test_a_timeout_raises_timeout(client, camera, scene):
