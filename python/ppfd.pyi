@@ -5,7 +5,7 @@ frames into shared memory, where the daemon reads them in place. Every error is 
 with the message of the Rust client library. docs/PYTHON.md is the guide.
 """
 
-from typing import Iterable, Iterator, Literal, Optional, Sequence, TypedDict, Union
+from typing import Iterable, Iterator, Literal, Optional, Sequence, TypedDict, Union, overload
 import os
 
 import numpy as np
@@ -142,8 +142,15 @@ class Detections(Sequence[Detection]):
         """With `diagnose=`: per object diagnosed, a heading line ("object 5: lost at voting")
         and one line per stage; "" otherwise."""
     def __len__(self) -> int: ...
-    def __getitem__(self, index: int) -> Detection: ...  # type: ignore[override]
+    @overload
+    def __getitem__(self, index: int) -> Detection: ...
+    @overload
+    def __getitem__(self, index: slice) -> list[Detection]: ...
     def __iter__(self) -> Iterator[Detection]: ...
+    def index(self, detection: Detection) -> int:  # type: ignore[override]
+        """The position of `detection` (the object indexing returns)."""
+    def count(self, detection: Detection) -> int:  # type: ignore[override]
+        """How many times `detection` occurs: 0 or 1."""
     def of(self, object_id: int) -> list[Detection]:
         """The detections of one object, best first."""
     def best(self, object_id: int) -> Optional[Detection]:

@@ -152,15 +152,41 @@ impl Detections {
         self.detections.len()
     }
 
-    fn __getitem__(&self, py: Python<'_>, index: isize) -> PyResult<Py<Detection>> {
+    /// One detection by index (negative from the end), or a list of them by slice.
+    fn __getitem__(&self, py: Python<'_>, index: &Bound<'_, PyAny>) -> PyResult<Py<PyAny>> {
         let n = self.detections.len() as isize;
+        if let Ok(slice) = index.cast::<pyo3::types::PySlice>() {
+            let s = slice.indices(n)?;
+            let picked: Vec<Py<Detection>> = (0..s.slicelength as isize)
+                .map(|k| self.detections[(s.start + k * s.step) as usize].clone_ref(py))
+                .collect();
+            return Ok(picked.into_pyobject(py)?.into_any().unbind());
+        }
+        let index: isize = index.extract()?;
         let i = if index < 0 { index + n } else { index };
         if !(0..n).contains(&i) {
             return Err(pyo3::exceptions::PyIndexError::new_err(format!(
                 "detection index {index} out of range for {n} detections"
             )));
         }
-        Ok(self.detections[i as usize].clone_ref(py))
+        Ok(self.detections[i as usize].clone_ref(py).into_any())
+    }
+
+    /// The position of `detection` (the same object, as indexing returns it), as a sequence's
+    /// `index`.
+    fn index(&self, detection: &Bound<'_, PyAny>) -> PyResult<usize> {
+        self.detections
+            .iter()
+            .position(|d| d.as_ptr() == detection.as_ptr())
+            .ok_or_else(|| pyo3::exceptions::PyValueError::new_err("not among these detections"))
+    }
+
+    /// How many times `detection` occurs (0 or 1), as a sequence's `count`.
+    fn count(&self, detection: &Bound<'_, PyAny>) -> usize {
+        self.detections
+            .iter()
+            .filter(|d| d.as_ptr() == detection.as_ptr())
+            .count()
     }
 
     /// The detections of one object, best first.
@@ -315,8 +341,7 @@ impl Client {
         if prefix.is_some() {
             options.prefix = prefix;
         }
-        let mut client =
-            ppfd_client::Client::connect_with(&options).map_err(|e| to_py(py, e))?;
+        let mut client = ppfd_client::Client::connect_with(&options).map_err(|e| to_py(py, e))?;
         client.set_interrupt_check(crate::errors::interrupt_check());
         Ok(Client {
             inner: ThreadBound::new("ppfd.Client", client),

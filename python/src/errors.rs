@@ -213,8 +213,9 @@ fn raise(py: Python<'_>, error: &Error) -> PyResult<PyErr> {
         // What the handler raised, as Python would have raised it between two calls.
         Error::Interrupted => {
             let raised = RAISED_BY_A_HANDLER.with(|slot| slot.borrow_mut().take());
-            return Ok(raised
-                .unwrap_or_else(|| pyo3::exceptions::PyKeyboardInterrupt::new_err(message)));
+            return Ok(
+                raised.unwrap_or_else(|| pyo3::exceptions::PyKeyboardInterrupt::new_err(message))
+            );
         }
     };
     Ok(PyErr::from_value(class.bind(py).call1((message,))?))
