@@ -242,16 +242,18 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     }
 
     println!(
-        "{} requests from {} clients in {:.2} s: {:.1} requests/s (camera {}, objects {:?})",
+        "{} requests from {} client{} in {:.2} s: {:.1} requests/s (camera {}, objects {:?})",
         all.len(),
         args.clients,
+        if args.clients == 1 { "" } else { "s" },
         elapsed.as_secs_f64(),
         throughput,
         args.camera,
         args.objects.iter().map(|o| &o.0).collect::<Vec<_>>()
     );
     println!(
-        "{:<20} {:>10} {:>10} {:>10} {:>10}",
+        "{:<20} {:>10} {:>10} {:>10} {:>10}   (the stages are summed over the objects, which \
+         run side by side, so they can add up to more than the detection)",
         "ms", "p50", "p90", "p99", "max"
     );
     for m in &measures {

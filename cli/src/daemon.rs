@@ -167,7 +167,7 @@ pub fn stats(args: StatsArgs) -> Result<(), String> {
     // The daemon takes a camera's frames when it needs one (a request, or its housekeeping
     // round) and keeps the newest; frames published in between are skipped, not lost work.
     println!(
-        "frames taken      {} (the newest when needed; the rest skipped)",
+        "frames received   {} (the newest used when needed; the rest skipped)",
         s.frames_received
     );
     println!(
@@ -197,9 +197,11 @@ pub fn stats(args: StatsArgs) -> Result<(), String> {
         "latency (ms)      {:>8} {:>8} {:>8} {:>8} {:>8}",
         "count", "p50", "p90", "p99", "max"
     );
+    // The daemon's side only: from the client's send to the response sent. A client's end to
+    // end adds the response's way back (`ppf detect` and `ppf bench` print it).
     for (name, l) in [
-        ("total", &s.total),
-        ("overhead", &s.overhead),
+        ("send → answered", &s.total),
+        ("transport+queue", &s.overhead),
         ("detection", &s.detection),
     ] {
         println!(

@@ -166,6 +166,7 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
             })
             .chain([
                 ("detection_ns".to_owned(), l.daemon.detection_ns.into()),
+                ("hand_back_ns".to_owned(), l.hand_back_ns().into()),
                 (
                     "response_transport_ns".to_owned(),
                     l.response_transport_ns.into(),

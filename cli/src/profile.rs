@@ -100,7 +100,14 @@ pub fn run(args: ProfileArgs) -> Result<(), Box<dyn std::error::Error>> {
         frame_runs.push((det.timings, det.elapsed));
         counts = det.per_object_counts;
     }
-    println!("medians of {repeat} runs, ms; what voting did (the same every run). Objects run side by side: an object's times include waiting for the cores the others hold, and the frame's wall time is below the sum of the objects'");
+    let side_by_side = if rayon::current_num_threads() > 1 {
+        "Objects run side by side: an object's times include waiting for the cores the others \
+         hold, and the frame's wall time is below the sum of the objects'"
+    } else {
+        "One thread: the objects run one after another, and the frame's wall time adds the \
+         scene's preparation and clouds to the objects'"
+    };
+    println!("medians of {repeat} runs, ms; what voting did (the same every run). {side_by_side}");
     println!("| object | voting | clustering | voting + clustering | re-scoring | ICP | filters | object total | cloud points | reference points | pairs | votes | ns per vote |");
     println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for ((m, runs), c) in models.iter().zip(&per_object).zip(&counts) {

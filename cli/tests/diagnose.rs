@@ -196,6 +196,18 @@ fn a_camera_detection_is_diagnosed_against_the_poses_of_a_file() {
         String::from_utf8_lossy(&out.stderr)
     );
     let answer: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    // The latency's parts close: overhead = transport + queue wait + hand-back + response
+    // transport, and end to end = detection + overhead.
+    let ns = |key: &str| {
+        answer["latency"][key]
+            .as_u64()
+            .unwrap_or_else(|| panic!("no {key} in {stdout}"))
+    };
+    assert_eq!(
+        ns("overhead_ns"),
+        ns("transport_ns") + ns("queue_wait_ns") + ns("hand_back_ns") + ns("response_transport_ns")
+    );
+    assert_eq!(ns("end_to_end_ns"), ns("detection_ns") + ns("overhead_ns"));
     let lines: Vec<&str> = answer["diagnosis"]
         .as_array()
         .unwrap_or_else(|| panic!("no diagnosis in {stdout}"))
