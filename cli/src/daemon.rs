@@ -139,9 +139,10 @@ pub fn stats(args: StatsArgs) -> Result<(), String> {
             .find_map(|l| l.strip_prefix(name))
             .map(str::trim)
     };
-    let failed = line("failed at start:");
-    let loading = line("loading models:");
-    let loads = line("model loads:");
+    use ppfd_client::protocol::control::statistics_lines::{FAILED_AT_START, LOADING, MODEL_LOADS};
+    let failed = line(FAILED_AT_START);
+    let loading = line(LOADING);
+    let loads = line(MODEL_LOADS);
     if args.json {
         let mut json = stats_json(&s);
         json["detector"] = detector.into();

@@ -8,7 +8,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use ppfd_bop::dataset::BopDataset;
 use ppfd_bop::eval::csv::{write_results_file, EstimateRow};
-use ppfd_bop::eval::score::{score_results, targets_from_ground_truth, ScoreOptions};
+use ppfd_bop::eval::score::{dataset_targets, score_results, ScoreOptions};
 use ppfd_models::detect::detector::{Detector, RunOptions};
 
 use crate::common::scenes_there;
@@ -196,10 +196,7 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
     // One scene evaluated is scored against that scene's targets, not the whole dataset's.
     let targets = match args.scene {
         Some(scene) => {
-            let all = match dataset.test_targets() {
-                Some(t) => t.to_vec(),
-                None => targets_from_ground_truth(&dataset, defaults.visib_gt_min)?,
-            };
+            let all = dataset_targets(&dataset, defaults.visib_gt_min)?;
             Some(all.into_iter().filter(|t| t.scene_id == scene).collect())
         }
         None => None,

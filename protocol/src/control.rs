@@ -7,6 +7,17 @@ use iceoryx2::prelude::ZeroCopySend;
 
 use crate::{text, MESSAGE_BYTES, MODEL_NAME_BYTES, PATH_BYTES, PROTOCOL_VERSION};
 
+/// The lines of a `Statistics` answer's message after its first (the detector parameters), each
+/// starting with its name: the daemon writes them and `ppf stats` finds them by these names.
+pub mod statistics_lines {
+    /// How far the loading of the models folder at start has got, while it runs.
+    pub const LOADING: &str = "loading models:";
+    /// How many files of the models folder failed to load at start, once it is done.
+    pub const FAILED_AT_START: &str = "failed at start:";
+    /// How many `LoadModel` requests run and wait, while any does.
+    pub const MODEL_LOADS: &str = "model loads:";
+}
+
 /// What a [`ControlRequest`] asks for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u32)]

@@ -242,6 +242,15 @@ pub fn score_results(
     })
 }
 
+/// The dataset's own targets: its `test_targets_bop19.json`, or else every annotated instance
+/// at least `visib_gt_min` visible ([`targets_from_ground_truth`]).
+pub fn dataset_targets(dataset: &BopDataset, visib_gt_min: f32) -> Result<Vec<TestTarget>> {
+    match dataset.test_targets() {
+        Some(t) => Ok(t.to_vec()),
+        None => targets_from_ground_truth(dataset, visib_gt_min),
+    }
+}
+
 /// The error for results of which no row names an image with targets: results of another
 /// dataset, or of another split, would otherwise score as a detector that found nothing.
 fn no_estimate_is_for_a_target<E, T>(
@@ -288,10 +297,9 @@ where
 {
     let times = image_times(rows)?;
     let meshes = MeshCache::default();
-    let targets = match (&options.targets, dataset.test_targets()) {
-        (Some(t), _) => t.clone(),
-        (None, Some(t)) => t.to_vec(),
-        (None, None) => targets_from_ground_truth(dataset, options.visib_gt_min)?,
+    let targets = match &options.targets {
+        Some(t) => t.clone(),
+        None => dataset_targets(dataset, options.visib_gt_min)?,
     };
     let mut by_image: ImageTargets = BTreeMap::new();
     let mut skipped_targets = 0;
@@ -317,14 +325,14 @@ where
             }
         }
     }
-    if let (true, Some(t)) = (by_image.is_empty(), targets.first()) {
-        let depth = dataset
-            .depth_path(t.scene_id, t.im_id)
-            .map_or_else(|e| e.to_string(), |p| p.display().to_string());
+    if by_image.is_empty() && !targets.is_empty() {
+        let first = first_missing_depth
+            .as_deref()
+            .map_or(String::new(), |d| format!(" (the first's would be {d})"));
         return Err(Error::Dataset {
             path: dataset.root().to_path_buf(),
             reason: format!(
-                "none of the {} targets' images has a depth image (the first's would be {depth})",
+                "none of the {} targets' images has a depth image{first}",
                 targets.len()
             ),
         });

@@ -65,18 +65,20 @@ impl Daemon {
             }
             ControlCommand::Statistics => {
                 // The message field holds MESSAGE_BYTES - 1 bytes and a NUL.
+                use ppfd_protocol::control::statistics_lines::{FAILED_AT_START, MODEL_LOADS};
                 let mut loading = match &self.startup {
                     Some(s) => format!("\n{}", s.progress()),
                     None if self.failed_at_start > 0 => format!(
-                        "\nfailed at start: {} files of the models folder (the log names each)",
-                        self.failed_at_start
+                        "\n{FAILED_AT_START} {} file{} of the models folder (the log names each)",
+                        self.failed_at_start,
+                        if self.failed_at_start == 1 { "" } else { "s" }
                     ),
                     None => String::new(),
                 };
                 // `LoadModel` requests run one at a time, beside the detections.
                 if self.loading.is_some() || !self.waiting_loads.is_empty() {
                     loading.push_str(&format!(
-                        "\nmodel loads: {} running, {} waiting",
+                        "\n{MODEL_LOADS} {} running, {} waiting",
                         usize::from(self.loading.is_some()),
                         self.waiting_loads.len()
                     ));

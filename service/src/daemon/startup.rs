@@ -122,7 +122,8 @@ impl StartupLoad {
             String::new()
         };
         format!(
-            "loading models: {} of {} files done{failed}, {} s",
+            "{} {} of {} files done{failed}, {} s",
+            ppfd_protocol::control::statistics_lines::LOADING,
             self.done,
             self.files,
             self.started.elapsed().as_secs()
