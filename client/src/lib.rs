@@ -125,14 +125,16 @@ pub fn remove_prefix_leftovers(prefix: &str) -> Result<usize> {
     for dir in [
         "/dev/shm",
         "/tmp/iceoryx2/services",
-        "/tmp/iceoryx2/nodes",
+        NODES_DIR,
         "/tmp/iceoryx2",
     ] {
         let Ok(entries) = std::fs::read_dir(dir) else {
             continue;
         };
         for e in entries.flatten() {
-            if e.file_name().to_string_lossy().starts_with(prefix) {
+            if dir == NODES_DIR && !e.file_name().to_string_lossy().starts_with(prefix) {
+                removed += remove_node_leftovers(&e.path(), prefix);
+            } else if e.file_name().to_string_lossy().starts_with(prefix) {
                 let p = e.path();
                 let gone = if p.is_dir() {
                     std::fs::remove_dir_all(&p)
@@ -144,4 +146,27 @@ pub fn remove_prefix_leftovers(prefix: &str) -> Result<usize> {
         }
     }
     Ok(removed)
+}
+
+/// Where iceoryx2 keeps a directory per node, named by the node's id, not by its prefix.
+const NODES_DIR: &str = "/tmp/iceoryx2/nodes";
+
+/// Removes the entries of `prefix` in one node's directory, and the directory once it is
+/// empty: a node's directory is named by its id, and only the files in it carry the prefix.
+/// Returns how many entries were removed.
+fn remove_node_leftovers(node_dir: &std::path::Path, prefix: &str) -> usize {
+    let Ok(entries) = std::fs::read_dir(node_dir) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for e in entries.flatten() {
+        if e.file_name().to_string_lossy().starts_with(prefix) {
+            removed += usize::from(std::fs::remove_file(e.path()).is_ok());
+        }
+    }
+    // Fails, and leaves it, while another prefix's node still has entries in it.
+    if removed > 0 && std::fs::remove_dir(node_dir).is_ok() {
+        removed += 1;
+    }
+    removed
 }
