@@ -29,15 +29,33 @@ pub fn encode_name<const N: usize>(
     Ok(out)
 }
 
-/// Writes `text` into a NUL-padded array, cutting it at a character boundary when it is too long
-/// (for free-form messages, where losing the tail beats losing the message).
+/// Writes `text` into a NUL-padded array. Text too long is cut after the last whole word that
+/// leaves room for "…", which tells the reader that more was said (for free-form messages, where
+/// losing the tail beats losing the message).
 pub fn encode_truncated<const N: usize>(text: &str) -> [u8; N] {
-    let mut end = text.len().min(N.saturating_sub(1));
+    let mut out = [0u8; N];
+    // One byte stays NUL, so a reader always finds the end.
+    let room = N.saturating_sub(1);
+    if text.len() <= room {
+        out[..text.len()].copy_from_slice(text.as_bytes());
+        return out;
+    }
+    const MORE: &str = "…";
+    let Some(mut end) = room.checked_sub(MORE.len()) else {
+        return out;
+    };
     while !text.is_char_boundary(end) {
         end -= 1;
     }
-    let mut out = [0u8; N];
+    // Back to the end of the last whole word, unless that loses more than a quarter of the room
+    // (a long path or number is cut where it stands).
+    if let Some(space) = text[..end].rfind(' ') {
+        if space >= end - end / 4 {
+            end = text[..space].trim_end_matches([' ', ',', ';', ':']).len();
+        }
+    }
     out[..end].copy_from_slice(&text.as_bytes()[..end]);
+    out[end..end + MORE.len()].copy_from_slice(MORE.as_bytes());
     out
 }
 
@@ -67,10 +85,29 @@ mod tests {
     }
 
     #[test]
-    fn messages_are_cut_at_character_boundaries() {
-        let m: [u8; 5] = encode_truncated("ééé");
-        assert_eq!(decode(&m), "éé");
-        let m: [u8; 4] = encode_truncated("ééé");
-        assert_eq!(decode(&m), "é");
+    fn messages_that_fit_are_kept_whole() {
+        let m: [u8; 7] = encode_truncated("ééé");
+        assert_eq!(decode(&m), "ééé");
+    }
+
+    #[test]
+    fn messages_are_cut_at_character_boundaries_and_marked() {
+        // 4 bytes of text room before "…": "é" and half of the next.
+        let m: [u8; 8] = encode_truncated("éééé");
+        assert_eq!(decode(&m), "éé…");
+        let m: [u8; 7] = encode_truncated("éééé");
+        assert_eq!(decode(&m), "é…");
+        let m: [u8; 3] = encode_truncated("éééé");
+        assert_eq!(decode(&m), "");
+    }
+
+    #[test]
+    fn long_messages_are_cut_after_a_whole_word() {
+        let text = "object 7 cannot be loaded: the mesh has no faces, and a model needs them";
+        let m: [u8; 48] = encode_truncated(text);
+        assert_eq!(decode(&m), "object 7 cannot be loaded: the mesh has no…");
+        // A word longer than a quarter of the room is cut where it stands.
+        let m: [u8; 24] = encode_truncated("path /a/very/long/folder/name/of/models");
+        assert_eq!(decode(&m), "path /a/very/long/fo…");
     }
 }
