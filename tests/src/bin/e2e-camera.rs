@@ -126,7 +126,11 @@ fn main() {
         intrinsics,
         scale,
     )
-    .expect("camera publisher");
+    .unwrap_or_else(|e| {
+        // A refusal (another driver publishes under the name) is an answer, not a crash.
+        eprintln!("e2e-camera: camera {camera:?}: {e}");
+        std::process::exit(1);
+    });
     writeln!(out, "camera ready").unwrap();
     out.flush().unwrap();
     let period = Duration::from_secs_f64(1.0 / fps.max(0.1));
