@@ -83,12 +83,23 @@ class Stats(TypedDict):
     resident_bytes: int
     in_flight: int
     queued: int
+    startup_files: int
+    """Model files in the models folder the daemon loads at start."""
+    startup_files_done: int
+    """Of those, the files loaded or failed so far: fewer while the folder loads, and
+    detections wait until it is done."""
+    startup_files_failed: int
+    """Of those, the files that failed to load (the daemon's log names each)."""
+    model_loads_running: int
+    """`load_model` requests being served (one at a time)."""
+    model_loads_waiting: int
+    """`load_model` requests waiting for the one running."""
     total: LatencySummary
     overhead: LatencySummary
     detection: LatencySummary
     message: str
-    """The detector parameters the daemon runs with; while it loads its models folder at
-    start, a second line says how far it is."""
+    """The detector parameters the daemon runs with (`detector: defaults`, or
+    `detector: voting.reference_step=2 …`)."""
 
 class Checks:
     """Bits of `Detection.checks`: the verification stages a hypothesis passed."""

@@ -126,29 +126,10 @@ pub fn stats(args: StatsArgs) -> Result<(), String> {
         .connect
         .client_with(Duration::from_millis(args.timeout_ms))?;
     let (s, message) = client.statistics().map_err(|e| e.to_string())?;
-    let mut lines = message.lines();
-    let detector = lines.next().unwrap_or_default();
-    let detector = detector
-        .strip_prefix("detector:")
-        .unwrap_or(detector)
-        .trim();
-    // The lines after the first, each named by its start.
-    let rest: Vec<&str> = lines.collect();
-    let line = |name: &str| {
-        rest.iter()
-            .find_map(|l| l.strip_prefix(name))
-            .map(str::trim)
-    };
-    use ppfd_client::protocol::control::statistics_lines::{FAILED_AT_START, LOADING, MODEL_LOADS};
-    let failed = line(FAILED_AT_START);
-    let loading = line(LOADING);
-    let loads = line(MODEL_LOADS);
+    let detector = message.strip_prefix("detector:").unwrap_or(&message).trim();
     if args.json {
         let mut json = stats_json(&s);
         json["detector"] = detector.into();
-        json["loading"] = loading.into();
-        json["failed_at_start"] = failed.into();
-        json["model_loads"] = loads.into();
         println!(
             "{}",
             serde_json::to_string_pretty(&json).map_err(|e| e.to_string())?
@@ -180,14 +161,25 @@ pub fn stats(args: StatsArgs) -> Result<(), String> {
         s.models_loaded,
         s.model_bytes as f64 / 1e6
     );
-    if let Some(loading) = loading {
-        println!("loading           {loading}; detections wait until every model is loaded");
+    let files = |n: u64| format!("{n} file{}", if n == 1 { "" } else { "s" });
+    if s.startup_files_done < s.startup_files {
+        println!(
+            "loading           {} of {} of the models folder done; detections wait until every model is loaded",
+            s.startup_files_done,
+            files(s.startup_files)
+        );
     }
-    if let Some(failed) = failed {
-        println!("failed at start   {failed}");
+    if s.startup_files_failed > 0 {
+        println!(
+            "failed at start   {} of the models folder (the log names each)",
+            files(s.startup_files_failed)
+        );
     }
-    if let Some(loads) = loads {
-        println!("model loads       {loads}");
+    if s.model_loads_running + s.model_loads_waiting > 0 {
+        println!(
+            "model loads       {} running, {} waiting",
+            s.model_loads_running, s.model_loads_waiting
+        );
     }
     println!("resident memory   {:.1} MB", s.resident_bytes as f64 / 1e6);
     println!(
@@ -225,6 +217,9 @@ fn stats_json(s: &DaemonStats) -> serde_json::Value {
         "requests_abandoned": s.requests_abandoned, "frames_received": s.frames_received, "cameras": s.cameras,
         "models_loaded": s.models_loaded, "model_bytes": s.model_bytes, "resident_bytes": s.resident_bytes,
         "in_flight": s.in_flight, "queued": s.queued,
+        "startup_files": s.startup_files, "startup_files_done": s.startup_files_done,
+        "startup_files_failed": s.startup_files_failed,
+        "model_loads_running": s.model_loads_running, "model_loads_waiting": s.model_loads_waiting,
         "total": l(&s.total), "overhead": l(&s.overhead), "detection": l(&s.detection),
     })
 }

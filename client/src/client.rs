@@ -664,9 +664,10 @@ impl Client {
     }
 
     /// The daemon's statistics, and the detector parameters it runs with as text
-    /// (`detector: defaults`, or `detector: voting.reference_step=2 …`). While the daemon loads
-    /// its models folder at start (it answers statistics, and holds the rest until it is
-    /// done), a second line says how far it is: `loading models: 3 of 12 files done, 14 s`.
+    /// (`detector: defaults`, or `detector: voting.reference_step=2 …`). Statistics are
+    /// answered while the daemon loads its models folder at start, which hold the other
+    /// requests until it is done: [`DaemonStats::startup_files_done`] against
+    /// [`DaemonStats::startup_files`] says how far it is.
     pub fn statistics(&self) -> Result<(DaemonStats, String)> {
         let (h, _) = self.control(ControlCommand::Statistics, 0, "")?;
         Ok((h.stats, h.message().into_owned()))

@@ -7,17 +7,6 @@ use iceoryx2::prelude::ZeroCopySend;
 
 use crate::{text, MESSAGE_BYTES, MODEL_NAME_BYTES, PATH_BYTES, PROTOCOL_VERSION};
 
-/// The lines of a `Statistics` answer's message after its first (the detector parameters), each
-/// starting with its name: the daemon writes them and `ppf stats` finds them by these names.
-pub mod statistics_lines {
-    /// How far the loading of the models folder at start has got, while it runs.
-    pub const LOADING: &str = "loading models:";
-    /// How many files of the models folder failed to load at start, once it is done.
-    pub const FAILED_AT_START: &str = "failed at start:";
-    /// How many `LoadModel` requests run and wait, while any does.
-    pub const MODEL_LOADS: &str = "model loads:";
-}
-
 /// What a [`ControlRequest`] asks for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u32)]
@@ -138,6 +127,17 @@ pub struct DaemonStats {
     pub in_flight: u64,
     /// Requests waiting for a worker now.
     pub queued: u64,
+    /// Model files in the models folder the daemon loads at start (0 without one).
+    pub startup_files: u64,
+    /// Of those, the files loaded or failed so far: fewer than `startup_files` while the
+    /// loading runs, and detections wait until it is done.
+    pub startup_files_done: u64,
+    /// Of those, the files that failed to load (the daemon's log names each).
+    pub startup_files_failed: u64,
+    /// `LoadModel` requests being served now (they run one at a time, beside detections).
+    pub model_loads_running: u64,
+    /// `LoadModel` requests waiting for the one running.
+    pub model_loads_waiting: u64,
     /// Client send → response sent, over served requests.
     pub total: LatencySummary,
     /// Transport + queue wait (the daemon's overhead), over served requests.
@@ -234,8 +234,8 @@ mod tests {
     fn layouts_are_fixed() {
         assert_eq!(size_of::<ControlRequest>(), 288);
         assert_eq!(size_of::<LatencySummary>(), 40);
-        assert_eq!(size_of::<DaemonStats>(), 13 * 8 + 3 * 40);
-        assert_eq!(size_of::<ControlResponseHeader>(), 16 + 224 + 192);
+        assert_eq!(size_of::<DaemonStats>(), 18 * 8 + 3 * 40);
+        assert_eq!(size_of::<ControlResponseHeader>(), 16 + 264 + 192);
         assert_eq!(offset_of!(ControlResponseHeader, protocol_version), 0);
         assert_eq!(size_of::<ModelInfo>(), 80);
     }

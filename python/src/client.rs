@@ -311,6 +311,11 @@ fn stats_dict<'py>(
         ("resident_bytes", s.resident_bytes),
         ("in_flight", s.in_flight),
         ("queued", s.queued),
+        ("startup_files", s.startup_files),
+        ("startup_files_done", s.startup_files_done),
+        ("startup_files_failed", s.startup_files_failed),
+        ("model_loads_running", s.model_loads_running),
+        ("model_loads_waiting", s.model_loads_waiting),
     ] {
         dict.set_item(key, value)?;
     }

@@ -98,7 +98,12 @@ def test_models_and_stats(client, scene):
     assert stats["models_loaded"] == len(scene.object_ids)
     assert stats["uptime_ns"] > 0
     assert set(stats["total"]) == {"count", "p50_ns", "p90_ns", "p99_ns", "max_ns"}
-    assert "detector" in stats["message"]
+    assert stats["message"] == "detector: defaults"
+    # The session's daemon loaded its whole models folder at start, each file without failure.
+    n = len(scene.object_ids)
+    assert (stats["startup_files"], stats["startup_files_done"]) == (n, n)
+    assert stats["startup_files_failed"] == 0
+    assert (stats["model_loads_running"], stats["model_loads_waiting"]) == (0, 0)
 
 
 def test_a_dropped_model_is_unknown_until_loaded_again(client, camera, scene):

@@ -85,11 +85,9 @@ fn statistics_are_answered_while_the_models_load() {
         asked.elapsed()
     );
     assert!(stats.models_loaded < 5, "{stats:?}");
-    let loading = message
-        .lines()
-        .find(|l| l.starts_with("loading models:"))
-        .unwrap_or_else(|| panic!("no loading line: {message:?}"));
-    assert!(loading.contains(" of 5 files done"), "{loading}");
+    assert_eq!(stats.startup_files, 5, "{stats:?}");
+    assert!(stats.startup_files_done < 5, "{stats:?}");
+    assert_eq!(message, "detector: defaults");
     // Held until the folder is loaded: the list is whole.
     let options = ClientOptions {
         prefix: Some(prefix.0.clone()),
@@ -105,13 +103,20 @@ fn statistics_are_answered_while_the_models_load() {
         .collect();
     assert_eq!(listed, [1, 2, 3, 4, 5]);
     d.wait_line("ppfd ready", STARTUP);
-    let (stats, message) = client.statistics().unwrap();
+    let stats = client.stats().unwrap();
     assert_eq!(stats.models_loaded, 5);
-    assert!(!message.contains("loading"), "{message:?}");
+    assert_eq!(
+        (
+            stats.startup_files,
+            stats.startup_files_done,
+            stats.startup_files_failed
+        ),
+        (5, 5, 0)
+    );
 }
 
 /// Model loads run one at a time: while they do, the statistics say how many run and wait, so
-/// that a load slow to answer can be told from a lost one; once they are done, the line goes.
+/// that a load slow to answer can be told from a lost one; once they are done, both are 0.
 #[test]
 fn statistics_show_the_model_loads_running_and_waiting() {
     let prefix = Prefix::new("loadqueue");
@@ -138,25 +143,26 @@ fn statistics_show_the_model_loads_running_and_waiting() {
     let client = connect(&prefix);
     let deadline = Instant::now() + Duration::from_secs(5);
     let seen = loop {
-        let (_, message) = client.statistics().expect("statistics");
-        if let Some(line) = message.lines().find(|l| l.starts_with("model loads:")) {
-            break line.to_owned();
+        let stats = client.stats().expect("statistics");
+        if stats.model_loads_running + stats.model_loads_waiting > 0 {
+            break stats;
         }
-        assert!(
-            Instant::now() < deadline,
-            "no model loads line: {message:?}"
-        );
+        assert!(Instant::now() < deadline, "no model load seen: {stats:?}");
         std::thread::sleep(Duration::from_millis(20));
     };
-    assert!(seen.starts_with("model loads: 1 running, "), "{seen}");
+    assert_eq!(seen.model_loads_running, 1, "{seen:?}");
+    assert!(seen.model_loads_waiting <= 2, "{seen:?}");
     let mut loaded: Vec<u32> = loads
         .into_iter()
         .map(|t| t.join().unwrap().expect("loaded"))
         .collect();
     loaded.sort();
     assert_eq!(loaded, [2, 3, 4]);
-    let (_, message) = client.statistics().expect("statistics");
-    assert!(!message.contains("model loads"), "{message:?}");
+    let stats = client.stats().expect("statistics");
+    assert_eq!(
+        (stats.model_loads_running, stats.model_loads_waiting),
+        (0, 0)
+    );
 }
 
 /// While the daemon stops (here on SIGHUP, as when its terminal closes), a running detection

@@ -64,29 +64,9 @@ impl Daemon {
                 self.control_answer(active, Status::Ok, "", shown);
             }
             ControlCommand::Statistics => {
-                // The message field holds MESSAGE_BYTES - 1 bytes and a NUL.
-                use ppfd_protocol::control::statistics_lines::{FAILED_AT_START, MODEL_LOADS};
-                let mut loading = match &self.startup {
-                    Some(s) => format!("\n{}", s.progress()),
-                    None if self.failed_at_start > 0 => format!(
-                        "\n{FAILED_AT_START} {} file{} of the models folder (the log names each)",
-                        self.failed_at_start,
-                        if self.failed_at_start == 1 { "" } else { "s" }
-                    ),
-                    None => String::new(),
-                };
-                // `LoadModel` requests run one at a time, beside the detections.
-                if self.loading.is_some() || !self.waiting_loads.is_empty() {
-                    loading.push_str(&format!(
-                        "\n{MODEL_LOADS} {} running, {} waiting",
-                        usize::from(self.loading.is_some()),
-                        self.waiting_loads.len()
-                    ));
-                }
-                let mut m = self
+                let m = self
                     .config
-                    .detector_summary(ppfd_protocol::MESSAGE_BYTES - 1 - loading.len());
-                m.push_str(&loading);
+                    .detector_summary(ppfd_protocol::MESSAGE_BYTES - 1);
                 self.control_answer(active, Status::Ok, &m, &[])
             }
             ControlCommand::DropModel => match self.registry.remove(request.object_id) {
@@ -125,6 +105,16 @@ impl Daemon {
         stats.model_bytes = self.registry.bytes();
         stats.in_flight = self.in_flight.len() as u64;
         stats.queued = self.queue.len() as u64;
+        (
+            stats.startup_files,
+            stats.startup_files_done,
+            stats.startup_files_failed,
+        ) = match &self.startup {
+            Some(loading) => loading.progress(),
+            None => self.startup_files,
+        };
+        stats.model_loads_running = u64::from(self.loading.is_some());
+        stats.model_loads_waiting = self.waiting_loads.len() as u64;
         let header = ControlResponseHeader {
             status: status.code(),
             request_id: active.payload().request_id,

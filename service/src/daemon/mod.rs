@@ -123,9 +123,10 @@ fn expired_connection_buffer(config: &DaemonConfig) -> usize {
 pub(crate) struct Daemon {
     /// The models folder's loading at start, until it ends.
     startup: Option<StartupLoad>,
-    /// Files of the models folder that failed to load at start: the statistics say so for as
-    /// long as the daemon runs, where the log's lines about them may be long gone.
-    failed_at_start: usize,
+    /// The models folder's files at start: all, loaded or failed, failed (as
+    /// [`StartupLoad::progress`] gives them). The statistics say how many failed for as long as
+    /// the daemon runs, where the log's lines about them may be long gone.
+    startup_files: (u64, u64, u64),
     /// Control requests other than statistics that came while the models loaded at start,
     /// handled once they have.
     held_control: Vec<ControlActive>,
@@ -361,7 +362,7 @@ impl Daemon {
         }
         Ok(Daemon {
             startup,
-            failed_at_start: 0,
+            startup_files: (0, 0, 0),
             held_control: Vec::new(),
             shutting_down: false,
             in_flight: HashMap::new(),

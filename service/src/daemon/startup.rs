@@ -113,21 +113,9 @@ impl StartupLoad {
         }
     }
 
-    /// The line statistics carry while the models load: `loading models: 3 of 12 files done
-    /// (1 failed), 14 s`.
-    pub(super) fn progress(&self) -> String {
-        let failed = if self.failed > 0 {
-            format!(" ({} failed)", self.failed)
-        } else {
-            String::new()
-        };
-        format!(
-            "{} {} of {} files done{failed}, {} s",
-            ppfd_protocol::control::statistics_lines::LOADING,
-            self.done,
-            self.files,
-            self.started.elapsed().as_secs()
-        )
+    /// Files to load, files loaded or failed so far, files failed.
+    pub(super) fn progress(&self) -> (u64, u64, u64) {
+        (self.files as u64, self.done as u64, self.failed as u64)
     }
 }
 
@@ -143,7 +131,7 @@ impl Daemon {
         }
         let mut startup = self.startup.take().expect("loading");
         startup.join();
-        self.failed_at_start = startup.failed;
+        self.startup_files = startup.progress();
         if startup.files == 0 {
             tracing::warn!(
                 dir = %startup.dir.display(),
