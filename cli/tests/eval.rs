@@ -23,11 +23,8 @@ fn an_unwritable_results_file_is_refused_before_any_detection() {
         .arg(&dataset)
         .arg("--out")
         .arg(&out)
-        // No model cache of the user's is touched: nothing may be built at all.
-        .env(
-            "PPFD_CACHE",
-            std::env::temp_dir().join("ppf-eval-unused-cache"),
-        )
+        // A cache of the test's own, which nothing may be written to.
+        .env("PPFD_CACHE", &cache)
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&run.stderr);
@@ -40,7 +37,9 @@ fn an_unwritable_results_file_is_refused_before_any_detection() {
         !stderr.contains("estimates"),
         "nothing was detected: {stderr}"
     );
-    assert!(!cache.exists(), "no model was built before the refusal");
+    let built = std::fs::read_dir(&cache).map_or(0, |d| d.count());
+    let _ = std::fs::remove_dir_all(&cache);
+    assert_eq!(built, 0, "no model was built before the refusal");
 }
 
 /// A run that fails before its first image (here: an object the dataset has no model of) leaves

@@ -274,6 +274,11 @@ fn every_true_pose_of_the_frame_comes_back_from_its_hint() {
         .detect(&frame.view(), &refs, &opts)
         .unwrap();
     assert_eq!(det.counts.reference_points, 0, "something was voted for");
+    assert_eq!(
+        det.objects.len(),
+        truth.len(),
+        "an object did not come back"
+    );
     let mut rows = Vec::new();
     for (g, o) in truth.iter().zip(&det.objects) {
         assert_eq!(o.object_id, g.obj_id);

@@ -13,7 +13,8 @@ const DAEMON: &str = env!("CARGO_BIN_EXE_e2e-daemon");
 const CAMERA: &str = env!("CARGO_BIN_EXE_e2e-camera");
 const STARTUP: Duration = Duration::from_secs(20);
 /// How long the stand-in engine takes per detection.
-const DETECTION: Duration = Duration::from_millis(30);
+/// Long beside the scheduler's noise on a busy host, which the queue waits are compared with.
+const DETECTION: Duration = Duration::from_millis(100);
 const REQUESTS: usize = 20;
 
 /// Per request of one client: when its answer came (since the start) and its queue wait.

@@ -308,6 +308,7 @@ mod tests {
             owned.iter().zip(gt).map(|(m, g)| (&**m, g.pose)).collect();
         let ours = estimate_gt_info(&depth, 640, 480, &frame.intrinsics, &instances).unwrap();
         let theirs = data.ground_truth_info(2, 3).unwrap();
+        assert_eq!((ours.len(), theirs.len()), (gt.len(), gt.len()));
         let mut table = String::from("obj  visib (file, ours)  px_all (file, ours)\n");
         for ((g, o), t) in gt.iter().zip(&ours).zip(theirs) {
             table += &format!(
