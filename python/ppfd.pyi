@@ -225,8 +225,11 @@ class Client:
     def stats(self) -> Stats:
         """The daemon's statistics."""
     def load_model(self, path: Union[str, os.PathLike[str]], object_id: int = 0) -> Model:
-        """Loads a model file, or builds one from a PLY mesh, in the daemon (`path` as the
-        daemon sees it; `object_id` 0 takes the id from the file)."""
+        """Loads a model file, or builds one from a PLY mesh, in the daemon (`path` absolute,
+        as the daemon sees it; `object_id` 0 takes the id from the file). Bounded by the
+        client's `control_timeout`; a load that times out is not cancelled: the daemon finishes
+        it and serves the model, and `stats()` (`model_loads_running`, `model_loads_waiting`)
+        and `models()` tell when. Sent again, it would be done again after it."""
     def drop_model(self, object_id: int) -> None:
         """Drops a model from the daemon."""
 
@@ -315,4 +318,13 @@ class ProtocolError(Error, ValueError):
     """The request or frame was malformed, found before it was sent."""
 
 class TransportError(Error):
-    """An iceoryx2 operation failed."""
+    """An iceoryx2 operation failed. The client stays usable: its next request is sent
+    afresh."""
+
+class TooManyClients(TransportError):
+    """At connect: the daemon serves as many clients as it can; connect again once one has
+    gone."""
+
+class OtherProtocolVersion(TransportError):
+    """At connect: the daemon serves another protocol version; the daemon and its clients must
+    come from the same ppfd release."""

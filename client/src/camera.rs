@@ -58,8 +58,8 @@ pub struct ReadyFrame<'a> {
 
 impl CameraPublisher {
     /// Creates the camera's service (or joins it) and tells a running daemon about it.
-    /// `prefix` as [`crate::ClientOptions::prefix`]; `depth_scale_mm` is millimetres per raw
-    /// depth unit.
+    /// `prefix` as [`crate::ClientOptions::prefix`] (`None`: `PPFD_PREFIX`, else iceoryx2's
+    /// default); `depth_scale_mm` is millimetres per raw depth unit.
     pub fn new(
         prefix: Option<&str>,
         camera: &str,
@@ -321,7 +321,8 @@ pub struct CameraViewer {
 }
 
 impl CameraViewer {
-    /// Subscribes to `camera`, which a driver must be publishing on.
+    /// Subscribes to `camera`, which a driver must be publishing on. `prefix` as
+    /// [`crate::ClientOptions::prefix`] (`None`: `PPFD_PREFIX`, else iceoryx2's default).
     pub fn open(prefix: Option<&str>, camera: &str) -> Result<CameraViewer> {
         let node = node(prefix)?;
         let service = services::camera_builder(&node, camera)?

@@ -30,11 +30,10 @@ fn client_port(
 ) -> impl FnOnce(iceoryx2::service::port_factory::client::ClientCreateError) -> Error {
     use iceoryx2::service::port_factory::client::ClientCreateError;
     move |e| match e {
-        ClientCreateError::ExceedsMaxSupportedClients => Error::Transport(format!(
-            "{what}: {} clients are connected to the daemon, the most it serves at once; \
-             one must disconnect (or its process end) first",
-            services::limits::MAX_CLIENTS
-        )),
+        ClientCreateError::ExceedsMaxSupportedClients => Error::TooManyClients {
+            what,
+            max: services::limits::MAX_CLIENTS,
+        },
         e => transport(what)(e),
     }
 }
@@ -52,12 +51,10 @@ fn open_service(
     move |e| match e {
         RequestResponseOpenOrCreateError::RequestResponseOpenError(
             RequestResponseOpenError::IncompatibleRequestOrResponseType,
-        ) => Error::Transport(format!(
-            "cannot open {service}: it is served with the messages of another protocol version \
-             than this client's ({}); the daemon and its clients must come from the same ppfd \
-             release",
-            ppfd_protocol::PROTOCOL_VERSION
-        )),
+        ) => Error::OtherProtocolVersion {
+            service,
+            version: ppfd_protocol::PROTOCOL_VERSION,
+        },
         e => Error::Transport(format!("cannot open {service}: {e:?}")),
     }
 }
@@ -87,12 +84,14 @@ type ControlPort = IoxClient<Ipc, ControlRequest, (), [ModelInfo], ControlRespon
 /// How a [`Client`] connects.
 #[derive(Debug, Clone)]
 pub struct ClientOptions {
-    /// iceoryx2 prefix of the daemon (`None`: default; see `ppfd --prefix`).
+    /// iceoryx2 prefix of the daemon (see `ppfd --prefix`); `None`: `PPFD_PREFIX`, else
+    /// iceoryx2's default, as the daemon takes its own. The default options read it too.
     pub prefix: Option<String>,
     /// Depth values of the largest inline frame this client will send (0 if it only names
     /// cameras). Preallocated in shared memory; larger frames grow it.
     pub inline_frame_capacity: usize,
-    /// Timeout of control requests.
+    /// Timeout of control requests. A model load can take longer (a large mesh builds for
+    /// seconds to minutes): see [`Client::load_model`].
     pub control_timeout: Duration,
 }
 
@@ -182,7 +181,9 @@ impl Latency {
 pub struct Detections {
     /// The request's id.
     pub request_id: u64,
-    /// Hypotheses grouped by object in request order, best first within an object.
+    /// Hypotheses grouped by object in request order; within an object, in the order the
+    /// request asked for ([`Requirements::order`]: best score first by default, or nearest
+    /// first), those that passed the filters before those that did not.
     pub hypotheses: Vec<PoseHypothesis>,
     /// Where the time went.
     pub latency: Latency,
@@ -198,7 +199,7 @@ pub struct Detections {
 }
 
 impl Detections {
-    /// The hypotheses of one object, best first.
+    /// The hypotheses of one object, in the order of [`Detections::hypotheses`].
     pub fn of(&self, object_id: u32) -> impl Iterator<Item = &PoseHypothesis> {
         self.hypotheses
             .iter()
@@ -212,10 +213,15 @@ impl Detections {
     }
 }
 
-/// A pose hypothesis as a nalgebra isometry (model → camera, millimetres).
+/// A pose hypothesis as a nalgebra isometry (model → camera, millimetres). The daemon's
+/// rotations are rotations; a hypothesis made otherwise whose matrix is not one (all zeros, a
+/// NaN) gives a meaningless rotation, at once: the conversion is closed-form, with no iteration
+/// that such a matrix could keep from ending.
 pub fn isometry(h: &PoseHypothesis) -> nalgebra::Isometry3<f32> {
     let r = nalgebra::Matrix3::from_row_slice(&h.rotation);
-    let rotation = nalgebra::UnitQuaternion::from_matrix(&r);
+    let rotation = nalgebra::UnitQuaternion::from_rotation_matrix(
+        &nalgebra::Rotation3::from_matrix_unchecked(r),
+    );
     let t = nalgebra::Translation3::new(
         h.translation_mm[0],
         h.translation_mm[1],
@@ -643,8 +649,12 @@ impl Client {
         })
     }
 
-    /// Loads a model file (or builds one from a PLY mesh) in the daemon; `path` as the daemon
-    /// sees it; `object_id` 0 takes the id from the file.
+    /// Loads a model file (or builds one from a PLY mesh) in the daemon; `path` absolute, as
+    /// the daemon sees it; `object_id` 0 takes the id from the file. Bounded by
+    /// [`ClientOptions::control_timeout`]. A load that times out is not cancelled: the daemon
+    /// finishes it and serves the model. Sent again, it would be done again after it (loads run
+    /// one at a time); [`Client::stats`] (`model_loads_running`, `model_loads_waiting`) and
+    /// [`Client::models`] tell when it is done.
     pub fn load_model(&self, path: &str, object_id: u32) -> Result<ModelInfo> {
         let (h, models) = self.control(ControlCommand::LoadModel, object_id, path)?;
         models.first().copied().ok_or_else(|| {
@@ -724,7 +734,7 @@ mod tests {
     /// is told so at `connect`, not given iceoryx2's type error alone.
     #[test]
     fn a_service_of_another_protocol_version_is_named_so_at_connect() {
-        let prefix = format!("ppfd_version_test_{}", std::process::id());
+        let prefix = format!("ppfd_version_test_{}_", std::process::id());
         let config = iceoryx_config(Some(&prefix)).unwrap();
         let node = NodeBuilder::new()
             .config(&config)
@@ -744,6 +754,10 @@ mod tests {
         })
         .err()
         .expect("connect must fail");
+        assert!(
+            matches!(e, Error::OtherProtocolVersion { service, .. } if service == services::DETECT),
+            "{e:?}"
+        );
         let m = e.to_string();
         assert!(
             m.contains("cannot open ppfd/detect") && m.contains("another protocol version"),
@@ -788,6 +802,25 @@ mod tests {
         assert_eq!(d.latency.end_to_end_ns, 1000);
         assert_eq!(d.latency.overhead_ns(), 300);
         assert_eq!(d.hypotheses.len(), 1);
+    }
+
+    #[test]
+    fn isometry_of_a_matrix_that_is_no_rotation_returns() {
+        let (done, finished) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for rotation in [[f32::NAN; 9], [0.0; 9]] {
+                let h = PoseHypothesis {
+                    rotation,
+                    ..Default::default()
+                };
+                let _ = isometry(&h);
+            }
+            done.send(()).unwrap();
+        });
+        assert!(
+            finished.recv_timeout(Duration::from_secs(10)).is_ok(),
+            "isometry did not return"
+        );
     }
 
     #[test]

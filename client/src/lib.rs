@@ -88,7 +88,27 @@ pub enum Error {
     /// The request was malformed before it was sent.
     #[error("{0}")]
     Protocol(#[from] ppfd_protocol::ProtocolError),
-    /// An iceoryx2 operation failed.
+    /// At `connect`: the daemon serves as many clients as it can. Connect again once one has
+    /// disconnected (or its process ended).
+    #[error("{what}: {max} clients are connected to the daemon, the most it serves at once; one must disconnect (or its process end) first")]
+    TooManyClients {
+        /// The port that could not be made.
+        what: &'static str,
+        /// The most clients a daemon serves at once.
+        max: usize,
+    },
+    /// At `connect`: the daemon serves the messages of another protocol version than this
+    /// client's. Connecting again does not help: the daemon and its clients must come from the
+    /// same ppfd release.
+    #[error("cannot open {service}: it is served with the messages of another protocol version than this client's ({version}); the daemon and its clients must come from the same ppfd release")]
+    OtherProtocolVersion {
+        /// The service (`ppfd/detect`, `ppfd/control`).
+        service: &'static str,
+        /// This client's [`ppfd_protocol::PROTOCOL_VERSION`].
+        version: u32,
+    },
+    /// An iceoryx2 operation failed (shared memory, a port). The `Client` stays usable: its
+    /// next request is sent afresh; one whose every request fails so is best made anew.
     #[error("{0}")]
     Transport(String),
 }
@@ -100,10 +120,13 @@ pub(crate) fn transport<E: std::fmt::Debug>(what: &'static str) -> impl FnOnce(E
     move |e| Error::Transport(format!("{what}: {e:?}"))
 }
 
-/// The iceoryx2 configuration for a prefix (`None`: the default one).
+/// The iceoryx2 configuration for a prefix (`None`: `PPFD_PREFIX`, else iceoryx2's default), as
+/// the daemon takes its own: a client, a camera driver and a viewer given no prefix all meet
+/// the daemon started in the same environment.
 pub(crate) fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::Config> {
     let mut config = iceoryx2::config::Config::default();
-    if let Some(prefix) = prefix {
+    let from_env = prefix_from_env();
+    if let Some(prefix) = prefix.or(from_env.as_deref()) {
         use iceoryx2::prelude::SemanticString;
         ppfd_protocol::services::check_prefix(prefix)?;
         config.global.prefix = iceoryx2::prelude::FileName::new(prefix.as_bytes())
@@ -120,6 +143,7 @@ pub use ppfd_protocol::services::prefix_from_env;
 /// own, made for one run (as `ppf demo` does), after its daemon, drivers and clients are gone;
 /// never for a prefix that processes still use. Returns how many entries were removed.
 pub fn remove_prefix_leftovers(prefix: &str) -> Result<usize> {
+    use ppfd_protocol::services::is_entry_of_prefix;
     ppfd_protocol::services::check_prefix(prefix)?;
     let mut removed = 0;
     for dir in [
@@ -132,9 +156,8 @@ pub fn remove_prefix_leftovers(prefix: &str) -> Result<usize> {
             continue;
         };
         for e in entries.flatten() {
-            if dir == NODES_DIR && !e.file_name().to_string_lossy().starts_with(prefix) {
-                removed += remove_node_leftovers(&e.path(), prefix);
-            } else if e.file_name().to_string_lossy().starts_with(prefix) {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if is_entry_of_prefix(&name, prefix) {
                 let p = e.path();
                 let gone = if p.is_dir() {
                     std::fs::remove_dir_all(&p)
@@ -142,6 +165,8 @@ pub fn remove_prefix_leftovers(prefix: &str) -> Result<usize> {
                     std::fs::remove_file(&p)
                 };
                 removed += usize::from(gone.is_ok());
+            } else if dir == NODES_DIR && name.bytes().all(|b| b.is_ascii_digit()) {
+                removed += remove_node_leftovers(&e.path(), prefix);
             }
         }
     }
@@ -155,12 +180,13 @@ const NODES_DIR: &str = "/tmp/iceoryx2/nodes";
 /// empty: a node's directory is named by its id, and only the files in it carry the prefix.
 /// Returns how many entries were removed.
 fn remove_node_leftovers(node_dir: &std::path::Path, prefix: &str) -> usize {
+    use ppfd_protocol::services::is_entry_of_prefix;
     let Ok(entries) = std::fs::read_dir(node_dir) else {
         return 0;
     };
     let mut removed = 0;
     for e in entries.flatten() {
-        if e.file_name().to_string_lossy().starts_with(prefix) {
+        if is_entry_of_prefix(&e.file_name().to_string_lossy(), prefix) {
             removed += usize::from(std::fs::remove_file(e.path()).is_ok());
         }
     }

@@ -25,9 +25,9 @@ fn node_dirs_of(prefix: &str) -> Vec<PathBuf> {
         .collect()
 }
 
-#[test]
-fn the_node_directory_of_a_process_that_never_cleaned_up_is_removed() {
-    let prefix = format!("cleft{}_", std::process::id());
+/// A node with a service under `prefix`, left as a killed process leaves it: nothing of it is
+/// dropped, so nothing is cleaned up.
+fn abandoned_node(prefix: &str) {
     let mut config = iceoryx2::config::Config::default();
     config.global.prefix = FileName::new(prefix.as_bytes()).unwrap();
     let node = NodeBuilder::new()
@@ -40,29 +40,46 @@ fn the_node_directory_of_a_process_that_never_cleaned_up_is_removed() {
         .event()
         .open_or_create()
         .unwrap();
-    // As a killed process would: nothing of the node is dropped, so nothing is cleaned up.
     std::mem::forget(service);
     std::mem::forget(node);
+}
+
+/// The names in the services folder and `/dev/shm` that start with `prefix`.
+fn entries(prefix: &str) -> Vec<String> {
+    let mut names: Vec<String> = ["/tmp/iceoryx2/services", "/dev/shm"]
+        .into_iter()
+        .filter_map(|dir| std::fs::read_dir(dir).ok())
+        .flatten()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(prefix))
+        .collect();
+    names.sort();
+    names
+}
+
+#[test]
+fn the_node_directory_of_a_process_that_never_cleaned_up_is_removed() {
+    let prefix = format!("cleft{}_", std::process::id());
+    // Another cell's prefix, which starts with this one: its entries are not this prefix's.
+    let longer = format!("{prefix}1_");
+    abandoned_node(&prefix);
+    abandoned_node(&longer);
     let left = node_dirs_of(&prefix);
-    assert_eq!(left.len(), 1, "the node left no directory: {left:?}");
+    assert_eq!(left.len(), 2, "the nodes left no directories: {left:?}");
+    let longer_dir = node_dirs_of(&longer);
+    assert_eq!(longer_dir.len(), 1, "{longer_dir:?}");
 
     let removed = ppfd_client::remove_prefix_leftovers(&prefix).unwrap();
 
     assert!(removed > 0);
+    // Only the longer prefix's node and entries are left, whole.
+    assert_eq!(node_dirs_of(&prefix), longer_dir);
+    let theirs = entries(&longer);
+    assert!(!theirs.is_empty());
+    assert_eq!(entries(&prefix), theirs);
+
+    ppfd_client::remove_prefix_leftovers(&longer).unwrap();
     assert_eq!(node_dirs_of(&prefix), Vec::<PathBuf>::new());
-    assert!(!left[0].exists(), "{} is still there", left[0].display());
-    let other = std::fs::read_dir("/tmp/iceoryx2/services")
-        .into_iter()
-        .flatten()
-        .flatten()
-        .chain(
-            std::fs::read_dir("/dev/shm")
-                .into_iter()
-                .flatten()
-                .flatten(),
-        )
-        .filter(|e| e.file_name().to_string_lossy().starts_with(&prefix))
-        .map(|e| e.path())
-        .collect::<Vec<_>>();
-    assert_eq!(other, Vec::<PathBuf>::new());
+    assert_eq!(entries(&prefix), Vec::<String>::new());
 }

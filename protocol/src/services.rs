@@ -262,21 +262,52 @@ pub fn prefix_from_env() -> Option<String> {
 }
 
 /// Checks an iceoryx2 resource prefix as the daemon and its clients take it (`--prefix`,
-/// `PPFD_PREFIX`): a non-empty name of ASCII letters, digits, `_` and `-` (it becomes part of
-/// file names).
+/// `PPFD_PREFIX`): a name of ASCII letters, digits, `_` and `-` (it becomes part of file names)
+/// that ends with `_`. iceoryx2 writes ids and hashes right after the prefix; without the
+/// separator one prefix can be the start of another's file names (`cell1` of `cell10`'s), and
+/// the daemon of one would take the other's live nodes for its own dead ones.
 pub fn check_prefix(prefix: &str) -> Result<(), ProtocolError> {
-    if prefix.is_empty()
-        || !prefix
-            .bytes()
-            .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+    let reason = if prefix.is_empty() || prefix == "_" {
+        "is empty"
+    } else if !prefix
+        .bytes()
+        .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
     {
-        return Err(ProtocolError::InvalidName {
-            field: "prefix",
-            name: prefix.escape_debug().to_string(),
-            reason: "may hold only ASCII letters, digits, '_' and '-' (and not be empty)",
-        });
+        "may hold only ASCII letters, digits, '_' and '-'"
+    } else if !prefix.ends_with('_') {
+        "must end with '_' (\"cell1_\", not \"cell1\"), so that it is not the start of another \
+         prefix's file names"
+    } else {
+        return Ok(());
+    };
+    Err(ProtocolError::InvalidName {
+        field: "prefix",
+        name: prefix.escape_debug().to_string(),
+        reason,
+    })
+}
+
+/// Whether the iceoryx2 file or folder named `name` belongs to `prefix` (checked by
+/// [`check_prefix`]), not to a longer prefix that starts with it: after the prefix come a node,
+/// port or event id (digits, then `.`), a service's hash (40 hex digits, then `.` or `_`), or
+/// `node.` (a node's details). Another prefix's names go on with more of that prefix, which
+/// ends with `_`, where an id goes on with `.`.
+pub fn is_entry_of_prefix(name: &str, prefix: &str) -> bool {
+    let Some(rest) = name.strip_prefix(prefix) else {
+        return false;
+    };
+    let digits = rest.bytes().take_while(u8::is_ascii_digit).count();
+    if digits > 0 && rest[digits..].starts_with('.') {
+        return true;
     }
-    Ok(())
+    let hex = rest
+        .bytes()
+        .take_while(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(b))
+        .count();
+    if hex == 40 && matches!(rest.as_bytes().get(40), Some(b'.' | b'_')) {
+        return true;
+    }
+    rest.starts_with("node.")
 }
 
 #[cfg(test)]
@@ -298,6 +329,54 @@ mod tests {
         assert_eq!(camera_of_service(s.as_str()), Some("left-kinect_2"));
         assert_eq!(camera_of_service("ppfd/detect"), None);
         assert_eq!(camera_of_service("ppfd/camera/a/b/depth"), None);
+    }
+
+    #[test]
+    fn a_prefix_ends_with_an_underscore() {
+        assert!(check_prefix("cell1_").is_ok());
+        assert!(check_prefix("ppfdt_a-b_7_").is_ok());
+        for (bad, why) in [
+            ("cell1", "must end with '_'"),
+            ("", "is empty"),
+            ("_", "is empty"),
+            ("a/b_", "only ASCII"),
+            ("caméra_", "only ASCII"),
+        ] {
+            let e = check_prefix(bad).unwrap_err().to_string();
+            assert!(e.contains(why), "{bad:?}: {e}");
+        }
+    }
+
+    #[test]
+    fn a_prefix_owns_its_entries_and_not_those_of_a_longer_prefix() {
+        let hash = "9204dd183d1c4d8e1ff592a30766ffa6765aa8b5";
+        let own = [
+            "158456431172168007222510493951.port_tag".to_owned(),
+            "247278885413080472254964.node_monitor_context".to_owned(),
+            "316912687947283180432687916654.event".to_owned(),
+            "node.details".to_owned(),
+            format!("{hash}.service"),
+            format!("{hash}.service_tag"),
+            format!("{hash}_1584564.dynamic"),
+            format!("{hash}_node.0_10_0.global_mgmt"),
+            // A node's folder is named by its id alone; it is checked by what it holds.
+        ];
+        for rest in &own {
+            assert!(
+                is_entry_of_prefix(&format!("cell_{rest}"), "cell_"),
+                "{rest}"
+            );
+            // Names of the longer prefixes `cell_1_`, `cell_node_` and `cell_ab_`.
+            for longer in ["1_", "node_", "ab_"] {
+                let name = format!("cell_{longer}{rest}");
+                assert!(!is_entry_of_prefix(&name, "cell_"), "{name}");
+                assert!(
+                    is_entry_of_prefix(&name, &format!("cell_{longer}")),
+                    "{name}"
+                );
+            }
+        }
+        assert!(!is_entry_of_prefix("other_node.details", "cell_"));
     }
 
     #[test]

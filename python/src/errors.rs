@@ -28,6 +28,8 @@ struct Classes {
     camera_taken: Py<PyType>,
     protocol: Py<PyType>,
     transport: Py<PyType>,
+    too_many_clients: Py<PyType>,
+    other_protocol_version: Py<PyType>,
 }
 
 static CLASSES: PyOnceLock<Classes> = PyOnceLock::new();
@@ -84,6 +86,12 @@ fn classes(py: Python<'_>) -> PyResult<&Classes> {
                     .map(|class| (status, class))
             })
             .collect::<PyResult<_>>()?;
+        let transport = new_class(
+            py,
+            "TransportError",
+            &[e],
+            "An iceoryx2 operation failed (shared memory, ports, the client limit).",
+        )?;
         Ok(Classes {
             timeout: new_class(
                 py,
@@ -121,11 +129,20 @@ fn classes(py: Python<'_>) -> PyResult<&Classes> {
                 &[e, &py.get_type::<PyValueError>()],
                 "The request or frame was malformed, found before it was sent.",
             )?,
-            transport: new_class(
+            transport: transport.clone_ref(py),
+            too_many_clients: new_class(
                 py,
-                "TransportError",
-                &[e],
-                "An iceoryx2 operation failed (shared memory, ports, the client limit).",
+                "TooManyClients",
+                &[transport.bind(py)],
+                "At connect: the daemon serves as many clients as it can; connect again once one \
+                 has gone.",
+            )?,
+            other_protocol_version: new_class(
+                py,
+                "OtherProtocolVersion",
+                &[transport.bind(py)],
+                "At connect: the daemon serves another protocol version; the daemon and its \
+                 clients must come from the same ppfd release.",
             )?,
             error,
             refused,
@@ -148,6 +165,8 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
         &c.camera_taken,
         &c.protocol,
         &c.transport,
+        &c.too_many_clients,
+        &c.other_protocol_version,
     ]
     .into_iter()
     .chain(c.by_status.iter().map(|(_, class)| class))
@@ -210,6 +229,8 @@ fn raise(py: Python<'_>, error: &Error) -> PyResult<PyErr> {
         Error::CameraTaken { .. } => &c.camera_taken,
         Error::Protocol(_) => &c.protocol,
         Error::Transport(_) => &c.transport,
+        Error::TooManyClients { .. } => &c.too_many_clients,
+        Error::OtherProtocolVersion { .. } => &c.other_protocol_version,
         // What the handler raised, as Python would have raised it between two calls.
         Error::Interrupted => {
             let raised = RAISED_BY_A_HANDLER.with(|slot| slot.borrow_mut().take());

@@ -207,6 +207,8 @@ def test_the_exceptions_are_one_hierarchy():
     for name in ["Refused", "Timeout", "Dropped", "DaemonGone", "NoDaemon", "CameraTaken",
                  "ProtocolError", "TransportError"]:
         assert issubclass(getattr(ppfd, name), ppfd.Error), name
+    for name in ["TooManyClients", "OtherProtocolVersion"]:
+        assert issubclass(getattr(ppfd, name), ppfd.TransportError), name
     assert issubclass(ppfd.Error, Exception)
     assert issubclass(ppfd.Timeout, TimeoutError)
     assert issubclass(ppfd.ProtocolError, ValueError)

@@ -278,7 +278,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("ppfd-cli-prefix-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let file = dir.join("ppfd.toml");
-        std::fs::write(&file, "prefix = \"from_file\"\n").unwrap();
+        std::fs::write(&file, "prefix = \"from_file_\"\n").unwrap();
         let path = file.to_str().unwrap();
         let prefix = |args: &[&str], env: Option<&str>| {
             let mut all = vec!["ppfd", "--config", path];
@@ -288,11 +288,11 @@ mod tests {
                 .unwrap()
                 .prefix
         };
-        assert_eq!(prefix(&[], None).as_deref(), Some("from_file"));
-        assert_eq!(prefix(&[], Some("from_env")).as_deref(), Some("from_env"));
+        assert_eq!(prefix(&[], None).as_deref(), Some("from_file_"));
+        assert_eq!(prefix(&[], Some("from_env_")).as_deref(), Some("from_env_"));
         assert_eq!(
-            prefix(&["--prefix", "from_flag"], Some("from_env")).as_deref(),
-            Some("from_flag")
+            prefix(&["--prefix", "from_flag_"], Some("from_env_")).as_deref(),
+            Some("from_flag_")
         );
         let bad = Args::parse_from(["ppfd"]).config_with(Some("a/b".into()));
         let e = bad.unwrap_err().to_string();

@@ -111,6 +111,9 @@ fn remove_orphan_monitors(
     let mut orphans = std::collections::HashSet::new();
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
+        if !services::is_entry_of_prefix(&name, &prefix) {
+            continue;
+        }
         let Some((id, kind)) = name
             .strip_prefix(&prefix)
             .and_then(|rest| rest.split_once('.'))
@@ -154,7 +157,7 @@ fn remove_node_leftovers(config: &iceoryx2::config::Config, id: u128) -> usize {
     let folder = nodes.join(id.to_string());
     if let Ok(entries) = std::fs::read_dir(&folder) {
         for e in entries.flatten() {
-            if e.file_name().to_string_lossy().starts_with(&prefix)
+            if services::is_entry_of_prefix(&e.file_name().to_string_lossy(), &prefix)
                 && std::fs::remove_file(e.path()).is_ok()
             {
                 removed += 1;

@@ -267,7 +267,7 @@ fn the_model_loader_refuses_mutated_files_or_loads_models_that_detect_long() {
 
 const CONFIG: &str = "models = \"models\"
 model_cache = \"cache\"
-prefix = \"cell2\"
+prefix = \"cell2_\"
 workers = 2
 parallel_detections = 1
 queue_capacity = 64

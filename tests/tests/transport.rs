@@ -767,9 +767,10 @@ fn a_client_beyond_the_most_the_daemon_serves_is_told_so() {
         ..Default::default()
     };
     match ppfd_client::Client::connect_with(&options) {
-        Err(ppfd_client::Error::Transport(message)) => assert!(
-            message.contains("32 clients are connected to the daemon, the most it serves"),
-            "{message}"
+        Err(e @ ppfd_client::Error::TooManyClients { max: 32, .. }) => assert!(
+            e.to_string()
+                .contains("32 clients are connected to the daemon, the most it serves"),
+            "{e}"
         ),
         other => panic!(
             "a client beyond the limit: {:?}",

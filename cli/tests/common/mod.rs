@@ -76,7 +76,7 @@ impl ServedPart {
             .noise(Some(NoiseModel::kinect()))
             .build()
             .unwrap();
-        let prefix = format!("ppf_{name}_{}", std::process::id());
+        let prefix = format!("ppf_{name}_{}_", std::process::id());
         let mut daemon = std::process::Command::new(env!("CARGO_BIN_EXE_ppf"))
             .args(["serve", "--prefix", &prefix, "--models"])
             .arg(&models)
