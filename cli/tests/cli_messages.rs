@@ -410,7 +410,8 @@ fn demo_refuses_a_request_option_out_of_range_before_it_starts() {
 
 /// A daemon started by `ppf serve` in another folder, its lines read up to "ppfd ready"; stopped
 /// with SIGTERM when dropped.
-struct Serve(std::process::Child);
+/// `ppf serve` under a prefix of its own, stopped and its leftovers removed on drop.
+struct Serve(std::process::Child, String);
 
 impl Serve {
     fn start(models: &Path, cache: &Path, cwd: &Path, prefix: &str) -> Serve {
@@ -425,7 +426,7 @@ impl Serve {
             .spawn()
             .unwrap();
         let stdout = child.stdout.take().unwrap();
-        let serve = Serve(child);
+        let serve = Serve(child, prefix.to_owned());
         let ready = std::io::BufReader::new(stdout)
             .lines()
             .map_while(Result::ok)
@@ -440,6 +441,7 @@ impl Drop for Serve {
         // SAFETY: signals our own child.
         unsafe { libc::kill(self.0.id() as i32, libc::SIGTERM) };
         let _ = self.0.wait();
+        let _ = ppfd_client::remove_prefix_leftovers(&self.1);
     }
 }
 

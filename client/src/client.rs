@@ -749,11 +749,13 @@ mod tests {
             .create()
             .unwrap();
         let e = Client::connect_with(&ClientOptions {
-            prefix: Some(prefix),
+            prefix: Some(prefix.clone()),
             ..Default::default()
         })
         .err()
         .expect("connect must fail");
+        drop((_old, node));
+        let _ = crate::remove_prefix_leftovers(&prefix);
         assert!(
             matches!(e, Error::OtherProtocolVersion { service, .. } if service == services::DETECT),
             "{e:?}"

@@ -9,6 +9,8 @@ import threading
 
 import numpy as np
 
+import ppfd
+
 from conftest import PYTHON_DIR, fresh_prefix
 
 EXAMPLES = PYTHON_DIR / "examples"
@@ -124,6 +126,7 @@ def test_the_replay_example_names_a_camera_another_driver_publishes(scene):
     finally:
         first.terminate()
         first.wait(10)
+        ppfd.remove_prefix_leftovers(prefix)
     assert second.returncode == 1
     assert "camera 'taken': another driver already publishes" in second.stderr, second.stderr
     assert "Traceback" not in second.stderr

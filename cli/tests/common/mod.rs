@@ -49,7 +49,8 @@ pub struct ServedPart {
     pub prefix: String,
     pub models: PathBuf,
     daemon: std::process::Child,
-    camera: ppfd_client::CameraPublisher,
+    /// Taken in `drop` before the prefix's leftovers are removed.
+    camera: Option<ppfd_client::CameraPublisher>,
 }
 
 #[allow(dead_code)]
@@ -114,7 +115,7 @@ impl ServedPart {
             prefix,
             models,
             daemon,
-            camera,
+            camera: Some(camera),
         }
     }
 
@@ -131,7 +132,8 @@ impl ServedPart {
         mut command: std::process::Child,
     ) -> std::process::Output {
         loop {
-            self.camera
+            let camera = self.camera.as_mut().expect("the camera lives until drop");
+            camera
                 .loan()
                 .and_then(|l| l.write_from_slice(&self.scene.frame.depth))
                 .and_then(|r| r.send(ppfd_client::monotonic_now_ns()))
@@ -139,7 +141,7 @@ impl ServedPart {
             if command.try_wait().unwrap().is_some() {
                 break;
             }
-            self.camera.idle(period).unwrap();
+            camera.idle(period).unwrap();
         }
         command.wait_with_output().unwrap()
     }
@@ -150,5 +152,8 @@ impl Drop for ServedPart {
         // SAFETY: signals our own child, the daemon.
         unsafe { libc::kill(self.daemon.id() as i32, libc::SIGTERM) };
         let _ = self.daemon.wait();
+        // Once every process of the prefix is gone, what iceoryx2 leaves of it goes too.
+        drop(self.camera.take());
+        let _ = ppfd_client::remove_prefix_leftovers(&self.prefix);
     }
 }
