@@ -18,6 +18,7 @@ use ppfd_client::{
 use ppfd_models::geometry::camera::OwnedDepthFrame;
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::store;
+use ppfd_models::model::symmetry::Symmetry;
 use ppfd_models::model::ModelParams;
 use ppfd_models::synthetic::parts::Part;
 use ppfd_models::synthetic::scene::{NoiseModel, SyntheticScene};
@@ -65,6 +66,8 @@ pub struct DemoArgs {
 struct DemoScene {
     frame: OwnedDepthFrame,
     truth: Vec<(u32, Pose)>,
+    /// The objects' symmetries, through which poses are compared with the truth.
+    symmetries: Vec<(u32, Symmetry)>,
     /// Files for the daemon's model directory, with the object id each is for: meshes (built
     /// by the daemon) or model files.
     model_files: Vec<(u32, PathBuf)>,
@@ -124,6 +127,8 @@ fn generated_scene(args: &DemoArgs, cache: &Path) -> Result<DemoScene, String> {
     Ok(DemoScene {
         frame: scene.frame,
         truth: scene.ground_truth,
+        // The generated parts have none.
+        symmetries: Vec::new(),
         model_files,
         label: format!("generated parts on a table, seed {seed}{noise}"),
     })
@@ -160,9 +165,15 @@ fn bop_scene(args: &DemoArgs, root: &Path) -> Result<DemoScene, String> {
             meshes.push((*id, path));
         }
     }
+    let symmetries = meshes
+        .iter()
+        .map(|(id, _)| dataset.symmetry(*id).map(|s| (*id, s)))
+        .collect::<Result<_, _>>()
+        .map_err(|e| e.to_string())?;
     Ok(DemoScene {
         frame,
         truth,
+        symmetries,
         model_files: meshes,
         label: format!("{} scene {scene} image {im}", root.display()),
     })
@@ -277,10 +288,6 @@ fn start_daemon(
     Ok(daemon)
 }
 
-fn rotation_error_deg(a: &Pose, b: &Pose) -> f32 {
-    a.rotation.angle_to(&b.rotation).to_degrees()
-}
-
 /// A pose this near a true one is counted as found.
 const CORRECT_MM: f32 = 20.0;
 const CORRECT_DEG: f32 = 10.0;
@@ -288,15 +295,24 @@ const CORRECT_DEG: f32 = 10.0;
 /// The lines of the pose table: per object of the truth (each once, in the truth's order) its
 /// poses best first, each against the nearest true instance of that object, or a line saying
 /// it has none; and how many true instances their object's best pose is within 20 mm and 10
-/// degrees of.
-fn pose_table(found: &Detections, truth: &[(u32, Pose)]) -> (Vec<String>, usize) {
+/// degrees of. Poses are compared through their object's symmetry in `symmetries` (none for
+/// an object not there).
+fn pose_table(
+    found: &Detections,
+    truth: &[(u32, Pose)],
+    symmetries: &[(u32, Symmetry)],
+) -> (Vec<String>, usize) {
     let mut lines = vec![format!(
         "{:>6} {:>4} {:>6} {:>10} {:>10} {:>8}",
         "object", "rank", "score", "dt (mm)", "dR (deg)", "checks"
     )];
-    let errors = |pose: &Pose, truth: &Pose| {
-        let dt = (pose.translation.vector - truth.translation.vector).norm();
-        (dt, rotation_error_deg(pose, truth))
+    let none = Symmetry::default();
+    let errors = |id: u32, pose: &Pose, truth: &Pose| {
+        symmetries
+            .iter()
+            .find(|(known, _)| *known == id)
+            .map_or(&none, |(_, s)| s)
+            .pose_errors(pose, truth)
     };
     let mut objects: Vec<u32> = Vec::new();
     for (id, _) in truth {
@@ -314,7 +330,7 @@ fn pose_table(found: &Detections, truth: &[(u32, Pose)]) -> (Vec<String>, usize)
             let (dt, dr) = truth
                 .iter()
                 .filter(|(t, _)| *t == id)
-                .map(|(_, t)| errors(&pose, t))
+                .map(|(_, t)| errors(id, &pose, t))
                 .min_by(|a, b| a.0.total_cmp(&b.0))
                 .expect("the object is in the truth");
             lines.push(format!(
@@ -332,7 +348,7 @@ fn pose_table(found: &Detections, truth: &[(u32, Pose)]) -> (Vec<String>, usize)
         .iter()
         .filter(|(id, t)| {
             found.best(*id).is_some_and(|h| {
-                let (dt, dr) = errors(&isometry(h), t);
+                let (dt, dr) = errors(*id, &isometry(h), t);
                 dt < CORRECT_MM && dr < CORRECT_DEG
             })
         })
@@ -468,7 +484,7 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
     stop::check()?;
 
     println!();
-    let (rows, correct) = pose_table(&found, &scene.truth);
+    let (rows, correct) = pose_table(&found, &scene.truth, &scene.symmetries);
     for row in rows {
         println!("{row}");
     }
@@ -520,6 +536,45 @@ mod tests {
     /// `--hypotheses N` shows N poses per object, ranked, each against the nearest true
     /// instance of its object (only the best was shown, so the flag changed nothing seen), and
     /// an object without a pose gets a line saying so. Found counts the best poses, as before.
+    /// A pose turned by a symmetry of its object is as right as the truth: the table and the
+    /// count go through the object's symmetry.
+    #[test]
+    fn the_pose_table_compares_through_the_objects_symmetry() {
+        let truth = [(7, Pose::translation(0.0, 0.0, 800.0))];
+        // Turned half about the object's z axis.
+        let found = Detections {
+            request_id: 1,
+            hypotheses: vec![ppfd_client::PoseHypothesis {
+                object_id: 7,
+                instance_rank: 0,
+                rotation: [-1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0],
+                translation_mm: [0.0, 0.0, 800.0],
+                score: 0.5,
+                votes: 10,
+                checks: ppfd_client::checks::RESCORED,
+            }],
+            latency: Default::default(),
+            counts: Default::default(),
+            frame_sequence: 1,
+            frame_age_ns: 0,
+            diagnosis: String::new(),
+        };
+        let half_turn = Symmetry::from_stored(&[[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]], &[]);
+        let half_turn = half_turn.unwrap();
+        let (lines, correct) = pose_table(&found, &truth, &[(7, half_turn)]);
+        assert_eq!(correct, 1, "{lines:#?}");
+        assert!(
+            lines[1].split_whitespace().nth(4) == Some("0.0"),
+            "{lines:#?}"
+        );
+        let (lines, correct) = pose_table(&found, &truth, &[]);
+        assert_eq!(correct, 0, "{lines:#?}");
+        assert!(
+            lines[1].split_whitespace().nth(4) == Some("180.0"),
+            "{lines:#?}"
+        );
+    }
+
     #[test]
     fn the_pose_table_shows_every_pose_asked_for() {
         let at = |x: f32| Pose::translation(x, 0.0, 800.0);
@@ -548,7 +603,7 @@ mod tests {
             diagnosis: String::new(),
         };
         let truth = [(5, at(0.0)), (8, at(0.0)), (5, at(300.0)), (9, at(0.0))];
-        let (lines, correct) = pose_table(&found, &truth);
+        let (lines, correct) = pose_table(&found, &truth, &[]);
         let cells: Vec<Vec<&str>> = lines
             .iter()
             .map(|l| l.split_whitespace().collect())

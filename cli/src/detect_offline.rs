@@ -6,7 +6,7 @@ use clap::Args;
 use ppfd_bop::dataset::BopDataset;
 use ppfd_models::detect::detector::{Detector, Hint, RunOptions};
 
-use crate::offline::{dataset_models, symmetric_pose_errors};
+use crate::offline::dataset_models;
 
 /// `ppf detect`: through the daemon on a camera's newest frame, or offline on a dataset frame.
 #[derive(Args, Debug)]
@@ -275,12 +275,9 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
     let mut found = 0;
     for (o, model) in det.objects.iter().zip(&models) {
         let d = model.diameter_mm();
-        let syms = dataset
-            .model_info(o.object_id)
-            .map(|i| i.symmetries_discrete.clone())
-            .unwrap_or_default();
-        let pose_errors =
-            |a: &ppfd_models::Pose, b: &ppfd_models::Pose| symmetric_pose_errors(a, b, &syms);
+        // Judged through the symmetries `models_info.json` gives, discrete and continuous.
+        let symmetry = dataset.symmetry(o.object_id).map_err(|e| e.to_string())?;
+        let pose_errors = |a: &ppfd_models::Pose, b: &ppfd_models::Pose| symmetry.pose_errors(a, b);
         let truth = gt.iter().find(|g| g.obj_id == o.object_id).map(|g| g.pose);
         let correct_rank = truth.and_then(|t| {
             o.hypotheses.iter().take(10).position(|h| {

@@ -6,7 +6,6 @@ use ppfd::model_cache::{load_or_build, MeshSource, ModelFiles};
 use ppfd_bop::dataset::BopDataset;
 use ppfd_models::model::store;
 use ppfd_models::model::{ModelParams, ObjectModel};
-use ppfd_models::Pose;
 use rayon::prelude::*;
 
 /// The models of `ids` in `dataset`, with a progress bar when there are several to build.
@@ -34,24 +33,4 @@ pub fn dataset_models(dataset: &BopDataset, ids: &[u32]) -> Result<Vec<ObjectMod
         .collect::<Result<Vec<ObjectModel>, String>>()?;
     bar.finish_and_clear();
     Ok(out)
-}
-
-/// Translation error (mm) and rotation error (degrees) of `est` against `gt`.
-pub fn pose_errors(est: &Pose, gt: &Pose) -> (f32, f32) {
-    let dt = (est.translation.vector - gt.translation.vector).norm();
-    let dr = est.rotation.angle_to(&gt.rotation).to_degrees();
-    (dt, dr)
-}
-
-/// Like [`pose_errors`], the smallest over the object's discrete symmetries (identity
-/// included): a pose turned by a symmetry of the object is as right as the ground truth.
-pub fn symmetric_pose_errors(est: &Pose, gt: &Pose, symmetries: &[Pose]) -> (f32, f32) {
-    let mut best = pose_errors(est, gt);
-    for s in symmetries {
-        let e = pose_errors(est, &(gt * s));
-        if e.0 + e.1 < best.0 + best.1 {
-            best = e;
-        }
-    }
-    best
 }

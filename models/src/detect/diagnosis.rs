@@ -211,16 +211,6 @@ pub struct PreparedFrame<'a> {
     pub edges: &'a EdgeMap,
 }
 
-/// Translation (mm) and rotation (degrees) errors of `pose` against `target`, through the
-/// model's symmetry: the equivalent of `pose` closest to the target is compared.
-pub fn pose_errors(model: &ObjectModel, pose: &Pose, target: &Pose) -> (f32, f32) {
-    let pose = model.symmetry().closest_equivalent(pose, &target.rotation);
-    (
-        (pose.translation.vector - target.translation.vector).norm(),
-        pose.rotation.angle_to(&target.rotation).to_degrees(),
-    )
-}
-
 /// Diagnoses a whole frame as the detector sees it: the scene prepared once, the clouds the
 /// detector would build for `models` together, and for each target (the first pose given per
 /// object; `targets` name only objects of `models`) the stages one by one ([`diagnose`]),
@@ -280,7 +270,7 @@ pub fn diagnose_targets(
         {
             let d = model.diameter_mm();
             diagnosis.settle_with(&returned_poses(found, opts.hypotheses_per_object), |p| {
-                let (dt, dr) = pose_errors(model, p, &target.pose);
+                let (dt, dr) = model.symmetry().pose_errors(p, &target.pose);
                 dt <= NEAR_TRANSLATION_FRACTION * d && dr <= NEAR_ROTATION_DEG
             });
         }
@@ -329,7 +319,8 @@ pub fn diagnose(
 ) -> Result<Diagnosis> {
     let p = params;
     let d = model.diameter_mm();
-    let errors_to_target = |pose: &Pose| pose_errors(model, pose, target);
+    let symmetry = model.symmetry();
+    let errors_to_target = |pose: &Pose| symmetry.pose_errors(pose, target);
     let errors: &dyn Fn(&Pose) -> (f32, f32) = &errors_to_target;
     let near = |pose: &Pose| {
         let (dt, dr) = errors(pose);

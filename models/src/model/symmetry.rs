@@ -135,6 +135,17 @@ impl Symmetry {
         best.1
     }
 
+    /// Translation (mm) and rotation (degrees) errors of `pose` against `target`, through the
+    /// symmetry: the equivalent of `pose` closest to the target is compared. One pose of a
+    /// symmetric object turned by a symmetry is as right as the other.
+    pub fn pose_errors(&self, pose: &Pose, target: &Pose) -> (f32, f32) {
+        let pose = self.closest_equivalent(pose, &target.rotation);
+        (
+            (pose.translation.vector - target.translation.vector).norm(),
+            pose.rotation.angle_to(&target.rotation).to_degrees(),
+        )
+    }
+
     /// The canonical pose among those equivalent to `pose`: the one whose rotation is closest to
     /// the identity (METHOD.md §1.8). Every pose equivalent to `pose` gives the same one, up to
     /// rounding, except at exact ties.
@@ -780,5 +791,38 @@ mod tests {
             .contains("moves the continuous axis"));
         let fine = Symmetry::generated(&[element("z:inf"), element("x:2")]).unwrap();
         assert!(fine.validate(100.0).is_ok());
+    }
+
+    #[test]
+    fn pose_errors_are_measured_to_the_nearest_equivalent_pose() {
+        let target = pose([10.0, 0.0, 500.0], Vector3::new(1.0, 2.0, 3.0), 0.7);
+        // A turn about a continuous axis off the origin, and a half turn of a discrete one.
+        let off_axis = SymmetryAxis {
+            direction: Vector3::z_axis(),
+            point_mm: Point3::new(5.0, -3.0, 0.0),
+        };
+        let continuous = Symmetry {
+            discrete: Vec::new(),
+            continuous: Some(off_axis),
+        };
+        let turned = target * off_axis.turn(1.3);
+        let (dt, dr) = continuous.pose_errors(&turned, &target);
+        assert!(dt < 1e-3 && dr < 0.05, "{dt} mm, {dr}°");
+        let flip = pose([0.0; 3], Vector3::x(), PI);
+        let discrete = Symmetry {
+            discrete: vec![flip],
+            continuous: None,
+        };
+        let (dt, dr) = discrete.pose_errors(&(target * flip), &target);
+        assert!(dt < 1e-3 && dr < 0.05, "{dt} mm, {dr}°");
+        // Without the symmetry, the same poses are far off.
+        let none = Symmetry::default();
+        assert!(none.pose_errors(&turned, &target).1 > 70.0);
+        assert!(none.pose_errors(&(target * flip), &target).1 > 170.0);
+        // A pose off by a shift stays off by it.
+        let shifted =
+            Pose::from_parts(Translation3::new(0.0, 4.0, 0.0), UnitQuaternion::identity()) * target;
+        let (dt, dr) = continuous.pose_errors(&shifted, &target);
+        assert!((dt - 4.0).abs() < 1e-3 && dr < 0.05, "{dt} mm, {dr}°");
     }
 }
