@@ -23,7 +23,7 @@ use crate::detect::rescoring::{
 use crate::detect::scene::{prepare, PreparedScene, SceneImage};
 use crate::detect::silhouette::{EdgeMap, Fit, SilhouetteFilter};
 use crate::detect::voting::{vote_from, Selection, VotedPose, VotingParams};
-use crate::geometry::camera::DepthFrame;
+use crate::geometry::camera::{DepthFrame, Intrinsics};
 use crate::geometry::render::{bounding_sphere, Renderer};
 use crate::model::ObjectModel;
 use crate::{Error, Pose, Result};
@@ -206,6 +206,8 @@ fn first_near(
 
 /// The scene as the detector prepares it for one frame, shared by the objects diagnosed in it.
 pub struct PreparedFrame<'a> {
+    /// The camera's, for a request's region of interest.
+    pub intrinsics: &'a Intrinsics,
     pub image: &'a SceneImage,
     pub planes: &'a [SupportingPlane],
     pub edges: &'a EdgeMap,
@@ -245,6 +247,7 @@ pub fn diagnose_targets(
     let planes = SupportingPlane::find_all(&points, &params.plane);
     let edges = EdgeMap::new(&image, &params.filters);
     let prepared = PreparedFrame {
+        intrinsics: &frame.intrinsics,
         image: &image,
         planes: &planes,
         edges: &edges,
@@ -262,7 +265,7 @@ pub fn diagnose_targets(
             &clouds[group],
             model,
             &target.pose,
-            opts.hypotheses_per_object,
+            opts,
             &|| opts.check_stop(start),
         )?;
         if let Some(found) =
@@ -305,7 +308,9 @@ pub fn returned_poses(found: &ObjectDetections, hypotheses: usize) -> Vec<Pose> 
 
 /// Runs the detector's stages on `cloud` (the object's subsampled scene) for `model`, and says
 /// after each where the best candidate near `target` stands, compared through the object's
-/// symmetry ([`pose_errors`]); `hypotheses` is how many the detection returns.
+/// symmetry ([`Symmetry::pose_errors`](crate::model::symmetry::Symmetry::pose_errors)), under
+/// the request's requirements as the detector takes them (`opts`: its region of interest, pose
+/// restriction, instance distance and the hypotheses it returns).
 /// `stop` is asked where the detector asks whether to go on (after voting and clustering) and
 /// before voting again for the margin of a target lost at voting; its error ends the diagnosis.
 pub fn diagnose(
@@ -314,9 +319,11 @@ pub fn diagnose(
     cloud: &PreparedScene,
     model: &ObjectModel,
     target: &Pose,
-    hypotheses: usize,
+    opts: &RunOptions,
     stop: &dyn Fn() -> Result<()>,
 ) -> Result<Diagnosis> {
+    let hypotheses = opts.hypotheses_per_object;
+    let wanted = &opts.requirements;
     let p = params;
     let d = model.diameter_mm();
     let symmetry = model.symmetry();
@@ -326,7 +333,8 @@ pub fn diagnose(
         let (dt, dr) = errors(pose);
         dt <= NEAR_TRANSLATION_FRACTION * d && dr <= NEAR_ROTATION_DEG
     };
-    let selection = Selection::new(cloud, &p.voting, frame.planes, d);
+    let region = wanted.region.as_ref().map(|r| (r, frame.intrinsics));
+    let selection = Selection::within(cloud, &p.voting, frame.planes, d, region);
     let mut trace = Diagnosis {
         object_id: model.object_id(),
         cloud: CloudOnTarget::measure(model, cloud, &selection.references, target),
@@ -388,8 +396,16 @@ pub fn diagnose(
         return Ok(trace);
     }
 
-    // Clustering, and the cut to the clusters re-scored.
-    let clusters = cluster_poses(&raw, d, &model.symmetry(), &p.clustering);
+    // Clustering, and the cut to the clusters re-scored; a pose restriction leaves out the
+    // clusters it refuses before the cut, as the detector does.
+    let all_clusters = cluster_poses(&raw, d, &symmetry, &p.clustering);
+    let clusters: Vec<_> = all_clusters
+        .iter()
+        .filter(|c| {
+            wanted.pose_restriction.is_none() || wanted.allows(&symmetry.canonical(&c.pose))
+        })
+        .cloned()
+        .collect();
     let cut = p.rescoring.top_clusters;
     let first_votes = clusters.first().map_or(0, |c| c.votes);
     let found = first_near(clusters.iter().map(|c| c.pose), errors, d);
@@ -401,6 +417,10 @@ pub fn diagnose(
                 clusters.len(),
                 clusters[rank - 1].votes
             ),
+        ),
+        None if first_near(all_clusters.iter().map(|c| c.pose), errors, d).is_some() => (
+            false,
+            "the clusters near the target lie outside the request's pose restriction".to_string(),
         ),
         None => {
             // By how much: the cluster that comes closest, wherever it ranks.
@@ -614,13 +634,18 @@ pub fn diagnose(
 
     // What is returned: the poses that pass come first, in score order, one per instance (a
     // pose whose centre is near a better one's is the same instance).
-    let nms = p.nms_distance_fraction * d;
+    let nms = wanted
+        .instance_distance_fraction
+        .unwrap_or(p.nms_distance_fraction)
+        * d;
+    // The detector's centre: a point every symmetry leaves in place.
+    let centre_of = symmetry.fixed_point(&sphere.0);
     let mut passed_ahead: Vec<&Scored> = Vec::new();
     for o in rescored[..rank - 1].iter().take(p.filters.max_candidates) {
-        let centre = o.pose * sphere.0;
+        let centre = o.pose * centre_of;
         if passed_ahead
             .iter()
-            .any(|q| (q.pose * sphere.0 - centre).norm() < nms)
+            .any(|q| (q.pose * centre_of - centre).norm() < nms)
         {
             continue;
         }
@@ -637,7 +662,7 @@ pub fn diagnose(
             passed_ahead.push(o);
         }
     }
-    let centre = s.pose * sphere.0;
+    let centre = s.pose * centre_of;
     let (kept, line) = if let Some(q) = passed_ahead
         .iter()
         .position(|q| (q.pose * sphere.0 - centre).norm() < nms)
@@ -813,10 +838,19 @@ mod tests {
 
         fn frame(&self) -> PreparedFrame<'_> {
             PreparedFrame {
+                intrinsics: &self.image.intrinsics,
                 image: &self.image,
                 planes: &self.planes,
                 edges: &self.edges,
             }
+        }
+    }
+
+    /// A request returning `n` hypotheses per object.
+    fn returning(n: usize) -> RunOptions {
+        RunOptions {
+            hypotheses_per_object: n,
+            ..Default::default()
         }
     }
 
@@ -873,7 +907,16 @@ mod tests {
         let prepared = Prepared::new(&scene, &params, &model);
         let (frame, cloud) = (prepared.frame(), &prepared.cloud);
 
-        let found = diagnose(&params, &frame, cloud, &model, &truth, 1, &|| Ok(())).unwrap();
+        let found = diagnose(
+            &params,
+            &frame,
+            cloud,
+            &model,
+            &truth,
+            &returning(1),
+            &|| Ok(()),
+        )
+        .unwrap();
         assert_eq!(found.lost_at(), None, "{:#?}", found.lines());
         // At the truth, points of the cloud lie on the part's facing surface with normals near
         // its own, and some of them are reference points.
@@ -946,7 +989,16 @@ mod tests {
             ),
             truth.rotation,
         );
-        let lost = diagnose(&params, &frame, cloud, &model, &elsewhere, 1, &|| Ok(())).unwrap();
+        let lost = diagnose(
+            &params,
+            &frame,
+            cloud,
+            &model,
+            &elsewhere,
+            &returning(1),
+            &|| Ok(()),
+        )
+        .unwrap();
         assert_eq!(lost.lost_at(), Some("voting"));
         let c = &lost.cloud;
         assert_eq!(
@@ -982,13 +1034,95 @@ mod tests {
         };
         for target in [truth, elsewhere] {
             asked.set(0);
-            let stopped = diagnose(&params, &frame, cloud, &model, &target, 1, &late);
+            let stopped = diagnose(
+                &params,
+                &frame,
+                cloud,
+                &model,
+                &target,
+                &returning(1),
+                &late,
+            );
             assert!(
                 matches!(stopped, Err(Error::DeadlineExceeded { .. })),
                 "{stopped:?}"
             );
             assert_eq!(asked.get(), 1);
         }
+    }
+
+    /// The diagnosis takes the request's requirements as the detector does: a region of
+    /// interest away from the part leaves it no reference point, and a pose restriction that
+    /// refuses its pose leaves out the clusters near it.
+    #[test]
+    fn the_diagnosis_follows_the_requests_region_and_pose_restriction() {
+        use crate::detect::requirements::{PixelRegion, PoseRestriction, Requirements};
+        let part = Part::LBracket;
+        let mesh = part.mesh();
+        let scene = SceneSpec::new(4)
+            .noise(Some(NoiseModel::kinect()))
+            .object(part.object_id(), &mesh)
+            .build()
+            .unwrap();
+        let model = part.model().unwrap();
+        let truth = scene.truth_of(part.object_id()).unwrap();
+        let params = DetectParams::default();
+        let prepared = Prepared::new(&scene, &params, &model);
+        let (frame, cloud) = (prepared.frame(), &prepared.cloud);
+        let with = |requirements: Requirements| {
+            let opts = RunOptions {
+                requirements,
+                ..returning(1)
+            };
+            diagnose(&params, &frame, cloud, &model, &truth, &opts, &|| Ok(())).unwrap()
+        };
+        assert_eq!(with(Requirements::default()).lost_at(), None);
+
+        // The part's centre projects far from the frame's top left corner.
+        let centre = truth.translation.vector;
+        let k = &prepared.image.intrinsics;
+        let u = k.fx * centre.x / centre.z + k.cx;
+        let v = k.fy * centre.y / centre.z + k.cy;
+        assert!(u > 100.0 && v > 100.0, "the part is at ({u}, {v})");
+        let corner = with(Requirements {
+            region: Some(PixelRegion {
+                x: 0,
+                y: 0,
+                width: 40,
+                height: 40,
+            }),
+            ..Default::default()
+        });
+        assert_eq!(corner.lost_at(), Some("voting"), "{:#?}", corner.lines());
+        assert_eq!(corner.cloud.references_on_object, 0);
+
+        // Only poses whose model z axis points along the camera's direction opposite to the
+        // truth's: the truth's is 180° off.
+        let axis = truth.rotation * nalgebra::Vector3::z();
+        let opposite = PoseRestriction::new([0.0, 0.0, 1.0], (-axis).into(), 30.0).unwrap();
+        let refused = with(Requirements {
+            pose_restriction: Some(opposite),
+            ..Default::default()
+        });
+        assert_eq!(
+            refused.lost_at(),
+            Some("clustering"),
+            "{:#?}",
+            refused.lines()
+        );
+        assert!(
+            refused.stages[1]
+                .line
+                .contains("outside the request's pose restriction"),
+            "{:#?}",
+            refused.lines()
+        );
+        let along = PoseRestriction::new([0.0, 0.0, 1.0], axis.into(), 30.0).unwrap();
+        let allowed = with(Requirements {
+            pose_restriction: Some(along),
+            ..Default::default()
+        });
+        assert_eq!(allowed.lost_at(), None, "{:#?}", allowed.lines());
     }
 
     /// Two instances of one part and one hypothesis asked for: the instance the detection
@@ -1012,7 +1146,18 @@ mod tests {
         assert_eq!(truths.len(), 2);
         let one: Vec<Diagnosis> = truths
             .iter()
-            .map(|&t| diagnose(&params, &frame, cloud, &model, &t, 1, &|| Ok(())).unwrap())
+            .map(|&t| {
+                diagnose(
+                    &params,
+                    &frame,
+                    cloud,
+                    &model,
+                    &t,
+                    &returning(1),
+                    &|| Ok(()),
+                )
+                .unwrap()
+            })
             .collect();
         let lost: Vec<Option<&str>> = one.iter().map(Diagnosis::lost_at).collect();
         assert!(
@@ -1034,7 +1179,16 @@ mod tests {
         assert_eq!(scores.len(), 2, "{line}");
         assert!(scores[0] >= scores[1], "{line}");
         for &t in &truths {
-            let both = diagnose(&params, &frame, cloud, &model, &t, 2, &|| Ok(())).unwrap();
+            let both = diagnose(
+                &params,
+                &frame,
+                cloud,
+                &model,
+                &t,
+                &returning(2),
+                &|| Ok(()),
+            )
+            .unwrap();
             assert_eq!(both.lost_at(), None, "{:#?}", both.lines());
         }
     }
