@@ -57,9 +57,9 @@ pub struct FrameHeader {
     /// Frame counter of the driver, increasing by one per published frame.
     pub sequence: u64,
     /// When the sensor captured the frame: `CLOCK_MONOTONIC`, nanoseconds
-    /// ([`crate::clock::monotonic_now_ns`]); 0 when unknown (inline frames). The daemon refuses
-    /// a frame stamped more than a second ahead of its own clock (wall-clock time, say): its
-    /// age could not be told.
+    /// ([`crate::clock::monotonic_now_ns`]); 0 when unknown, for inline frames only (a camera's
+    /// frame needs it for the stale check). The daemon refuses a frame stamped more than 0.1 s
+    /// ahead of its own clock (wall-clock time, say): its age could not be told.
     pub capture_time_ns: u64,
     /// Image width, pixels.
     pub width: u32,

@@ -462,12 +462,30 @@ fn malformed_requests_are_refused_each_with_its_error_and_the_daemon_keeps_servi
     let _ahead_cam = camera(
         &prefix,
         "ahead",
-        &["--fps", "50", "--stamp-ahead-s", "3600"],
+        &["--fps", "50", "--stamp-ahead-ms", "3600000"],
     );
+    // A device clock's offset gone wrong by half a second: its frames would read as that much
+    // younger, and a camera stopped that long ago as live.
+    let _skewed_cam = camera(
+        &prefix,
+        "skewed",
+        &["--fps", "50", "--stamp-ahead-ms", "500"],
+    );
+    // No capture time: its age would read as the machine's uptime.
+    let _unstamped_cam = camera(&prefix, "unstamped", &["--fps", "50", "--stamp", "zero"]);
     std::thread::sleep(Duration::from_millis(300));
     let (status, _, message) = refusal(client.detect("ahead", &[1], &opts));
     assert_eq!(status, Status::InvalidFrame, "{message}");
     assert!(message.contains("1.0 h ahead"), "{message}");
+    let (status, _, message) = refusal(client.detect("skewed", &[1], &opts));
+    assert_eq!(status, Status::InvalidFrame, "{message}");
+    assert!(message.contains("0.5 s ahead"), "{message}");
+    let (status, _, message) = refusal(client.detect("unstamped", &[1], &opts));
+    assert_eq!(status, Status::InvalidFrame, "{message}");
+    assert!(
+        message.contains("unstamped (capture_time_ns 0)"),
+        "{message}"
+    );
 
     // Still serving, from the camera and inline.
     let found = client
@@ -486,7 +504,7 @@ fn malformed_requests_are_refused_each_with_its_error_and_the_daemon_keeps_servi
     // detection counts once nothing runs any more.
     let stats = settled_stats(&client);
     assert!(
-        stats.requests_refused >= 9 && stats.requests_served >= 2,
+        stats.requests_refused >= 11 && stats.requests_served >= 2,
         "{stats:?}"
     );
 }

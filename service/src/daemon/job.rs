@@ -110,6 +110,19 @@ impl Daemon {
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 }
                 let whose = format!("camera {name:?} has its frames");
+                if fh.capture_time_ns == 0 {
+                    // Its age would read as the machine's uptime: "stale" would blame the camera.
+                    let e = EngineError::new(
+                        Status::InvalidFrame,
+                        format!(
+                            "{whose} unstamped (capture_time_ns 0): a camera's frames carry \
+                             their capture time, CLOCK_MONOTONIC nanoseconds \
+                             (ppfd_protocol::clock::monotonic_now_ns), which the stale check \
+                             needs; 0 is for inline frames"
+                        ),
+                    );
+                    return Err(Box::new((q.active, q.header, q.received_ns, e)));
+                }
                 if let Some(e) = stamped_ahead(&fh, now, &whose) {
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 }
@@ -225,8 +238,10 @@ impl Daemon {
 
 /// A frame stamped further than this ahead of the daemon's clock was not stamped with it.
 /// Stamps taken by the driver just after the daemon read its clock are a few microseconds
-/// ahead; a driver stamping wall-clock time is decades ahead.
-const MAX_STAMP_AHEAD_NS: u64 = 1_000_000_000;
+/// ahead; a driver stamping wall-clock time is decades ahead. A frame stamped ahead reads as
+/// younger than it is, by up to this much: a camera stopped that long ago still passes the
+/// stale check, so the bound is kept small beside frame ages (`max_frame_age_ms`, 1 s).
+const MAX_STAMP_AHEAD_NS: u64 = 100_000_000;
 
 /// The refusal of a frame stamped more than [`MAX_STAMP_AHEAD_NS`] ahead of `now`; `whose`
 /// begins the message ("the frame is", "camera \"x\" has its frames").
@@ -238,7 +253,8 @@ fn stamped_ahead(frame: &FrameHeader, now: u64, whose: &str) -> Option<EngineErr
             format!(
                 "{whose} stamped {} ahead of this machine's monotonic clock, so frame age \
                  cannot be told: capture_time_ns must be CLOCK_MONOTONIC nanoseconds \
-                 (ppfd_protocol::clock::monotonic_now_ns), not wall-clock time, or 0 when unknown",
+                 (ppfd_protocol::clock::monotonic_now_ns), not wall-clock time (or 0 for an \
+                 inline frame without one)",
                 duration_text(ahead)
             ),
         )

@@ -3,8 +3,9 @@
 //! BOP dataset (`--bop <root> --scene <id> --image <id>`), or the generated scene of the generated
 //! parts (`--parts-seed <seed>`, Kinect-like noise unless `--noise none`), at `--fps`, `--frames`
 //! times (0: until killed), then stays alive without publishing (a camera that stopped; a
-//! daemon that subscribes then still gets the last frame). `--stamp-ahead-s S` stamps frames S
-//! seconds ahead of the monotonic clock (a driver stamping another clock). Prints `scene
+//! daemon that subscribes then still gets the last frame). `--stamp-ahead-ms MS` stamps frames
+//! MS milliseconds ahead of the monotonic clock (a driver stamping another clock), `--stamp zero`
+//! stamps them 0 (no capture time). Prints `scene
 //! <checksum>` for a generated scene (`ppfd_tests::depth_checksum`, hex), `camera ready` when its
 //! service exists, `frame <seq>` per frame and `camera stopped` after the last.
 
@@ -31,7 +32,8 @@ const FLAGS: &[&str] = &[
     "--bop",
     "--scene",
     "--image",
-    "--stamp-ahead-s",
+    "--stamp-ahead-ms",
+    "--stamp",
     "--size",
 ];
 
@@ -110,13 +112,18 @@ fn main() {
     };
     // A driver whose clock is not the daemon's (wall-clock time, say): its frames are stamped
     // this far ahead.
-    let stamp_ahead_ns: u64 = arg(&args, "--stamp-ahead-s")
+    let stamp_ahead_ns: u64 = arg(&args, "--stamp-ahead-ms")
         .map(|s| {
             s.parse::<u64>()
-                .expect("--stamp-ahead-s takes whole seconds")
-                * 1_000_000_000
+                .expect("--stamp-ahead-ms takes whole milliseconds")
+                * 1_000_000
         })
         .unwrap_or(0);
+    let unstamped = match arg(&args, "--stamp").as_deref() {
+        None => false,
+        Some("zero") => true,
+        Some(other) => panic!("--stamp takes zero, not {other:?}"),
+    };
     let mut publisher = CameraPublisher::new(
         prefix.as_deref(),
         &camera,
@@ -140,7 +147,14 @@ fn main() {
         let seq = publisher
             .loan()
             .and_then(|frame| frame.write_from_slice(&depth))
-            .and_then(|frame| frame.send(monotonic_now_ns() + stamp_ahead_ns))
+            .and_then(|frame| {
+                let stamp = if unstamped {
+                    0
+                } else {
+                    monotonic_now_ns() + stamp_ahead_ns
+                };
+                frame.send(stamp)
+            })
             .expect("publish");
         sent += 1;
         writeln!(out, "frame {seq}").unwrap();
