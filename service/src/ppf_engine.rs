@@ -1,4 +1,5 @@
-//! The production engine: `ppfd_models`' detector over models read from model files.
+//! The production engine: `ppfd_models`' detector over models read from model files or built
+//! from PLY meshes.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

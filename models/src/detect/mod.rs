@@ -1,6 +1,7 @@
 //! Detection at run time, one module per stage in the order they run: [`scene`] preparation,
-//! [`voting`] (with the supporting [`plane`]), [`clustering`], [`rescoring`], [`icp`] and the
-//! [`filters`]. [`requirements`] is what a caller needs of the answer (minimum score, region,
+//! [`voting`] (with the supporting [`plane`]), [`clustering`], [`rescoring`], [`icp`], the
+//! [`filters`] and the [`exclusion`] of a first answer on a surface another object's explains
+//! better. [`requirements`] is what a caller needs of the answer (minimum score, region,
 //! pose restriction, order). [`silhouette`] holds what re-scoring and the filters both measure of a pose.
 //! [`detector::Detector`] runs all of it with [`detector::DetectParams`], whose fields
 //! [`settings`] names for `--set` and configuration files. [`diagnosis`] runs the same stages

@@ -58,7 +58,8 @@ pub struct ModelParams {
     /// 12° match the angle bins, and ≤ 32 lets one `u32` hold the vote-once flags.
     pub alpha_bins: u32,
     /// Spacing of the dense surface samples taken before subsampling, as a fraction of the
-    /// diameter: 0.01 gives about 20 samples per voxel edge, enough for stable voxel means.
+    /// diameter: 0.01 gives 5 samples along a voxel's edge (leaf 0.05), about 25 on each voxel
+    /// face a surface crosses, enough for stable voxel means.
     pub sampling_step_fraction: f32,
     /// Voxel leaf, as a fraction of the diameter, of the denser surface points kept for
     /// re-scoring, ICP and the filters (not used for voting). 0.025 keeps about 4× the voting

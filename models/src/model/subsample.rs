@@ -1,7 +1,7 @@
 //! Subsampling with normal clustering and neighbour filtering (Vidal et al. 2018, §III), shared
 //! by model building and scene preparation.
 //!
-//! A voxel grid with leaf `0.05 D` groups the points; inside a voxel, points are clustered by
+//! A voxel grid groups the points (its leaf `0.05 D` for a model, `0.1 D` for the scene); inside a voxel, points are clustered by
 //! normal direction (a point joins the first cluster whose mean normal is within the clustering
 //! angle, else starts a new one), and each cluster becomes one oriented point. A voxel on an edge
 //! or corner therefore keeps one point per surface orientation. Then neighbouring clusters that
