@@ -92,6 +92,14 @@ pub enum Error {
         servers: usize,
         service: &'static str,
     },
+    /// A request/response service is held open, under this prefix, with the messages of
+    /// another protocol version: clients or a daemon of another ppfd release still run.
+    #[error(
+        "cannot open {service}: processes of another ppfd release (protocol version other than \
+         {version}) hold it under this prefix; stop them, so that the daemon and its clients \
+         come from one release, or give this daemon another --prefix"
+    )]
+    OtherProtocolVersion { service: &'static str, version: u32 },
     /// An iceoryx2 or operating-system resource the daemon needs failed (a node, a port, a
     /// thread, the signalfd, the WaitSet): `what` it was, and the cause as it was reported.
     #[error("{what}: {detail}")]

@@ -234,3 +234,50 @@ fn requests_that_come_while_the_daemon_stops_are_answered() {
         .expect("the daemon stops");
     assert!(status.success(), "{status:?}");
 }
+
+/// A daemon that meets `ppfd/detect` held open with the messages of another protocol version
+/// (clients of another ppfd release still running under the prefix) says so and exits 1,
+/// where it said only iceoryx2's type error.
+#[test]
+fn a_daemon_meeting_another_protocol_version_says_so() {
+    use iceoryx2::prelude::*;
+    use ppfd_client::protocol::detect::DetectResponseHeader;
+    use ppfd_client::protocol::services;
+    use ppfd_client::PoseHypothesis;
+
+    /// A request header of another layout, under the same type name.
+    #[derive(Debug, Clone, Copy, ZeroCopySend)]
+    #[type_name("ppfd::DetectRequestHeader")]
+    #[repr(C)]
+    struct OtherRequestHeader {
+        fields: [u64; 38],
+    }
+
+    let prefix = Prefix::new("otherversion");
+    let models = fake_model_dir("otherversion", &[1]);
+    let mut config = iceoryx2::config::Config::default();
+    config.global.prefix = FileName::new(prefix.0.as_bytes()).unwrap();
+    let node = NodeBuilder::new()
+        .config(&config)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<ipc::Service>()
+        .unwrap();
+    let _held = node
+        .service_builder(&ServiceName::new(services::DETECT).unwrap())
+        .request_response::<[u16], [PoseHypothesis]>()
+        .request_user_header::<OtherRequestHeader>()
+        .response_user_header::<DetectResponseHeader>()
+        .create()
+        .unwrap();
+    let out = std::process::Command::new(DAEMON)
+        .args(["--prefix", &prefix.0, "--models", models.to_str().unwrap()])
+        .env("PPFD_TEST_ENGINE", "fake")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("cannot open ppfd/detect: processes of another ppfd release"),
+        "{stderr}"
+    );
+}

@@ -280,6 +280,29 @@ pub struct ReadyInfo {
     pub pid: u32,
 }
 
+/// The error of a request/response service the daemon could not open; one held with the
+/// messages of another protocol version says so.
+fn open_service(
+    service: &'static str,
+) -> impl FnOnce(iceoryx2::service::builder::request_response::RequestResponseOpenOrCreateError) -> Error
+{
+    use iceoryx2::service::builder::request_response::{
+        RequestResponseOpenError, RequestResponseOpenOrCreateError,
+    };
+    move |e| match e {
+        RequestResponseOpenOrCreateError::RequestResponseOpenError(
+            RequestResponseOpenError::IncompatibleRequestOrResponseType,
+        ) => Error::OtherProtocolVersion {
+            service,
+            version: ppfd_protocol::PROTOCOL_VERSION,
+        },
+        e => Error::Resource {
+            what: format!("cannot open the {service} service"),
+            detail: format!("{e:?}"),
+        },
+    }
+}
+
 impl Daemon {
     fn new(
         config: DaemonConfig,
@@ -289,7 +312,7 @@ impl Daemon {
     ) -> Result<Daemon> {
         let detect_service = services::detect_builder(&node)
             .open_or_create()
-            .map_err(resource("cannot open the ppfd/detect service"))?;
+            .map_err(open_service(services::DETECT))?;
         let detect_server = detect_service
             .server_builder()
             .initial_max_slice_len(limits::MAX_RESPONSE_HYPOTHESES)
@@ -306,7 +329,7 @@ impl Daemon {
         }
         let control_service = services::control_builder(&node)
             .open_or_create()
-            .map_err(resource("cannot open the ppfd/control service"))?;
+            .map_err(open_service(services::CONTROL))?;
         let control_server = control_service
             .server_builder()
             .initial_max_slice_len(limits::MAX_LISTED_MODELS)
