@@ -1,5 +1,7 @@
 //! The daemon's one error type: a configuration it refuses before it serves, or a resource it
-//! needs failing while it starts or serves.
+//! needs failing while it starts or serves. What a request is refused for is no error of the
+//! daemon's: it is an answer to the client, [`crate::engine::EngineError`], with the status the
+//! client gets.
 
 use std::path::PathBuf;
 
