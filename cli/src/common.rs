@@ -10,7 +10,8 @@ use ppfd_client::{Client, ClientOptions, Detections, LatencyBreakdown};
 /// How to reach the daemon.
 #[derive(Args, Debug, Clone)]
 pub struct Connect {
-    /// iceoryx2 prefix of the daemon (as `ppfd --prefix`; default from PPFD_PREFIX).
+    /// iceoryx2 prefix of the daemon, ending with '_' (as `ppfd --prefix`; default from
+    /// PPFD_PREFIX).
     #[arg(long)]
     pub prefix: Option<String>,
 }

@@ -48,12 +48,14 @@ pub fn encode_truncated<const N: usize>(text: &str) -> [u8; N] {
         end -= 1;
     }
     // Back to the end of the last whole word, unless that loses more than a quarter of the room
-    // (a long path or number is cut where it stands).
-    if let Some(space) = text[..end].rfind(' ') {
+    // (a long path or number is cut where it stands). A cut right after a word keeps it.
+    let after_a_word = text.as_bytes()[end] == b' ';
+    if let Some(space) = text[..end].rfind(' ').filter(|_| !after_a_word) {
         if space >= end - end / 4 {
-            end = text[..space].trim_end_matches([' ', ',', ';', ':']).len();
+            end = space;
         }
     }
+    end = text[..end].trim_end_matches([' ', ',', ';', ':']).len();
     out[..end].copy_from_slice(&text.as_bytes()[..end]);
     out[end..end + MORE.len()].copy_from_slice(MORE.as_bytes());
     out
@@ -106,6 +108,9 @@ mod tests {
         let text = "object 7 cannot be loaded: the mesh has no faces, and a model needs them";
         let m: [u8; 48] = encode_truncated(text);
         assert_eq!(decode(&m), "object 7 cannot be loaded: the mesh has no…");
+        // A cut that falls right after a word keeps it.
+        let m: [u8; 27] = encode_truncated("aaaaaaaaaaaaaaaaaaaa bb cc dd");
+        assert_eq!(decode(&m), "aaaaaaaaaaaaaaaaaaaa bb…");
         // A word longer than a quarter of the room is cut where it stands.
         let m: [u8; 24] = encode_truncated("path /a/very/long/folder/name/of/models");
         assert_eq!(decode(&m), "path /a/very/long/fo…");

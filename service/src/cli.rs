@@ -25,9 +25,9 @@ pub struct Args {
     /// or ~/.cache/ppfd, shared with `ppf eval`); one is reused while its mesh is unchanged.
     #[arg(long)]
     pub model_cache: Option<PathBuf>,
-    /// iceoryx2 resource prefix: daemons (and their clients) with different prefixes never
-    /// see each other [default: PPFD_PREFIX, as for the clients, else the config file's, else
-    /// iceoryx2's].
+    /// iceoryx2 resource prefix, ending with '_' (cell1_): daemons (and their clients) with
+    /// different prefixes never see each other [default: PPFD_PREFIX, as for the clients, else
+    /// the config file's, else iceoryx2's].
     #[arg(long)]
     pub prefix: Option<String>,
     /// Detection worker threads, 0 to 4 per core (0: one per core) [default: 0].
@@ -80,8 +80,8 @@ impl Args {
         if self.model_cache.is_some() {
             c.model_cache = self.model_cache.clone();
         }
-        // The clients' variable too: `PPFD_PREFIX=cell2 ppfd` and `PPFD_PREFIX=cell2 ppf detect`
-        // meet. The flag wins over the variable, the variable over the file.
+        // The clients' variable too: `PPFD_PREFIX=cell2_ ppfd` and `PPFD_PREFIX=cell2_ ppf
+        // detect` meet. The flag wins over the variable, the variable over the file.
         if let (None, Some(p)) = (&self.prefix, &env_prefix) {
             ppfd_protocol::services::check_prefix(p)
                 .map_err(|e| Error::PrefixVariable(e.to_string()))?;

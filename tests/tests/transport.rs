@@ -479,11 +479,22 @@ fn malformed_requests_are_refused_each_with_its_error_and_the_daemon_keeps_servi
     assert!(message.contains("1.0 h ahead"), "{message}");
     let (status, _, message) = refusal(client.detect("skewed", &[1], &opts));
     assert_eq!(status, Status::InvalidFrame, "{message}");
-    assert!(message.contains("0.5 s ahead"), "{message}");
+    // Less the newest frame's age when the daemon looked, which a busy host stretches.
+    let ahead_ms: f32 = message
+        .split(" ms ahead")
+        .next()
+        .and_then(|m| m.rsplit(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no lead in milliseconds: {message}"));
+    assert!(ahead_ms > 100.0 && ahead_ms <= 500.0, "{message}");
+    assert!(
+        message.contains("(at most 100 ms)") && !message.ends_with('…'),
+        "{message}"
+    );
     let (status, _, message) = refusal(client.detect("unstamped", &[1], &opts));
     assert_eq!(status, Status::InvalidFrame, "{message}");
     assert!(
-        message.contains("unstamped (capture_time_ns 0)"),
+        message.contains("unstamped (capture_time_ns 0)") && message.ends_with("inline frames"),
         "{message}"
     );
 

@@ -17,6 +17,7 @@ use crate::detect::detector::{
 use crate::detect::filters::{consistency_off_edges, is_consistent, see_through_off_edges};
 use crate::detect::icp::refine;
 use crate::detect::plane::SupportingPlane;
+use crate::detect::requirements::Order;
 use crate::detect::rescoring::{
     score_poses, score_refined, sparse_ranking, FitPoints, Outline, Scored,
 };
@@ -632,20 +633,57 @@ pub fn diagnose(
         return Ok(trace);
     }
 
-    // What is returned: the poses that pass come first, in score order, one per instance (a
-    // pose whose centre is near a better one's is the same instance).
+    // What is returned, as the detector picks it: of the refined poses the request's
+    // requirements let through (its minimum score, pose restriction, region), those that pass
+    // the filters, one per instance (a pose whose centre is near a better one's is the same
+    // instance), in score order or nearest first.
+    let region_reached = |pose: &Pose| {
+        wanted.region.as_ref().is_none_or(|r| {
+            surface
+                .positions
+                .iter()
+                .any(|q| r.holds(frame.intrinsics, &(pose * q)))
+        })
+    };
+    let refused_by_request = |o: &Scored| {
+        if o.score < wanted.min_score {
+            Some(format!(
+                "below the request's minimum score ({:.3}, at least {:.3})",
+                o.score, wanted.min_score
+            ))
+        } else if !wanted.allows(&symmetry.canonical(&o.pose)) {
+            Some("refined outside the request's pose restriction".to_string())
+        } else if !region_reached(&o.pose) {
+            Some("refined outside the request's region of interest".to_string())
+        } else {
+            None
+        }
+    };
+    if let Some(why) = refused_by_request(s) {
+        trace.report("result", false, why);
+        return Ok(trace);
+    }
     let nms = wanted
         .instance_distance_fraction
         .unwrap_or(p.nms_distance_fraction)
         * d;
     // The detector's centre: a point every symmetry leaves in place.
     let centre_of = symmetry.fixed_point(&sphere.0);
-    let mut passed_ahead: Vec<&Scored> = Vec::new();
-    for o in rescored[..rank - 1].iter().take(p.filters.max_candidates) {
-        let centre = o.pose * centre_of;
-        if passed_ahead
-            .iter()
-            .any(|q| (q.pose * centre_of - centre).norm() < nms)
+    let nearest_first = wanted.order == Order::Distance;
+    let distance = |pose: &Pose| (pose * centre_of).coords.norm();
+    let centre = s.pose * centre_of;
+    // Passing poses in score order; those below the target's rank only matter nearest first,
+    // and then only those that are not the target's instance.
+    let mut passed: Vec<(usize, &Scored)> = Vec::new();
+    for (i, o) in rescored.iter().enumerate().take(p.filters.max_candidates) {
+        if i == rank - 1 || (i > rank - 1 && !nearest_first) {
+            continue;
+        }
+        if refused_by_request(o).is_some()
+            || passed
+                .iter()
+                .any(|(_, q)| (q.pose * centre_of - o.pose * centre_of).norm() < nms)
+            || (i > rank - 1 && (o.pose * centre_of - centre).norm() < nms)
         {
             continue;
         }
@@ -659,28 +697,57 @@ pub fn diagnose(
             &p.filters,
         );
         if consistent && filter.passes(filter.fraction(o.outline, &mut renderer, &o.pose)) {
-            passed_ahead.push(o);
+            passed.push((i, o));
         }
     }
-    let centre = s.pose * centre_of;
-    let (kept, line) = if let Some(q) = passed_ahead
+    let same_instance = passed
         .iter()
-        .position(|q| (q.pose * sphere.0 - centre).norm() < nms)
-    {
-        let (dt, dr) = errors(&passed_ahead[q].pose);
+        .position(|(i, q)| *i < rank - 1 && (q.pose * centre_of - centre).norm() < nms);
+    let ahead: Vec<&Scored> = passed
+        .iter()
+        .filter(|(i, q)| {
+            if nearest_first {
+                distance(&q.pose) < distance(&s.pose)
+            } else {
+                *i < rank - 1
+            }
+        })
+        .map(|(_, q)| *q)
+        .collect();
+    let (kept, line) = if let Some(q) = same_instance {
+        // Where that pose stands in the answer: the instance is returned if it is.
+        let better = &passed[q].1.pose;
+        let place = if nearest_first {
+            passed
+                .iter()
+                .filter(|(_, x)| distance(&x.pose) < distance(better))
+                .count()
+        } else {
+            q
+        };
+        let (dt, dr) = errors(better);
         (
-            q < hypotheses,
+            place < hypotheses,
             format!(
                 "a better pose of the same instance comes first: hypothesis {} ({dt:.1} mm, {dr:.1}° from the target)",
-                q + 1
+                place + 1
             ),
         )
-    } else if passed_ahead.len() < hypotheses {
+    } else if ahead.len() < hypotheses {
         (
             true,
+            format!("returned as hypothesis {} of {hypotheses}", ahead.len() + 1),
+        )
+    } else if nearest_first {
+        (
+            false,
             format!(
-                "returned as hypothesis {} of {hypotheses}",
-                passed_ahead.len() + 1
+                "{} nearer the camera {} the filters; the request returns {hypotheses}, nearest first",
+                match ahead.len() {
+                    1 => "1 pose".to_string(),
+                    n => format!("{n} poses"),
+                },
+                if ahead.len() == 1 { "passes" } else { "pass" },
             ),
         )
     } else {
@@ -688,13 +755,13 @@ pub fn diagnose(
             false,
             format!(
                 "{} elsewhere {} higher and {} the filters (the first {:.3}, this one {:.3}); the request returns {hypotheses}",
-                match passed_ahead.len() {
+                match ahead.len() {
                     1 => "1 pose".to_string(),
                     n => format!("{n} poses"),
                 },
-                if passed_ahead.len() == 1 { "scores" } else { "score" },
-                if passed_ahead.len() == 1 { "passes" } else { "pass" },
-                passed_ahead.first().map_or(s.score, |q| q.score),
+                if ahead.len() == 1 { "scores" } else { "score" },
+                if ahead.len() == 1 { "passes" } else { "pass" },
+                ahead.first().map_or(s.score, |q| q.score),
                 s.score
             ),
         )
@@ -1123,6 +1190,23 @@ mod tests {
             ..Default::default()
         });
         assert_eq!(allowed.lost_at(), None, "{:#?}", allowed.lines());
+
+        // A minimum score above the refined pose's: lost at the result, saying so.
+        let below = with(Requirements {
+            min_score: 0.99,
+            ..Default::default()
+        });
+        assert_eq!(below.lost_at(), Some("result"), "{:#?}", below.lines());
+        assert!(
+            below
+                .stages
+                .last()
+                .unwrap()
+                .line
+                .starts_with("below the request's minimum score"),
+            "{:#?}",
+            below.lines()
+        );
     }
 
     /// Two instances of one part and one hypothesis asked for: the instance the detection

@@ -115,10 +115,9 @@ impl Daemon {
                     let e = EngineError::new(
                         Status::InvalidFrame,
                         format!(
-                            "{whose} unstamped (capture_time_ns 0): a camera's frames carry \
-                             their capture time, CLOCK_MONOTONIC nanoseconds \
-                             (ppfd_protocol::clock::monotonic_now_ns), which the stale check \
-                             needs; 0 is for inline frames"
+                            "{whose} unstamped (capture_time_ns 0): the stale check needs their \
+                             CLOCK_MONOTONIC capture time (monotonic_now_ns); 0 is for inline \
+                             frames"
                         ),
                     );
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
@@ -251,20 +250,22 @@ fn stamped_ahead(frame: &FrameHeader, now: u64, whose: &str) -> Option<EngineErr
         EngineError::new(
             Status::InvalidFrame,
             format!(
-                "{whose} stamped {} ahead of this machine's monotonic clock, so frame age \
-                 cannot be told: capture_time_ns must be CLOCK_MONOTONIC nanoseconds \
-                 (ppfd_protocol::clock::monotonic_now_ns), not wall-clock time (or 0 for an \
-                 inline frame without one)",
-                duration_text(ahead)
+                "{whose} stamped {} ahead of this machine's CLOCK_MONOTONIC (at most {}), so \
+                 frame age cannot be told: stamp with monotonic_now_ns, not wall-clock time",
+                duration_text(ahead),
+                duration_text(MAX_STAMP_AHEAD_NS)
             ),
         )
     })
 }
 
-/// `ns` for a message: in seconds up to two minutes, hours up to two days, else days.
+/// `ns` for a message: in milliseconds up to a second, seconds up to two minutes, hours up to
+/// two days, else days.
 fn duration_text(ns: u64) -> String {
     let s = ns as f64 / 1e9;
-    if s < 120.0 {
+    if s < 1.0 {
+        format!("{:.0} ms", s * 1e3)
+    } else if s < 120.0 {
         format!("{s:.1} s")
     } else if s < 48.0 * 3600.0 {
         format!("{:.1} h", s / 3600.0)

@@ -131,7 +131,10 @@ impl Daemon {
         }
         let mut startup = self.startup.take().expect("loading");
         startup.join();
-        self.startup_files = startup.progress();
+        // Files the loading never reached (its thread ended early) count as failed: the
+        // loading is over, and "done" says so.
+        let (files, done, failed) = startup.progress();
+        self.startup_files = (files, files, failed + (files - done));
         if startup.files == 0 {
             tracing::warn!(
                 dir = %startup.dir.display(),
