@@ -45,17 +45,15 @@ fn open_service(
     service: &'static str,
 ) -> impl FnOnce(iceoryx2::service::builder::request_response::RequestResponseOpenOrCreateError) -> Error
 {
-    use iceoryx2::service::builder::request_response::{
-        RequestResponseOpenError, RequestResponseOpenOrCreateError,
-    };
-    move |e| match e {
-        RequestResponseOpenOrCreateError::RequestResponseOpenError(
-            RequestResponseOpenError::IncompatibleRequestOrResponseType,
-        ) => Error::OtherProtocolVersion {
-            service,
-            version: ppfd_protocol::PROTOCOL_VERSION,
-        },
-        e => Error::Transport(format!("cannot open {service}: {e:?}")),
+    move |e| {
+        if services::is_other_protocol_version(&e) {
+            Error::OtherProtocolVersion {
+                service,
+                version: ppfd_protocol::PROTOCOL_VERSION,
+            }
+        } else {
+            Error::Transport(format!("cannot open {service}: {e:?}"))
+        }
     }
 }
 

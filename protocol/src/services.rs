@@ -255,6 +255,17 @@ pub fn reply_listener_name(reply_token: u64) -> String {
     format!("ppf-reply-{reply_token:016x}")
 }
 
+/// Whether a request/response service could not be opened because its messages have another
+/// layout than this build's: processes of another protocol version hold it.
+pub fn is_other_protocol_version(e: &request_response::RequestResponseOpenOrCreateError) -> bool {
+    matches!(
+        e,
+        request_response::RequestResponseOpenOrCreateError::RequestResponseOpenError(
+            request_response::RequestResponseOpenError::IncompatibleRequestOrResponseType,
+        )
+    )
+}
+
 /// The iceoryx2 prefix from the environment: `PPFD_PREFIX`, if set and not empty. The daemon
 /// and its clients both read it, so that one variable brings them together.
 pub fn prefix_from_env() -> Option<String> {
