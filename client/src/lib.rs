@@ -138,61 +138,8 @@ pub(crate) fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::C
 pub use ppfd_protocol::services::prefix_from_env;
 
 /// Removes the files iceoryx2 leaves behind under `prefix` once every process using it has
-/// ended: its global management segment (16 bytes in `/dev/shm`) outlives every node, and a
-/// process killed without cleanup leaves its node and service entries. For a prefix of one's
-/// own, made for one run (as `ppf demo` does), after its daemon, drivers and clients are gone;
-/// never for a prefix that processes still use. Returns how many entries were removed.
+/// ended ([`ppfd_protocol::services::remove_prefix_leftovers`]). Returns how many entries were
+/// removed.
 pub fn remove_prefix_leftovers(prefix: &str) -> Result<usize> {
-    use ppfd_protocol::services::is_entry_of_prefix;
-    ppfd_protocol::services::check_prefix(prefix)?;
-    let mut removed = 0;
-    for dir in [
-        "/dev/shm",
-        "/tmp/iceoryx2/services",
-        NODES_DIR,
-        "/tmp/iceoryx2",
-    ] {
-        let Ok(entries) = std::fs::read_dir(dir) else {
-            continue;
-        };
-        for e in entries.flatten() {
-            let name = e.file_name().to_string_lossy().into_owned();
-            if is_entry_of_prefix(&name, prefix) {
-                let p = e.path();
-                let gone = if p.is_dir() {
-                    std::fs::remove_dir_all(&p)
-                } else {
-                    std::fs::remove_file(&p)
-                };
-                removed += usize::from(gone.is_ok());
-            } else if dir == NODES_DIR && name.bytes().all(|b| b.is_ascii_digit()) {
-                removed += remove_node_leftovers(&e.path(), prefix);
-            }
-        }
-    }
-    Ok(removed)
-}
-
-/// Where iceoryx2 keeps a directory per node, named by the node's id, not by its prefix.
-const NODES_DIR: &str = "/tmp/iceoryx2/nodes";
-
-/// Removes the entries of `prefix` in one node's directory, and the directory once it is
-/// empty: a node's directory is named by its id, and only the files in it carry the prefix.
-/// Returns how many entries were removed.
-fn remove_node_leftovers(node_dir: &std::path::Path, prefix: &str) -> usize {
-    use ppfd_protocol::services::is_entry_of_prefix;
-    let Ok(entries) = std::fs::read_dir(node_dir) else {
-        return 0;
-    };
-    let mut removed = 0;
-    for e in entries.flatten() {
-        if is_entry_of_prefix(&e.file_name().to_string_lossy(), prefix) {
-            removed += usize::from(std::fs::remove_file(e.path()).is_ok());
-        }
-    }
-    // Fails, and leaves it, while another prefix's node still has entries in it.
-    if removed > 0 && std::fs::remove_dir(node_dir).is_ok() {
-        removed += 1;
-    }
-    removed
+    Ok(ppfd_protocol::services::remove_prefix_leftovers(prefix)?)
 }

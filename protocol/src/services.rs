@@ -255,6 +255,68 @@ pub fn reply_listener_name(reply_token: u64) -> String {
     format!("ppf-reply-{reply_token:016x}")
 }
 
+/// Removes the files iceoryx2 leaves behind under `prefix` once every process using it has
+/// ended: its global management segment (16 bytes in `/dev/shm`) outlives every node, and a
+/// process killed without cleanup leaves its node and service entries. For a prefix of one's
+/// own, made for one run (as `ppf demo` does), after its daemon, drivers and clients are gone;
+/// never for a prefix that processes still use. Only the prefix's own entries go, not those of
+/// a longer prefix that starts with it ([`is_entry_of_prefix`]). Returns how many entries were
+/// removed.
+pub fn remove_prefix_leftovers(prefix: &str) -> Result<usize, ProtocolError> {
+    check_prefix(prefix)?;
+    // The default configuration's folders, which ppfd's processes all use.
+    let config = iceoryx2::config::Config::default();
+    let nodes = std::path::PathBuf::from(config.global.node_dir().to_string());
+    let folders = [
+        std::path::PathBuf::from("/dev/shm"),
+        std::path::PathBuf::from(config.global.service_dir().to_string()),
+        nodes.clone(),
+        std::path::PathBuf::from(config.global.root_path().to_string()),
+    ];
+    let mut removed = 0;
+    for dir in &folders {
+        let Ok(entries) = std::fs::read_dir(dir) else {
+            continue;
+        };
+        for e in entries.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if is_entry_of_prefix(&name, prefix) {
+                let p = e.path();
+                let gone = if p.is_dir() {
+                    std::fs::remove_dir_all(&p)
+                } else {
+                    std::fs::remove_file(&p)
+                };
+                removed += usize::from(gone.is_ok());
+            } else if *dir == nodes && name.bytes().all(|b| b.is_ascii_digit()) {
+                removed += remove_node_entries(&e.path(), prefix);
+            }
+        }
+    }
+    Ok(removed)
+}
+
+/// Removes the entries of `prefix` in one node's folder, and the folder once they were its
+/// last: iceoryx2 names a node's folder by the node's id, and only the files in it carry the
+/// prefix. Returns how many entries were removed.
+pub fn remove_node_entries(node_dir: &std::path::Path, prefix: &str) -> usize {
+    let Ok(entries) = std::fs::read_dir(node_dir) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for e in entries.flatten() {
+        if is_entry_of_prefix(&e.file_name().to_string_lossy(), prefix) {
+            removed += usize::from(std::fs::remove_file(e.path()).is_ok());
+        }
+    }
+    // Fails, and leaves it, while another prefix's node still has entries in it. A folder that
+    // was empty already is left: it may be a node being made.
+    if removed > 0 && std::fs::remove_dir(node_dir).is_ok() {
+        removed += 1;
+    }
+    removed
+}
+
 /// Whether a request/response service could not be opened because its messages have another
 /// layout than this build's: processes of another protocol version hold it.
 pub fn is_other_protocol_version(e: &request_response::RequestResponseOpenOrCreateError) -> bool {
@@ -399,19 +461,27 @@ mod tests {
         assert!(check_camera_name(&"x".repeat(CAMERA_NAME_BYTES - 1)).is_ok());
     }
 
-    fn isolated_node(tag: &str) -> Node<ipc::Service> {
+    /// A node under a prefix of its own, and the prefix.
+    fn isolated_node(tag: &str) -> (Node<ipc::Service>, String) {
         let mut config = iceoryx2::config::Config::default();
         let prefix = format!("ppfdt_{tag}_{}_", std::process::id());
         config.global.prefix = FileName::new(prefix.as_bytes()).unwrap();
-        NodeBuilder::new()
+        let node = NodeBuilder::new()
             .config(&config)
             .create::<ipc::Service>()
-            .unwrap()
+            .unwrap();
+        (node, prefix)
     }
 
     #[test]
     fn the_builders_agree_and_carry_an_inline_frame_round_trip() {
-        let node = isolated_node("rr");
+        let (node, prefix) = isolated_node("rr");
+        round_trip(node);
+        // What iceoryx2 leaves of the prefix once everything of it is dropped.
+        remove_prefix_leftovers(&prefix).unwrap();
+    }
+
+    fn round_trip(node: Node<ipc::Service>) {
         let server_side = detect_builder(&node).create().unwrap();
         // A second participant opens the same service with the same limits.
         let client_side = detect_builder(&node).open().unwrap();

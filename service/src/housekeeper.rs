@@ -155,15 +155,8 @@ fn remove_node_leftovers(config: &iceoryx2::config::Config, id: u128) -> usize {
         }
     }
     let folder = nodes.join(id.to_string());
-    if let Ok(entries) = std::fs::read_dir(&folder) {
-        for e in entries.flatten() {
-            if services::is_entry_of_prefix(&e.file_name().to_string_lossy(), &prefix)
-                && std::fs::remove_file(e.path()).is_ok()
-            {
-                removed += 1;
-            }
-        }
-    }
+    removed += services::remove_node_entries(&folder, &prefix);
+    // The node is dead: its folder goes even when nothing of it was left to remove.
     if std::fs::remove_dir(&folder).is_ok() {
         removed += 1;
     }
@@ -420,6 +413,7 @@ mod tests {
         assert_eq!(dead.sweep(&config).leftovers, 0);
         let _ = remove_node_leftovers(&config, 222);
         drop(live);
+        services::remove_prefix_leftovers(&prefix).unwrap();
     }
 
     /// Waits up to 5 s for the housekeeper to report something.
@@ -479,5 +473,7 @@ mod tests {
         h.scan_now();
         assert_eq!(next_found(&h, &wake), vec!["right".to_owned()]);
         drop(h); // stops and joins the thread
+        drop((_left, _right, node));
+        services::remove_prefix_leftovers(&prefix).unwrap();
     }
 }
