@@ -224,12 +224,19 @@ class Client:
         """The loaded models, by object id (at most 256, the lowest ids)."""
     def stats(self) -> Stats:
         """The daemon's statistics."""
-    def load_model(self, path: Union[str, os.PathLike[str]], object_id: int = 0) -> Model:
+    def load_model(
+        self,
+        path: Union[str, os.PathLike[str]],
+        object_id: int = 0,
+        *,
+        timeout: Optional[float] = None,
+    ) -> Model:
         """Loads a model file, or builds one from a PLY mesh, in the daemon (`path` absolute,
-        as the daemon sees it; `object_id` 0 takes the id from the file). Bounded by the
-        client's `control_timeout`; a load that times out is not cancelled: the daemon finishes
-        it and serves the model, and `stats()` (`model_loads_running`, `model_loads_waiting`)
-        and `models()` tell when. Sent again, it would be done again after it."""
+        as the daemon sees it; `object_id` 0 takes the id from the file). Waits at most
+        `timeout` seconds (None: the client's `control_timeout`); a large mesh builds for
+        seconds to minutes. A load that times out is not cancelled: the daemon finishes it and
+        serves the model, and `stats()` (`model_loads_running`, `model_loads_waiting`) and
+        `models()` tell when. Sent again, it would be done again after it."""
     def drop_model(self, object_id: int) -> None:
         """Drops a model from the daemon."""
 

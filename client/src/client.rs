@@ -649,12 +649,29 @@ impl Client {
 
     /// Loads a model file (or builds one from a PLY mesh) in the daemon; `path` absolute, as
     /// the daemon sees it; `object_id` 0 takes the id from the file. Bounded by
-    /// [`ClientOptions::control_timeout`]. A load that times out is not cancelled: the daemon
-    /// finishes it and serves the model. Sent again, it would be done again after it (loads run
-    /// one at a time); [`Client::stats`] (`model_loads_running`, `model_loads_waiting`) and
-    /// [`Client::models`] tell when it is done.
+    /// [`ClientOptions::control_timeout`]; [`Client::load_model_within`] takes a bound of its
+    /// own, for a large mesh (its build takes seconds to minutes). A load that times out is not
+    /// cancelled: the daemon finishes it and serves the model. Sent again, it would be done
+    /// again after it (loads run one at a time); [`Client::stats`] (`model_loads_running`,
+    /// `model_loads_waiting`) and [`Client::models`] tell when it is done.
     pub fn load_model(&self, path: &str, object_id: u32) -> Result<ModelInfo> {
-        let (h, models) = self.control(ControlCommand::LoadModel, object_id, path)?;
+        self.load_model_within(path, object_id, self.control_timeout)
+    }
+
+    /// [`Client::load_model`], waiting at most `timeout` for the daemon's answer.
+    pub fn load_model_within(
+        &self,
+        path: &str,
+        object_id: u32,
+        timeout: Duration,
+    ) -> Result<ModelInfo> {
+        let request = ControlRequest {
+            command: ControlCommand::LoadModel as u32,
+            object_id,
+            path: text::encode_name("path", path)?,
+            ..Default::default()
+        };
+        let (h, models) = self.send_control(request, timeout)?;
         models.first().copied().ok_or_else(|| {
             Error::Transport(format!("load answered without a model: {}", h.message()))
         })

@@ -460,20 +460,28 @@ impl Client {
     }
 
     /// Loads a model file (`.ppfm`), or builds one from a PLY mesh, in the daemon; `path` as
-    /// the daemon sees it; `object_id` 0 takes the id from the file. Returns the model's dict.
-    #[pyo3(signature = (path, object_id=0))]
+    /// the daemon sees it; `object_id` 0 takes the id from the file; `timeout` in seconds
+    /// (None: the client's `control_timeout`). Returns the model's dict.
+    #[pyo3(signature = (path, object_id=0, *, timeout=None))]
     fn load_model<'py>(
         &self,
         py: Python<'py>,
         path: std::path::PathBuf,
         object_id: u32,
+        timeout: Option<f64>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let path = path
             .to_str()
             .ok_or_else(|| protocol_error(py, format!("model path {path:?} is not valid UTF-8")))?;
+        let timeout = timeout.map(|t| seconds(py, "timeout", t)).transpose()?;
         let client = &self.inner;
         let model = py
-            .detach(|| client.get().map(|c| c.load_model(path, object_id)))?
+            .detach(|| {
+                client.get().map(|c| match timeout {
+                    Some(t) => c.load_model_within(path, object_id, t),
+                    None => c.load_model(path, object_id),
+                })
+            })?
             .map_err(|e| to_py(py, e))?;
         model_dict(py, &model)
     }

@@ -118,8 +118,11 @@ def test_a_dropped_model_is_unknown_until_loaded_again(client, camera, scene):
         assert refused.value.status == "unknown object"
         assert 4 not in [m["object_id"] for m in client.models()]
     finally:
-        model = client.load_model(scene.model_path(4))
+        # A bound of its own, past the client's control timeout.
+        model = client.load_model(scene.model_path(4), timeout=60.0)
     assert model["object_id"] == 4
+    with pytest.raises(ppfd.ProtocolError, match="timeout"):
+        client.load_model(scene.model_path(4), timeout=-1.0)
     found = detect_when_subscribed(client, camera, scene.depth, [4])
     assert found.best(4) is not None
 

@@ -165,6 +165,36 @@ fn statistics_show_the_model_loads_running_and_waiting() {
     );
 }
 
+/// A model load bounded by its own timeout: one longer than the client's control timeout waits
+/// for a slow build, where the plain load times out (and is still carried out: its model is
+/// served after).
+#[test]
+fn a_model_load_takes_a_timeout_of_its_own() {
+    let prefix = Prefix::new("loadtimeout");
+    let models = fake_model_dir("loadtimeout", &[1, 2, 3]);
+    let mut d = spawn_daemon(&prefix, &models, &[("PPFD_FAKE_LOAD_DELAY_MS", "800")]);
+    d.wait_line("ppfd ready", STARTUP);
+    let client = Client::connect_with(&ClientOptions {
+        prefix: Some(prefix.0.clone()),
+        control_timeout: Duration::from_millis(300),
+        ..Default::default()
+    })
+    .expect("client connects");
+    let path = |id: u32| models.join(format!("obj_{id:06}.fake"));
+    let plain = client.load_model(path(2).to_str().unwrap(), 0);
+    assert!(matches!(plain, Err(Error::Timeout(_))), "{plain:?}");
+    // Waits behind the first load (one at a time), then its own.
+    let bounded = client
+        .load_model_within(path(3).to_str().unwrap(), 0, Duration::from_secs(20))
+        .expect("loaded within its own timeout");
+    assert_eq!(bounded.object_id, 3);
+    let stats = client.stats().expect("statistics");
+    assert_eq!(
+        (stats.model_loads_running, stats.model_loads_waiting),
+        (0, 0)
+    );
+}
+
 /// While the daemon stops (here on SIGHUP, as when its terminal closes), a running detection
 /// finishes and is answered, and what comes meanwhile is answered at once: statistics and the
 /// model list as usual, detections and model loads "shutting down": no client waits out its
