@@ -217,8 +217,12 @@ impl Detections {
 /// that such a matrix could keep from ending.
 pub fn isometry(h: &PoseHypothesis) -> nalgebra::Isometry3<f32> {
     let r = nalgebra::Matrix3::from_row_slice(&h.rotation);
-    let rotation = nalgebra::UnitQuaternion::from_rotation_matrix(
-        &nalgebra::Rotation3::from_matrix_unchecked(r),
+    // Normalised: a wire rotation is a rotation to f32's rounding, not exactly.
+    let rotation = nalgebra::UnitQuaternion::new_normalize(
+        *nalgebra::UnitQuaternion::from_rotation_matrix(
+            &nalgebra::Rotation3::from_matrix_unchecked(r),
+        )
+        .quaternion(),
     );
     let t = nalgebra::Translation3::new(
         h.translation_mm[0],
@@ -838,6 +842,25 @@ mod tests {
             finished.recv_timeout(Duration::from_secs(10)).is_ok(),
             "isometry did not return"
         );
+    }
+
+    /// A rotation off by rounding (as a hint within the contract's tolerance is) still gives
+    /// a unit rotation, near it.
+    #[test]
+    fn isometry_of_a_rounded_rotation_is_a_unit_rotation() {
+        let exact = nalgebra::Rotation3::<f32>::from_euler_angles(0.3, -1.1, 2.0);
+        let rounded = exact.matrix().map(|v: f32| (v * 1000.0).round() / 1000.0);
+        let mut rotation = [0.0; 9];
+        for (i, v) in rotation.iter_mut().enumerate() {
+            *v = rounded[(i / 3, i % 3)];
+        }
+        let h = PoseHypothesis {
+            rotation,
+            ..Default::default()
+        };
+        let q = isometry(&h).rotation;
+        assert!((q.quaternion().norm() - 1.0).abs() < 1e-6, "{q:?}");
+        assert!(q.angle_to(&exact.into()) < 0.01, "{q:?}");
     }
 
     #[test]

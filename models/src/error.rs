@@ -28,7 +28,8 @@ pub enum Error {
     /// A parameter is out of its valid range.
     #[error("invalid parameter: {0}")]
     InvalidParameter(String),
-    /// A detection asked for an object id that no loaded model has.
+    /// An object id that no model of the set has (a BOP result scored against a dataset's
+    /// models, in `ppfd-bop`; the daemon checks its requests' ids itself).
     #[error("unknown object id {0}")]
     UnknownObject(u32),
     /// A model store file was refused (truncated, corrupted, wrong version or parameters).
@@ -40,7 +41,7 @@ pub enum Error {
     /// The caller cancelled the detection ([`crate::detect::detector::RunOptions::cancel`]).
     #[error("cancelled after {elapsed:?}")]
     Cancelled { elapsed: std::time::Duration },
-    /// A dataset file (BOP layout) is missing or malformed; `field` names what was wrong.
+    /// A dataset file (BOP layout) is missing or malformed; `reason` says what was wrong.
     #[error("{path}: {reason}")]
     Dataset { path: PathBuf, reason: String },
 }

@@ -102,8 +102,9 @@ fn model_error(e: ppfd_models::Error) -> EngineError {
     }
 }
 
-/// A wire hint as the detector's: its rotation matrix (checked orthonormal by the contract) as
-/// the nearest unit quaternion.
+/// A wire hint as the detector's: its rotation matrix (checked to be a rotation by the
+/// contract, [`PoseHint::problem`]) as a unit quaternion, in closed form as the client's
+/// `isometry` converts a pose.
 fn hint_of(h: &PoseHint) -> Hint {
     let r = nalgebra::Matrix3::from_row_slice(&h.rotation);
     let [x, y, z] = h.translation_mm;
@@ -111,7 +112,13 @@ fn hint_of(h: &PoseHint) -> Hint {
         object_id: h.object_id,
         pose: ppfd_models::Pose::from_parts(
             nalgebra::Translation3::new(x, y, z),
-            nalgebra::UnitQuaternion::from_matrix(&r),
+            // Normalised: the contract lets a rotation be off by its tolerance.
+            nalgebra::UnitQuaternion::new_normalize(
+                *nalgebra::UnitQuaternion::from_rotation_matrix(
+                    &nalgebra::Rotation3::from_matrix_unchecked(r),
+                )
+                .quaternion(),
+            ),
         ),
     }
 }
