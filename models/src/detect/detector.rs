@@ -13,7 +13,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
-use crate::geometry::camera::{DepthFrame, Intrinsics};
+use crate::geometry::camera::DepthFrame;
 use rayon::prelude::*;
 
 use crate::detect::clustering::{cluster_poses, ClusteringParams};
@@ -938,7 +938,7 @@ impl Detector {
             let reported = v.symmetry.canonical(&s.pose);
             if s.score < wanted.min_score
                 || !wanted.allows(&reported)
-                || !v.reaches_region(wanted, &scene.intrinsics, &s.pose)
+                || !wanted.region_reached(&scene.intrinsics, &v.surface.positions, &s.pose)
                 || overlaps(&passed, &s.pose, &v.centre, nms)
             {
                 continue;
@@ -995,18 +995,6 @@ struct Verification<'a> {
 }
 
 impl Verification<'_> {
-    /// Whether `pose` puts some of the model's surface into the requirements' region of
-    /// interest (any pose without one): what a voted pose has from its reference point, which
-    /// lies in the region, and a hint must show after ICP.
-    fn reaches_region(&self, wanted: &Requirements, intrinsics: &Intrinsics, pose: &Pose) -> bool {
-        wanted.region.as_ref().is_none_or(|r| {
-            self.surface
-                .positions
-                .iter()
-                .any(|p| r.holds(intrinsics, &(pose * p)))
-        })
-    }
-
     fn outline(&self, max_outline_px: u32) -> Outline<'_> {
         Outline {
             mesh: self.mesh.as_ref(),

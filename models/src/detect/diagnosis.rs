@@ -637,30 +637,25 @@ pub fn diagnose(
     // requirements let through (its minimum score, pose restriction, region), those that pass
     // the filters, one per instance (a pose whose centre is near a better one's is the same
     // instance), in score order or nearest first.
-    let region_reached = |pose: &Pose| {
-        wanted.region.as_ref().is_none_or(|r| {
-            surface
-                .positions
-                .iter()
-                .any(|q| r.holds(frame.intrinsics, &(pose * q)))
-        })
-    };
+    // What of the request leaves a refined pose out, if anything.
     let refused_by_request = |o: &Scored| {
         if o.score < wanted.min_score {
-            Some(format!(
-                "below the request's minimum score ({:.3}, at least {:.3})",
-                o.score, wanted.min_score
-            ))
+            Some("below the request's minimum score")
         } else if !wanted.allows(&symmetry.canonical(&o.pose)) {
-            Some("refined outside the request's pose restriction".to_string())
-        } else if !region_reached(&o.pose) {
-            Some("refined outside the request's region of interest".to_string())
+            Some("refined outside the request's pose restriction")
+        } else if !wanted.region_reached(frame.intrinsics, &surface.positions, &o.pose) {
+            Some("refined outside the request's region of interest")
         } else {
             None
         }
     };
     if let Some(why) = refused_by_request(s) {
-        trace.report("result", false, why);
+        let line = if s.score < wanted.min_score {
+            format!("{why} ({:.3}, at least {:.3})", s.score, wanted.min_score)
+        } else {
+            why.to_string()
+        };
+        trace.report("result", false, line);
         return Ok(trace);
     }
     let nms = wanted

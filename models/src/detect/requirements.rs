@@ -167,6 +167,21 @@ impl Requirements {
         Ok(())
     }
 
+    /// Whether a model whose surface points are `points` (model coordinates), at `pose`,
+    /// reaches into the region of interest with any of them (any pose without a region): what a
+    /// voted pose has from its reference point, which lies in the region, and a hint must show
+    /// after ICP.
+    pub fn region_reached(
+        &self,
+        intrinsics: &Intrinsics,
+        points: &[Point3<f32>],
+        pose: &Pose,
+    ) -> bool {
+        self.region
+            .as_ref()
+            .is_none_or(|r| points.iter().any(|p| r.holds(intrinsics, &(pose * p))))
+    }
+
     /// Whether a pose passes the pose restriction (any pose without one).
     pub fn allows(&self, pose: &Pose) -> bool {
         self.pose_restriction
