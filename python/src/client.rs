@@ -450,7 +450,7 @@ impl Client {
     }
 
     /// The daemon's statistics as a dict; `message` holds the detector parameters it runs
-    /// with, and how far its start-up loading has got while it loads.
+    /// with, and the `startup_files*` counts how far its start-up loading has got.
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let client = &self.inner;
         let (stats, message) = py
