@@ -12,8 +12,7 @@ use clap::Args;
 use ppfd::model_cache::{load_or_build, MeshSource, ModelFiles, Origin};
 use ppfd_bop::dataset::BopDataset;
 use ppfd_client::{
-    isometry, monotonic_now_ns, CameraPublisher, Client, ClientOptions, DetectOptions, Detections,
-    Intrinsics,
+    monotonic_now_ns, CameraPublisher, Client, ClientOptions, DetectOptions, Detections, Intrinsics,
 };
 use ppfd_models::geometry::camera::OwnedDepthFrame;
 use ppfd_models::geometry::mesh::Mesh;
@@ -326,7 +325,7 @@ fn pose_table(
             lines.push(format!("{id:>6} {:>4} (no hypothesis)", "-"));
         }
         for h in poses {
-            let pose = isometry(h);
+            let pose = h.isometry();
             let (dt, dr) = truth
                 .iter()
                 .filter(|(t, _)| *t == id)
@@ -348,7 +347,7 @@ fn pose_table(
         .iter()
         .filter(|(id, t)| {
             found.best(*id).is_some_and(|h| {
-                let (dt, dr) = errors(*id, &isometry(h), t);
+                let (dt, dr) = errors(*id, &h.isometry(), t);
                 dt < CORRECT_MM && dr < CORRECT_DEG
             })
         })

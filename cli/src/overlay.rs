@@ -273,7 +273,7 @@ pub fn draw_detections(
         .filter_map(|h| {
             Some(Drawn {
                 mesh: mesh(h.object_id)?,
-                pose: ppfd_client::isometry(h),
+                pose: h.isometry(),
                 colour: check_colour(h.checks),
                 label: Some(label(h.object_id, h.instance_rank as usize, h.score)),
             })

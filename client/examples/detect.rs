@@ -5,7 +5,7 @@
 //! cargo run --release -p ppfd-client --example detect -- kinect 1 5 6
 //! ```
 
-use ppfd_client::{isometry, Client, DetectOptions};
+use ppfd_client::{Client, DetectOptions};
 
 /// Ends with the error's message (its `Display`), as a command-line tool says it.
 fn main() -> std::process::ExitCode {
@@ -36,7 +36,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         },
     )?;
     for h in &found.hypotheses {
-        let pose = isometry(h);
+        let pose = h.isometry();
         let t = pose.translation.vector;
         println!(
             "object {:>3} #{}: score {:.3}, t = ({:.1}, {:.1}, {:.1}) mm, rotation {:.1} deg about {:?}",

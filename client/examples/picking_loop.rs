@@ -15,9 +15,7 @@
 use std::time::{Duration, Instant};
 
 use ppfd_client::protocol::MAX_HINTS_PER_REQUEST;
-use ppfd_client::{
-    checks, isometry, Client, DetectOptions, Error, PoseHint, PoseHypothesis, Status,
-};
+use ppfd_client::{checks, Client, DetectOptions, Error, PoseHint, PoseHypothesis, Status};
 
 /// Ends with the error's message (its `Display`), as a command-line tool says it.
 fn main() -> std::process::ExitCode {
@@ -163,7 +161,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
                 .copied()
                 .copied(),
         );
-        let pose = isometry(best);
+        let pose = best.isometry();
         let t = pose.translation.vector;
         // A real cell would plan a grasp from `pose` and move the arm here.
         picked += 1;

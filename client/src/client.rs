@@ -211,27 +211,6 @@ impl Detections {
     }
 }
 
-/// A pose hypothesis as a nalgebra isometry (model → camera, millimetres). The daemon's
-/// rotations are rotations; a hypothesis made otherwise whose matrix is not one (all zeros, a
-/// NaN) gives a meaningless rotation, at once: the conversion is closed-form, with no iteration
-/// that such a matrix could keep from ending.
-pub fn isometry(h: &PoseHypothesis) -> nalgebra::Isometry3<f32> {
-    let r = nalgebra::Matrix3::from_row_slice(&h.rotation);
-    // Normalised: a wire rotation is a rotation to f32's rounding, not exactly.
-    let rotation = nalgebra::UnitQuaternion::new_normalize(
-        *nalgebra::UnitQuaternion::from_rotation_matrix(
-            &nalgebra::Rotation3::from_matrix_unchecked(r),
-        )
-        .quaternion(),
-    );
-    let t = nalgebra::Translation3::new(
-        h.translation_mm[0],
-        h.translation_mm[1],
-        h.translation_mm[2],
-    );
-    nalgebra::Isometry3::from_parts(t, rotation)
-}
-
 /// A connection to the daemon's services. Not `Send`: one per thread.
 pub struct Client {
     detect: DetectPort,
@@ -823,58 +802,6 @@ mod tests {
         assert_eq!(d.latency.end_to_end_ns, 1000);
         assert_eq!(d.latency.overhead_ns(), 300);
         assert_eq!(d.hypotheses.len(), 1);
-    }
-
-    #[test]
-    fn isometry_of_a_matrix_that_is_no_rotation_returns() {
-        let (done, finished) = std::sync::mpsc::channel();
-        std::thread::spawn(move || {
-            for rotation in [[f32::NAN; 9], [0.0; 9]] {
-                let h = PoseHypothesis {
-                    rotation,
-                    ..Default::default()
-                };
-                let _ = isometry(&h);
-            }
-            done.send(()).unwrap();
-        });
-        assert!(
-            finished.recv_timeout(Duration::from_secs(10)).is_ok(),
-            "isometry did not return"
-        );
-    }
-
-    /// A rotation off by rounding (as a hint within the contract's tolerance is) still gives
-    /// a unit rotation, near it.
-    #[test]
-    fn isometry_of_a_rounded_rotation_is_a_unit_rotation() {
-        let exact = nalgebra::Rotation3::<f32>::from_euler_angles(0.3, -1.1, 2.0);
-        let rounded = exact.matrix().map(|v: f32| (v * 1000.0).round() / 1000.0);
-        let mut rotation = [0.0; 9];
-        for (i, v) in rotation.iter_mut().enumerate() {
-            *v = rounded[(i / 3, i % 3)];
-        }
-        let h = PoseHypothesis {
-            rotation,
-            ..Default::default()
-        };
-        let q = isometry(&h).rotation;
-        assert!((q.quaternion().norm() - 1.0).abs() < 1e-6, "{q:?}");
-        assert!(q.angle_to(&exact.into()) < 0.01, "{q:?}");
-    }
-
-    #[test]
-    fn isometry_matches_the_wire_pose() {
-        let h = PoseHypothesis {
-            rotation: [0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0],
-            translation_mm: [1.0, 2.0, 3.0],
-            ..Default::default()
-        };
-        let p = isometry(&h) * nalgebra::Point3::new(1.0, 0.0, 0.0);
-        assert!(
-            (p - nalgebra::Point3::new(1.0, 3.0, 3.0)).norm() < 1e-5,
-            "{p}"
-        );
     }
 }
 

@@ -29,8 +29,7 @@ mod client;
 
 pub use camera::{CameraPublisher, CameraViewer, FrameLoan, ReadyFrame};
 pub use client::{
-    isometry, Client, ClientOptions, DetectOptions, Detections, InterruptCheck, Latency,
-    ModelListing,
+    Client, ClientOptions, DetectOptions, Detections, InterruptCheck, Latency, ModelListing,
 };
 pub use ppfd_protocol as protocol;
 pub use ppfd_protocol::clock::monotonic_now_ns;

@@ -183,6 +183,12 @@ impl From<&PoseHypothesis> for PoseHint {
 const ROTATION_TOLERANCE: f32 = 1e-2;
 
 impl PoseHint {
+    /// The hint's pose as a nalgebra isometry, the nearest rotation to its matrix
+    /// ([`PoseHypothesis::isometry`]).
+    pub fn isometry(&self) -> nalgebra::Isometry3<f32> {
+        isometry_of(&self.rotation, &self.translation_mm)
+    }
+
     /// Why this is not a pose, if it is not: a value that is not finite, or a matrix that is
     /// not a rotation (a reflection, a scaled or sheared matrix).
     pub fn problem(&self) -> Option<String> {
@@ -483,6 +489,31 @@ pub struct PoseHypothesis {
     pub votes: u32,
     /// [`checks`] bits.
     pub checks: u32,
+}
+
+impl PoseHypothesis {
+    /// The pose as a nalgebra isometry (model → camera, millimetres), as [`isometry_of`] makes
+    /// it.
+    pub fn isometry(&self) -> nalgebra::Isometry3<f32> {
+        isometry_of(&self.rotation, &self.translation_mm)
+    }
+}
+
+/// A wire pose, `R` row-major and `t` in millimetres, as a nalgebra isometry. The daemon's
+/// rotations are rotations to f32's rounding and a hint's within [`PoseHint::problem`]'s
+/// tolerance, so the quaternion is normalised. The conversion is closed-form: a matrix that is
+/// no rotation (all zeros, a NaN), which only a pose made otherwise can hold, gives a
+/// meaningless rotation at once, with no iteration that such a matrix could keep from ending.
+fn isometry_of(rotation: &[f32; 9], translation_mm: &[f32; 3]) -> nalgebra::Isometry3<f32> {
+    let r = nalgebra::Matrix3::from_row_slice(rotation);
+    let rotation = nalgebra::UnitQuaternion::new_normalize(
+        *nalgebra::UnitQuaternion::from_rotation_matrix(
+            &nalgebra::Rotation3::from_matrix_unchecked(r),
+        )
+        .quaternion(),
+    );
+    let [x, y, z] = *translation_mm;
+    nalgebra::Isometry3::from_parts(nalgebra::Translation3::new(x, y, z), rotation)
 }
 
 /// Where the time of one request went, in nanoseconds. All instants are `CLOCK_MONOTONIC` of the
@@ -1080,5 +1111,64 @@ mod tests {
         }
         assert_eq!(Status::from_code(9), Some(Status::CameraStale));
         assert_eq!(Status::from_code(1000), None);
+    }
+
+    #[test]
+    fn isometry_of_a_matrix_that_is_no_rotation_returns() {
+        let (done, finished) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            for rotation in [[f32::NAN; 9], [0.0; 9]] {
+                let h = PoseHypothesis {
+                    rotation,
+                    ..Default::default()
+                };
+                let _ = h.isometry();
+            }
+            done.send(()).unwrap();
+        });
+        assert!(
+            finished
+                .recv_timeout(std::time::Duration::from_secs(10))
+                .is_ok(),
+            "isometry did not return"
+        );
+    }
+
+    /// A rotation off by rounding (as a hint within the contract's tolerance is) still gives
+    /// a unit rotation, near it, for an answer's pose and a hint's alike.
+    #[test]
+    fn isometry_of_a_rounded_rotation_is_a_unit_rotation() {
+        let exact = nalgebra::Rotation3::<f32>::from_euler_angles(0.3, -1.1, 2.0);
+        let rounded = exact.matrix().map(|v: f32| (v * 1000.0).round() / 1000.0);
+        let mut rotation = [0.0; 9];
+        for (i, v) in rotation.iter_mut().enumerate() {
+            *v = rounded[(i / 3, i % 3)];
+        }
+        let h = PoseHypothesis {
+            rotation,
+            ..Default::default()
+        };
+        let hint = PoseHint::from(&h);
+        assert_eq!(hint.problem(), None);
+        for q in [h.isometry().rotation, hint.isometry().rotation] {
+            assert!((q.quaternion().norm() - 1.0).abs() < 1e-6, "{q:?}");
+            assert!(q.angle_to(&exact.into()) < 0.01, "{q:?}");
+        }
+    }
+
+    #[test]
+    fn isometry_matches_the_wire_pose() {
+        let h = PoseHypothesis {
+            rotation: [0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+            translation_mm: [1.0, 2.0, 3.0],
+            ..Default::default()
+        };
+        for pose in [h.isometry(), PoseHint::from(&h).isometry()] {
+            let p = pose * nalgebra::Point3::new(1.0, 0.0, 0.0);
+            assert!(
+                (p - nalgebra::Point3::new(1.0, 3.0, 3.0)).norm() < 1e-5,
+                "{p}"
+            );
+        }
     }
 }

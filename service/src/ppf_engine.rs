@@ -102,24 +102,12 @@ fn model_error(e: ppfd_models::Error) -> EngineError {
     }
 }
 
-/// A wire hint as the detector's: its rotation matrix (checked to be a rotation by the
-/// contract, [`PoseHint::problem`]) as a unit quaternion, in closed form as the client's
-/// `isometry` converts a pose.
+/// A wire hint as the detector's (its rotation checked to be one by the contract,
+/// [`PoseHint::problem`]).
 fn hint_of(h: &PoseHint) -> Hint {
-    let r = nalgebra::Matrix3::from_row_slice(&h.rotation);
-    let [x, y, z] = h.translation_mm;
     Hint {
         object_id: h.object_id,
-        pose: ppfd_models::Pose::from_parts(
-            nalgebra::Translation3::new(x, y, z),
-            // Normalised: the contract lets a rotation be off by its tolerance.
-            nalgebra::UnitQuaternion::new_normalize(
-                *nalgebra::UnitQuaternion::from_rotation_matrix(
-                    &nalgebra::Rotation3::from_matrix_unchecked(r),
-                )
-                .quaternion(),
-            ),
-        ),
+        pose: h.isometry(),
     }
 }
 

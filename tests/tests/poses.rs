@@ -96,7 +96,7 @@ fn client_answers(c: &mut Proc, name: &'static str) -> Vec<Answer> {
                     client: name,
                     object_id: f[1].parse().unwrap(),
                     score: n[0],
-                    pose: ppfd_client::isometry(&h),
+                    pose: h.isometry(),
                     frame,
                 };
                 match answers.iter_mut().find(|a| a.object_id == answer.object_id) {
@@ -353,7 +353,7 @@ fn hinted_parts_come_back_from_their_hints_and_a_wrong_hint_from_voting() {
         let best = found
             .best(id)
             .unwrap_or_else(|| panic!("no pose of part {id}"));
-        let (dt, dr) = errors(&ppfd_client::isometry(best), &truth(id));
+        let (dt, dr) = errors(&best.isometry(), &truth(id));
         report += &format!(
             "part {id}: checks {:#b}, {dt:.1} mm, {dr:.1} deg\n",
             best.checks
@@ -524,7 +524,7 @@ fn lmo_object_built_from_its_mesh_by_the_daemon_is_found_through_the_whole_path(
         // Against the equivalent of the pose closest to the truth, under the object's symmetries
         // in `models_info.json`.
         let symmetry = dataset.symmetry(*id).unwrap();
-        let pose = symmetry.closest_equivalent(&ppfd_client::isometry(best), &truth.rotation);
+        let pose = symmetry.closest_equivalent(&best.isometry(), &truth.rotation);
         let (dt, dr) = errors(&pose, truth);
         eprintln!(
             "object {id}: dt {dt:.1} mm, dR {dr:.1} deg, score {:.3}",
