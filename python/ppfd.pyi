@@ -61,6 +61,9 @@ class Model(TypedDict):
     byte_size: int
 
 class LatencySummary(TypedDict):
+    """Over the daemon's lifetime: percentiles from a histogram of three significant digits,
+    and the exact maximum."""
+
     count: int
     p50_ns: int
     p90_ns: int
@@ -77,12 +80,16 @@ class Stats(TypedDict):
     requests_expired: int
     requests_abandoned: int
     frames_received: int
+    """Camera frames the daemon took off the camera ports (it reads them at its housekeeping
+    tick and before each detection); a frame a newer one replaced before then is not counted."""
     cameras: int
     models_loaded: int
     model_bytes: int
     resident_bytes: int
     in_flight: int
+    """Detections running on a worker now."""
     queued: int
+    """Requests waiting for a worker now, in the daemon's queue or handed to busy workers."""
     startup_files: int
     """Model files in the models folder the daemon loads at start."""
     startup_files_done: int
@@ -95,7 +102,10 @@ class Stats(TypedDict):
     model_loads_waiting: int
     """`load_model` requests waiting for the one running."""
     total: LatencySummary
+    """Client send → the daemon sends the response, over served requests."""
     overhead: LatencySummary
+    """Request transport and queue wait, as the daemon sees them: unlike
+    `Latency.overhead_ns`, without the response's way back or the daemon's glue."""
     detection: LatencySummary
     message: str
     """The detector parameters the daemon runs with (`detector: defaults`, or

@@ -3,12 +3,17 @@
 //! from every request's value), the overhead (end to end minus detection), throughput, an HDR
 //! histogram of end to end, and with several clients the same per client (each may ask for
 //! its own objects: `--objects 1,5 --objects 8,9`), which shows whether one starves another.
+//!
+//! A request that fails (refused, timed out, dropped) is counted by kind and left out of the
+//! figures, and the run exits 1 after printing them; a client whose connection or warm-up
+//! fails ends the run before it starts. Until a client's first answer, a camera without a
+//! frame yet is waited for within the request's timeout, as `ppf detect` does.
 
 use std::time::Instant;
 
 use clap::Args;
 use hdrhistogram::Histogram;
-use ppfd_client::{DetectOptions, Latency};
+use ppfd_client::{DetectOptions, Error, Latency};
 
 use crate::common::{millis, ms, stages, Connect};
 
@@ -70,14 +75,18 @@ fn histogram_of(samples: &[u64]) -> Histogram<u64> {
 
 /// One row of the table: every request's value, for exact percentiles.
 struct Measure {
-    name: &'static str,
+    /// In the table.
+    label: &'static str,
+    /// In JSON.
+    key: &'static str,
     samples: Vec<u64>,
 }
 
 impl Measure {
-    fn new(name: &'static str) -> Self {
+    fn new(label: &'static str, key: &'static str) -> Self {
         Measure {
-            name,
+            label,
+            key,
             samples: Vec::new(),
         }
     }
@@ -121,34 +130,68 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     };
     let objects_of = |client: usize| &args.objects[client % args.objects.len()].0[..];
     let started = std::sync::Barrier::new(args.clients);
+    // Set by a client whose connection or warm-up failed: the others stop at the start line
+    // instead of measuring a run that ends in that error.
+    let warmup_failed = std::sync::atomic::AtomicBool::new(false);
     let per_client: Vec<usize> = (0..args.clients)
         .map(|i| args.requests / args.clients + usize::from(i < args.requests % args.clients))
         .collect();
     let wall = std::sync::Mutex::new(None::<Instant>);
-    let results: Vec<Result<Vec<Latency>, String>> = std::thread::scope(|s| {
+    let results: Vec<Result<ClientRun, String>> = std::thread::scope(|s| {
         let handles: Vec<_> = per_client
             .iter()
             .enumerate()
             .map(|(i, &n)| {
                 let (args, options, started, wall) = (&args, &options, &started, &wall);
+                let warmup_failed = &warmup_failed;
                 let objects = objects_of(i);
-                s.spawn(move || -> Result<Vec<Latency>, String> {
-                    let client = args.connect.client()?;
-                    for _ in 0..args.warmup {
-                        client
-                            .detect(&args.camera, objects, options)
-                            .map_err(|e| e.to_string())?;
+                s.spawn(move || -> Result<ClientRun, String> {
+                    // A camera the daemon has just subscribed to has no frame until its
+                    // driver's next one: until the first answer, such a refusal is waited
+                    // out within the request's timeout, as `ppf detect` does, not counted.
+                    let mut answered = false;
+                    let mut request = |client: &ppfd_client::Client| {
+                        let deadline = Instant::now() + options.timeout;
+                        loop {
+                            match client.detect(&args.camera, objects, options) {
+                                Err(Error::Refused {
+                                    status: ppfd_client::Status::NoFrame,
+                                    ..
+                                }) if !answered && Instant::now() < deadline => {
+                                    std::thread::sleep(millis(20))
+                                }
+                                found => {
+                                    answered |= found.is_ok();
+                                    break found;
+                                }
+                            }
+                        }
+                    };
+                    let warmed = args.connect.client().and_then(|client| {
+                        for _ in 0..args.warmup {
+                            request(&client).map_err(|e| format!("client {i}'s warm-up: {e}"))?;
+                        }
+                        Ok(client)
+                    });
+                    if warmed.is_err() {
+                        warmup_failed.store(true, std::sync::atomic::Ordering::SeqCst);
                     }
+                    // Every client reaches the start line, failed or not, so none waits forever.
                     started.wait();
-                    wall.lock().unwrap().get_or_insert_with(Instant::now);
-                    let mut out = Vec::with_capacity(n);
-                    for _ in 0..n {
-                        let d = client
-                            .detect(&args.camera, objects, options)
-                            .map_err(|e| e.to_string())?;
-                        out.push(d.latency);
+                    let client = warmed?;
+                    let mut run = ClientRun::default();
+                    if warmup_failed.load(std::sync::atomic::Ordering::SeqCst) {
+                        return Ok(run);
                     }
-                    Ok(out)
+                    wall.lock().unwrap().get_or_insert_with(Instant::now);
+                    run.served.reserve(n);
+                    for _ in 0..n {
+                        match request(&client) {
+                            Ok(d) => run.served.push(d.latency),
+                            Err(e) => run.failures.count(&e),
+                        }
+                    }
+                    Ok(run)
                 })
             })
             .collect();
@@ -167,30 +210,32 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         .unwrap_or_default();
     let mut all = Vec::new();
     let mut per_client = Vec::new();
+    let mut failures = Failures::default();
     for (i, r) in results.into_iter().enumerate() {
         let r = r?;
         per_client.push(ClientFigures::of(i, objects_of(i), &r));
-        all.extend(r);
+        failures.add(&r.failures);
+        all.extend(r.served);
     }
+    let failed = failures.total();
 
-    let names: Vec<&'static str> = stages(&Default::default())
+    let mut measures: Vec<Measure> = stages(&Default::default())
         .iter()
-        .map(|(n, _)| *n)
+        .map(|stage| Measure::new(stage.label, stage.key))
         .collect();
-    let mut measures: Vec<Measure> = names.iter().map(|&name| Measure::new(name)).collect();
-    for extra in [
-        "detection",
-        "hand-back",
-        "response transport",
-        "end to end",
-        "overhead",
+    for (label, key) in [
+        ("detection", "detection"),
+        ("hand-back", "hand_back"),
+        ("response transport", "response_transport"),
+        ("end to end", "end_to_end"),
+        ("overhead", "overhead"),
     ] {
-        measures.push(Measure::new(extra));
+        measures.push(Measure::new(label, key));
     }
     for l in &all {
         let values: Vec<u64> = stages(&l.daemon)
             .iter()
-            .map(|(_, v)| *v)
+            .map(|stage| stage.ns)
             .chain([
                 l.daemon.detection_ns,
                 l.hand_back_ns(),
@@ -213,10 +258,10 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         let rows: serde_json::Map<String, serde_json::Value> = measures
             .iter()
             .map(|m| {
-                let mean = m.samples.iter().map(|&v| v as f64).sum::<f64>()
-                    / m.samples.len().max(1) as f64;
+                let mean = (m.samples.iter().map(|&v| u128::from(v)).sum::<u128>()
+                    / m.samples.len().max(1) as u128) as u64;
                 (
-                    m.name.replace([' ', '-'], "_"),
+                    m.key.to_owned(),
                     serde_json::json!({
                         "p50_ns": m.at(0.5), "p90_ns": m.at(0.9),
                         "p99_ns": m.at(0.99), "max_ns": m.at(1.0), "mean_ns": mean,
@@ -229,7 +274,8 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             .map(|v| serde_json::json!({"quantile": v.quantile_iterated_to(), "ns": v.value_iterated_to()}))
             .collect();
         let out = serde_json::json!({
-            "camera": args.camera, "objects": args.objects.iter().map(|o| o.0.clone()).collect::<Vec<_>>(), "requests": all.len(), "clients": args.clients,
+            "camera": args.camera, "objects": args.objects.iter().map(|o| o.0.clone()).collect::<Vec<_>>(),
+            "requests": all.len(), "failed": failed, "failures": failures.json(), "clients": args.clients,
             "seconds": elapsed.as_secs_f64(), "throughput_per_s": throughput,
             "latency": rows, "end_to_end_distribution": distribution,
             "per_client": per_client.iter().map(ClientFigures::json).collect::<Vec<_>>(),
@@ -238,11 +284,11 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             "{}",
             serde_json::to_string_pretty(&out).map_err(|e| e.to_string())?
         );
-        return Ok(());
+        return failures.outcome(all.len());
     }
 
     println!(
-        "{} requests from {} client{} in {:.2} s: {:.1} requests/s (camera {}, objects {:?})",
+        "{} requests served from {} client{} in {:.2} s: {:.1} requests/s (camera {}, objects {:?})",
         all.len(),
         args.clients,
         if args.clients == 1 { "" } else { "s" },
@@ -251,6 +297,12 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         args.camera,
         args.objects.iter().map(|o| &o.0).collect::<Vec<_>>()
     );
+    if failed > 0 {
+        println!(
+            "{failed} failed, not in the figures below: {}",
+            failures.summary()
+        );
+    }
     println!(
         "{:<20} {:>10} {:>10} {:>10} {:>10}   (the stages are summed over the objects, which \
          run side by side, so they can add up to more than the detection)",
@@ -259,7 +311,7 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     for m in &measures {
         println!(
             "{:<20} {:>10} {:>10} {:>10} {:>10}",
-            m.name,
+            m.label,
             ms(m.at(0.5)),
             ms(m.at(0.9)),
             ms(m.at(0.99)),
@@ -269,10 +321,11 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     if per_client.len() > 1 {
         println!("\nper client (ms):");
         println!(
-            "{:<8} {:<16} {:>8} {:>12} {:>12} {:>12} {:>14} {:>14} {:>14}",
+            "{:<8} {:<16} {:>8} {:>8} {:>12} {:>12} {:>12} {:>14} {:>14} {:>14}",
             "client",
             "objects",
-            "requests",
+            "served",
+            "failed",
             "e2e p50",
             "e2e p99",
             "e2e max",
@@ -292,7 +345,75 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             ms(end_to_end.value_at_quantile(q))
         );
     }
-    Ok(())
+    failures.outcome(all.len())
+}
+
+/// One client's measured requests: the latencies of those served, and the failures.
+#[derive(Default)]
+struct ClientRun {
+    served: Vec<Latency>,
+    failures: Failures,
+}
+
+/// Failed requests by kind (a refusal's status, a timeout, the daemon gone, ...): how many, and
+/// the first one's message.
+#[derive(Default)]
+struct Failures(std::collections::BTreeMap<String, (usize, String)>);
+
+impl Failures {
+    fn count(&mut self, e: &Error) {
+        let kind = match e {
+            Error::Refused { status, .. } => format!("refused: {status}"),
+            Error::Timeout(_) => "timeout".into(),
+            Error::Dropped => "dropped".into(),
+            Error::DaemonGone => "daemon gone".into(),
+            Error::Interrupted => "interrupted".into(),
+            Error::NoDaemon { .. } => "no daemon".into(),
+            _ => "transport".into(),
+        };
+        self.0.entry(kind).or_insert_with(|| (0, e.to_string())).0 += 1;
+    }
+
+    fn add(&mut self, other: &Failures) {
+        for (kind, (n, message)) in &other.0 {
+            self.0
+                .entry(kind.clone())
+                .or_insert_with(|| (0, message.clone()))
+                .0 += n;
+        }
+    }
+
+    fn total(&self) -> usize {
+        self.0.values().map(|(n, _)| n).sum()
+    }
+
+    /// `timeout 3 (no answer from ppfd within 80ms); ...`
+    fn summary(&self) -> String {
+        self.0
+            .iter()
+            .map(|(kind, (n, message))| format!("{kind} {n} (the first: {message})"))
+            .collect::<Vec<_>>()
+            .join("; ")
+    }
+
+    fn json(&self) -> serde_json::Value {
+        self.0
+            .iter()
+            .map(|(kind, (n, message))| serde_json::json!({"kind": kind, "count": n, "first_message": message}))
+            .collect()
+    }
+
+    /// The run's exit: an error when any request failed, after the figures of those served.
+    fn outcome(&self, served: usize) -> Result<(), String> {
+        match self.total() {
+            0 => Ok(()),
+            failed => Err(format!(
+                "{failed} of {} requests failed: {}",
+                failed + served,
+                self.summary()
+            )),
+        }
+    }
 }
 
 /// One client's share of the run: how many of its requests were served and how long they took,
@@ -300,13 +421,15 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
 struct ClientFigures {
     client: usize,
     objects: Vec<u32>,
+    failed: usize,
     end_to_end: Vec<u64>,
     queue_wait: Vec<u64>,
     overhead: Vec<u64>,
 }
 
 impl ClientFigures {
-    fn of(client: usize, objects: &[u32], latencies: &[Latency]) -> ClientFigures {
+    fn of(client: usize, objects: &[u32], run: &ClientRun) -> ClientFigures {
+        let latencies = &run.served;
         let sorted = |f: &dyn Fn(&Latency) -> u64| {
             let mut v: Vec<u64> = latencies.iter().map(f).collect();
             v.sort_unstable();
@@ -315,6 +438,7 @@ impl ClientFigures {
         ClientFigures {
             client,
             objects: objects.to_vec(),
+            failed: run.failures.total(),
             end_to_end: sorted(&|l| l.end_to_end_ns),
             queue_wait: sorted(&|l| l.daemon.queue_wait_ns),
             overhead: sorted(&|l| l.overhead_ns()),
@@ -324,10 +448,11 @@ impl ClientFigures {
     fn print(&self) {
         let objects: Vec<String> = self.objects.iter().map(u32::to_string).collect();
         println!(
-            "{:<8} {:<16} {:>8} {:>12} {:>12} {:>12} {:>14} {:>14} {:>14}",
+            "{:<8} {:<16} {:>8} {:>8} {:>12} {:>12} {:>12} {:>14} {:>14} {:>14}",
             self.client,
             objects.join(","),
             self.end_to_end.len(),
+            self.failed,
             ms(nearest_rank(&self.end_to_end, 0.5)),
             ms(nearest_rank(&self.end_to_end, 0.99)),
             ms(nearest_rank(&self.end_to_end, 1.0)),
@@ -340,6 +465,7 @@ impl ClientFigures {
     fn json(&self) -> serde_json::Value {
         serde_json::json!({
             "client": self.client, "objects": self.objects, "requests": self.end_to_end.len(),
+            "failed": self.failed,
             "end_to_end_p50_ns": nearest_rank(&self.end_to_end, 0.5),
             "end_to_end_p99_ns": nearest_rank(&self.end_to_end, 0.99),
             "end_to_end_max_ns": nearest_rank(&self.end_to_end, 1.0),
@@ -357,7 +483,7 @@ mod tests {
     #[test]
     fn percentiles_are_exact_samples() {
         // Three values within half a millisecond at half a second: one bucket of the histogram.
-        let mut m = Measure::new("end to end");
+        let mut m = Measure::new("end to end", "end_to_end");
         for v in [544_700_000u64, 544_220_000, 600_000_000, 544_450_000] {
             m.record(v);
         }

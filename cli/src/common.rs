@@ -37,18 +37,31 @@ impl Connect {
     }
 }
 
-/// The stages of a breakdown, named, in pipeline order (ns).
-pub fn stages(l: &LatencyBreakdown) -> [(&'static str, u64); 9] {
+/// One stage of a breakdown: its name in tables, its key in JSON (the protocol's field name
+/// without `_ns`, as Python's `latency` names it) and its time, ns.
+pub struct Stage {
+    pub label: &'static str,
+    pub key: &'static str,
+    pub ns: u64,
+}
+
+/// The stages of a breakdown in pipeline order.
+pub fn stages(l: &LatencyBreakdown) -> [Stage; 9] {
+    let stage = |label, key, ns| Stage { label, key, ns };
     [
-        ("transport", l.transport_ns),
-        ("queue wait", l.queue_wait_ns),
-        ("scene preparation", l.scene_preparation_ns),
-        ("kd-tree", l.kd_tree_ns),
-        ("voting", l.voting_ns),
-        ("clustering", l.clustering_ns),
-        ("re-scoring", l.rescoring_ns),
-        ("ICP", l.icp_ns),
-        ("filters", l.filters_ns),
+        stage("transport", "transport", l.transport_ns),
+        stage("queue wait", "queue_wait", l.queue_wait_ns),
+        stage(
+            "scene preparation",
+            "scene_preparation",
+            l.scene_preparation_ns,
+        ),
+        stage("kd-tree", "kd_tree", l.kd_tree_ns),
+        stage("voting", "voting", l.voting_ns),
+        stage("clustering", "clustering", l.clustering_ns),
+        stage("re-scoring", "rescoring", l.rescoring_ns),
+        stage("ICP", "icp", l.icp_ns),
+        stage("filters", "filters", l.filters_ns),
     ]
 }
 
@@ -59,8 +72,8 @@ pub fn ms(ns: u64) -> String {
 /// Prints one request's latency breakdown.
 pub fn print_latency(d: &Detections) {
     println!("latency (ms; the stages are summed over the objects, which run side by side, so they can add up to more than the detection):");
-    for (name, ns) in stages(&d.latency.daemon) {
-        println!("  {name:<18} {:>10}", ms(ns));
+    for Stage { label, ns, .. } in stages(&d.latency.daemon) {
+        println!("  {label:<18} {:>10}", ms(ns));
     }
     println!(
         "  {:<18} {:>10}",

@@ -160,12 +160,10 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
         let l = &found.latency;
         let latency: serde_json::Map<String, serde_json::Value> = crate::common::stages(&l.daemon)
             .iter()
-            .map(|(n, v)| {
-                let key = n.to_lowercase().replace([' ', '-'], "_");
-                (format!("{key}_ns"), (*v).into())
-            })
+            .map(|stage| (format!("{}_ns", stage.key), stage.ns.into()))
             .chain([
                 ("detection_ns".to_owned(), l.daemon.detection_ns.into()),
+                ("total_ns".to_owned(), l.daemon.total_ns.into()),
                 ("hand_back_ns".to_owned(), l.hand_back_ns().into()),
                 (
                     "response_transport_ns".to_owned(),
@@ -179,7 +177,8 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
             "request_id": found.request_id, "frame_sequence": found.frame_sequence,
             "frame_age_ns": found.frame_age_ns, "hypotheses": hyps, "latency": latency,
             "counts": { "scene_points": found.counts.scene_points, "reference_points": found.counts.reference_points,
-                        "pairs": found.counts.pairs, "hypotheses": found.counts.hypotheses },
+                        "pairs": found.counts.pairs, "hypotheses": found.counts.hypotheses,
+                        "returned": found.counts.returned },
         });
         if args.diagnose_against.is_some() {
             out["diagnosis"] = found.diagnosis.lines().collect::<Vec<_>>().into();

@@ -428,9 +428,11 @@ fn first_model_file(dir: &Path) -> Option<PathBuf> {
     files.into_iter().next()
 }
 
+/// The median: the middle value, or the mean of the two middle ones.
 fn median(mut v: Vec<Duration>) -> Duration {
     v.sort();
-    v[v.len() / 2]
+    let n = v.len();
+    (v[(n - 1) / 2] + v[n / 2]) / 2
 }
 
 fn bench(args: BenchArgs) -> Result<(), Box<dyn std::error::Error>> {
@@ -484,6 +486,13 @@ fn bench(args: BenchArgs) -> Result<(), Box<dyn std::error::Error>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_median_of_an_even_count_is_the_mean_of_the_middle_two() {
+        let ms = Duration::from_millis;
+        assert_eq!(median(vec![ms(3), ms(1), ms(2)]), ms(2));
+        assert_eq!(median(vec![ms(10), ms(2)]), ms(6));
+    }
 
     fn paths(names: &[&str]) -> Vec<PathBuf> {
         names.iter().map(PathBuf::from).collect()

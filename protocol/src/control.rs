@@ -110,9 +110,11 @@ pub struct DaemonStats {
     pub requests_refused: u64,
     /// Of the refused: deadline passed while queued.
     pub requests_expired: u64,
-    /// Requests dropped because their client went away before the answer.
+    /// Requests whose answer did not reach their client: it went away before the answer, or
+    /// the answer could not be sent (the daemon's log says why).
     pub requests_abandoned: u64,
-    /// Camera frames taken off the camera ports.
+    /// Camera frames taken off the camera ports (at the housekeeping tick and before each
+    /// detection); a frame a newer one replaced before then is not counted.
     pub frames_received: u64,
     /// Cameras the daemon subscribes to now (those without a driver for a while are
     /// forgotten).
@@ -123,9 +125,10 @@ pub struct DaemonStats {
     pub model_bytes: u64,
     /// Resident set size of the daemon process, bytes.
     pub resident_bytes: u64,
-    /// Detections running now.
+    /// Detections running on a worker now.
     pub in_flight: u64,
-    /// Requests waiting for a worker now.
+    /// Requests waiting for a worker now: in the daemon's queue, or handed to the workers
+    /// while all are busy (with more detections at once than workers).
     pub queued: u64,
     /// Model files in the models folder the daemon loads at start (0 without one).
     pub startup_files: u64,

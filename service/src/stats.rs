@@ -16,26 +16,48 @@ pub struct Stats {
     pub requests_expired: u64,
     pub requests_abandoned: u64,
     pub frames_received: u64,
-    total: Histogram<u64>,
-    overhead: Histogram<u64>,
-    detection: Histogram<u64>,
+    total: Latencies,
+    overhead: Latencies,
+    detection: Latencies,
 }
 
-fn histogram() -> Histogram<u64> {
-    // 1 µs .. 1 h at 3 significant digits; values are recorded in ns and clamped.
-    Histogram::new_with_bounds(1, 3_600_000_000_000, 3).expect("valid histogram bounds")
+/// One latency's samples: their histogram, and the largest exactly. The histogram's own
+/// maximum and percentiles are the tops of its buckets (three significant digits), above the
+/// samples they stand for.
+struct Latencies {
+    histogram: Histogram<u64>,
+    max_ns: u64,
 }
 
-fn summary(h: &Histogram<u64>) -> LatencySummary {
-    if h.is_empty() {
-        return LatencySummary::default();
+impl Latencies {
+    fn new() -> Latencies {
+        Latencies {
+            // 1 ns .. 1 h at 3 significant digits; values are recorded in ns and clamped.
+            histogram: Histogram::new_with_bounds(1, 3_600_000_000_000, 3)
+                .expect("valid histogram bounds"),
+            max_ns: 0,
+        }
     }
-    LatencySummary {
-        count: h.len(),
-        p50_ns: h.value_at_quantile(0.50),
-        p90_ns: h.value_at_quantile(0.90),
-        p99_ns: h.value_at_quantile(0.99),
-        max_ns: h.max(),
+
+    fn record(&mut self, ns: u64) {
+        self.histogram.saturating_record(ns.max(1));
+        self.max_ns = self.max_ns.max(ns);
+    }
+
+    /// The percentiles at most the largest sample: a bucket's top can lie above it.
+    fn summary(&self) -> LatencySummary {
+        let h = &self.histogram;
+        if h.is_empty() {
+            return LatencySummary::default();
+        }
+        let at = |q| h.value_at_quantile(q).min(self.max_ns);
+        LatencySummary {
+            count: h.len(),
+            p50_ns: at(0.50),
+            p90_ns: at(0.90),
+            p99_ns: at(0.99),
+            max_ns: self.max_ns,
+        }
     }
 }
 
@@ -49,9 +71,9 @@ impl Default for Stats {
             requests_expired: 0,
             requests_abandoned: 0,
             frames_received: 0,
-            total: histogram(),
-            overhead: histogram(),
-            detection: histogram(),
+            total: Latencies::new(),
+            overhead: Latencies::new(),
+            detection: Latencies::new(),
         }
     }
 }
@@ -60,9 +82,9 @@ impl Stats {
     /// Records a served request.
     pub fn record_served(&mut self, total_ns: u64, overhead_ns: u64, detection_ns: u64) {
         self.requests_served += 1;
-        self.total.saturating_record(total_ns.max(1));
-        self.overhead.saturating_record(overhead_ns.max(1));
-        self.detection.saturating_record(detection_ns.max(1));
+        self.total.record(total_ns);
+        self.overhead.record(overhead_ns);
+        self.detection.record(detection_ns);
     }
 
     /// The wire form; the caller fills what the statistics do not know (models, queue).
@@ -76,9 +98,9 @@ impl Stats {
             requests_abandoned: self.requests_abandoned,
             frames_received: self.frames_received,
             resident_bytes: resident_bytes(),
-            total: summary(&self.total),
-            overhead: summary(&self.overhead),
-            detection: summary(&self.detection),
+            total: self.total.summary(),
+            overhead: self.overhead.summary(),
+            detection: self.detection.summary(),
             ..DaemonStats::default()
         }
     }
@@ -124,5 +146,21 @@ mod tests {
         );
         assert!(snap.total.max_ns >= 100_000);
         assert!(snap.resident_bytes > 0);
+    }
+
+    /// The maximum is the largest sample, not its bucket's top, and no percentile lies above
+    /// it: one request of 310 230 ns reads 310 230 ns, where the histogram's bucket ends at
+    /// 310 271 ns.
+    #[test]
+    fn the_maximum_is_the_largest_sample() {
+        let mut s = Stats::default();
+        s.record_served(310_230, 5, 7);
+        let t = s.snapshot().total;
+        assert_eq!(t.max_ns, 310_230);
+        assert_eq!((t.p50_ns, t.p90_ns, t.p99_ns), (310_230, 310_230, 310_230));
+        s.record_served(54_166_333, 5, 7);
+        let t = s.snapshot().total;
+        assert_eq!(t.max_ns, 54_166_333);
+        assert!(t.p50_ns <= t.max_ns && t.p99_ns <= t.max_ns, "{t:?}");
     }
 }

@@ -109,3 +109,86 @@ fn two_clients_are_served_in_turn_two_detections_at_a_time() {
     let (a, b) = two_clients("2");
     assert_served_in_turn(&a, &b, "2");
 }
+
+/// With more detections at once than workers, a job handed to the workers can wait for one:
+/// the statistics count it as queued, not running, and its frame's age and the stale limit
+/// count from when it starts. One worker, two detections at once, each 400 ms, a limit of
+/// 250 ms: of two requests sent together, the one that waits for the worker finds its frame
+/// (captured before the wait) stale when it starts.
+#[test]
+fn a_detection_waiting_for_a_worker_is_queued_and_judged_when_it_starts() {
+    const SLOW: Duration = Duration::from_millis(400);
+    let prefix = Prefix::new("poolwait");
+    let models = fake_model_dir("poolwait", &[1]);
+    let delay = SLOW.as_millis().to_string();
+    let mut daemon = Proc::spawn(
+        Path::new(DAEMON),
+        &[
+            "--prefix",
+            &prefix.0,
+            "--models",
+            models.to_str().unwrap(),
+            "--workers",
+            "1",
+            "--parallel-detections",
+            "2",
+            "--max-frame-age-ms",
+            "250",
+        ],
+        &[("PPFD_TEST_ENGINE", "fake"), ("PPFD_FAKE_DELAY_MS", &delay)],
+    );
+    daemon.wait_line("ppfd ready", STARTUP);
+    let mut cam = Proc::spawn(
+        Path::new(CAMERA),
+        &["--prefix", &prefix.0, "--camera", "cam0", "--fps", "50"],
+        &[],
+    );
+    cam.wait_line("camera ready", STARTUP);
+    std::thread::sleep(Duration::from_millis(300));
+
+    let connect = |prefix: &str| {
+        Client::connect_with(&ClientOptions {
+            prefix: Some(prefix.to_owned()),
+            ..Default::default()
+        })
+        .expect("connected")
+    };
+    let start = Arc::new(Barrier::new(3));
+    // A client is not `Send`: each thread connects its own.
+    let ask = || {
+        let (start, prefix) = (start.clone(), prefix.0.clone());
+        std::thread::spawn(move || {
+            let client = connect(&prefix);
+            start.wait();
+            client
+                .detect("cam0", &[1], &DetectOptions::default())
+                .map(|d| d.frame_age_ns)
+        })
+    };
+    let (a, b) = (ask(), ask());
+    let watcher = connect(&prefix.0);
+    start.wait();
+    std::thread::sleep(SLOW / 4);
+    let (stats, _) = watcher.statistics().expect("statistics");
+    assert_eq!(
+        (stats.in_flight, stats.queued),
+        (1, 1),
+        "one detection runs on the one worker, the other waits for it"
+    );
+    let answers = [a.join().unwrap(), b.join().unwrap()];
+    let served: Vec<_> = answers.iter().filter_map(|r| r.as_ref().ok()).collect();
+    assert_eq!(served.len(), 1, "{answers:?}");
+    assert!(
+        *served[0] < 250_000_000,
+        "served with a frame {} ms old",
+        served[0] / 1_000_000
+    );
+    let refused = answers.iter().find_map(|r| r.as_ref().err()).unwrap();
+    match refused {
+        ppfd_client::Error::Refused { status, value, .. } => {
+            assert_eq!(*status, ppfd_client::Status::CameraStale);
+            assert!(*value >= SLOW.as_nanos() as u64, "{refused}");
+        }
+        other => panic!("{other}"),
+    }
+}

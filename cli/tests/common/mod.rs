@@ -38,6 +38,10 @@ pub fn show(command: &std::process::Command, out: &std::process::Output) {
     );
 }
 
+/// How long [`ServedPart::publish_every_until_done`] lets a command run: detections of one
+/// part take well under a second each, so a minute is a hang.
+pub const COMMAND_LIMIT: std::time::Duration = std::time::Duration::from_secs(60);
+
 /// A daemon (`ppf serve`) over one generated part's mesh, and a camera `cam` that publishes a
 /// generated scene of that part, under a prefix of their own; the daemon is stopped when
 /// dropped.
@@ -125,13 +129,25 @@ impl ServedPart {
         self.publish_every_until_done(std::time::Duration::from_millis(100), command)
     }
 
-    /// Publishes the scene's frame every `period` until `command` ends; its output.
+    /// Publishes the scene's frame every `period` until `command` ends; its output. A command
+    /// still running after [`COMMAND_LIMIT`] is killed and the test fails: one that hangs
+    /// fails here rather than holding the test run.
     pub fn publish_every_until_done(
         &mut self,
         period: std::time::Duration,
         mut command: std::process::Child,
     ) -> std::process::Output {
+        let deadline = std::time::Instant::now() + COMMAND_LIMIT;
         loop {
+            if std::time::Instant::now() > deadline {
+                let _ = command.kill();
+                let out = command.wait_with_output().unwrap();
+                panic!(
+                    "the command did not end within {COMMAND_LIMIT:?}; it printed\n{}\n{}",
+                    String::from_utf8_lossy(&out.stdout),
+                    String::from_utf8_lossy(&out.stderr)
+                );
+            }
             let camera = self.camera.as_mut().expect("the camera lives until drop");
             camera
                 .loan()

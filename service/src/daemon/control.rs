@@ -103,8 +103,13 @@ impl Daemon {
         stats.cameras = self.cameras.len() as u64;
         stats.models_loaded = self.registry.len() as u64;
         stats.model_bytes = self.registry.bytes();
-        stats.in_flight = self.in_flight.len() as u64;
-        stats.queued = self.queue.len() as u64;
+        // Jobs handed to the pool wait there until a worker takes them.
+        let running = self
+            .running
+            .load(std::sync::atomic::Ordering::Relaxed)
+            .min(self.in_flight.len() as u64);
+        stats.in_flight = running;
+        stats.queued = (self.queue.len() + self.in_flight.len()) as u64 - running;
         (
             stats.startup_files,
             stats.startup_files_done,

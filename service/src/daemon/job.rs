@@ -3,7 +3,7 @@
 //! the engine and answers the client itself.
 
 use std::rc::Rc;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 
 use iceoryx2::identifiers::UniqueClientId;
@@ -125,18 +125,7 @@ impl Daemon {
                 if let Some(e) = stamped_ahead(&fh, now, &whose) {
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 }
-                let age = now.saturating_sub(fh.capture_time_ns);
-                if age > max_age_ns {
-                    let e = EngineError {
-                        status: Status::CameraStale,
-                        message: format!(
-                            "camera {name:?} is stale: its newest frame (sequence {}) is {:.1} ms old, the limit is {:.1} ms",
-                            fh.sequence,
-                            age as f64 / 1e6,
-                            max_age_ns as f64 / 1e6
-                        ),
-                        value: age,
-                    };
+                if let Some(e) = stale(name, &fh, now, max_age_ns) {
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 }
                 let payload = sample.payload();
@@ -147,10 +136,11 @@ impl Daemon {
                 (fh, depth, Some(sample))
             }
         };
-        let frame_age_ns = if frame_header.capture_time_ns != 0 {
-            now.saturating_sub(frame_header.capture_time_ns)
-        } else {
-            0
+        // A camera frame is judged again when the detection starts: with more detections at once
+        // than workers, a job can wait for a worker after this check.
+        let camera = match &q.source {
+            FrameSource::Camera(name) => Some(name.clone()),
+            FrameSource::Inline => None,
         };
 
         let job = self.next_job;
@@ -179,9 +169,16 @@ impl Daemon {
         let (active, header, received_ns) = (q.active, q.header, q.received_ns);
         let client = active.origin();
         let request_id = header.request_id;
+        let running = self.running.clone();
         self.pool.spawn(move || {
             let started_ns = monotonic_now_ns();
+            let _running = Running::start(&running);
             let _span = tracing::debug_span!("detect", request = request_id).entered();
+            let frame_age_ns = if frame_header.capture_time_ns != 0 {
+                started_ns.saturating_sub(frame_header.capture_time_ns)
+            } else {
+                0
+            };
             // SAFETY: see `SharedDepth`: a camera sample stays alive and unchanged on the I/O
             // thread until it has received this job's completion; an inline frame lies in
             // `active`, which this job drops only after the detection.
@@ -193,15 +190,21 @@ impl Daemon {
                 depth_scale_mm: frame_header.depth_scale_mm,
                 depth,
             };
-            let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                engine.detect(&frame, &models, &options)
-            }))
-            .unwrap_or_else(|_| {
-                Err(EngineError::new(
-                    Status::Internal,
-                    "the detection failed unexpectedly (panic)",
-                ))
-            });
+            let stale_now = camera
+                .as_deref()
+                .and_then(|name| stale(name, &frame_header, started_ns, max_age_ns));
+            let result = match stale_now {
+                Some(e) => Err(e),
+                None => std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                    engine.detect(&frame, &models, &options)
+                }))
+                .unwrap_or_else(|_| {
+                    Err(EngineError::new(
+                        Status::Internal,
+                        "the detection failed unexpectedly (panic)",
+                    ))
+                }),
+            };
             let served = Served {
                 header,
                 received_ns,
@@ -233,6 +236,38 @@ impl Daemon {
         self.in_flight.remove(&c.job);
         self.count(c.outcome);
     }
+}
+
+/// Counts a job as running from its start on a worker to its end, for the statistics' running
+/// and queued detections: a job handed to the pool may wait there for a worker.
+struct Running<'a>(&'a AtomicU64);
+
+impl<'a> Running<'a> {
+    fn start(count: &'a AtomicU64) -> Running<'a> {
+        count.fetch_add(1, Ordering::Relaxed);
+        Running(count)
+    }
+}
+
+impl Drop for Running<'_> {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
+/// `camera stale` when the camera's frame is older than the limit at `now`.
+fn stale(name: &str, frame: &FrameHeader, now: u64, max_age_ns: u64) -> Option<EngineError> {
+    let age = now.saturating_sub(frame.capture_time_ns);
+    (age > max_age_ns).then(|| EngineError {
+        status: Status::CameraStale,
+        message: format!(
+            "camera {name:?} is stale: its newest frame (sequence {}) is {:.1} ms old, the limit is {:.1} ms",
+            frame.sequence,
+            age as f64 / 1e6,
+            max_age_ns as f64 / 1e6
+        ),
+        value: age,
+    })
 }
 
 /// A frame stamped further than this ahead of the daemon's clock was not stamped with it.

@@ -143,9 +143,10 @@ impl Daemon {
             } => self
                 .stats
                 .record_served(total_ns, overhead_ns, detection_ns),
-            Outcome::Undelivered => {}
+            // The answer did not reach its client: counted with those whose client went away,
+            // so that every request received is served, refused or abandoned.
+            Outcome::Undelivered | Outcome::Abandoned => self.stats.requests_abandoned += 1,
             Outcome::Refused => self.stats.requests_refused += 1,
-            Outcome::Abandoned => self.stats.requests_abandoned += 1,
         }
     }
 

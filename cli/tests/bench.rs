@@ -1,0 +1,117 @@
+//! `ppf bench` against a daemon (`ppf serve`) over one part, this test publishing the part's
+//! scene as a camera: failed requests are counted by kind beside the figures of those served,
+//! and a client whose warm-up fails ends the run rather than leaving the others waiting for it.
+
+mod common;
+
+use std::process::{Command, Stdio};
+
+use common::{show, Scratch, ServedPart};
+use ppfd_models::synthetic::parts::Part;
+
+/// An object id the daemon does not hold.
+const UNKNOWN: &str = "99";
+
+fn bench(served: &ServedPart, args: &[&str]) -> Command {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_ppf"));
+    command
+        .args(["bench", "--prefix", &served.prefix, "--camera", "cam"])
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    command
+}
+
+/// Two clients, one asking for the part and one for an object the daemon does not hold, with
+/// no warm-up: the part's requests wait for the camera's first frame and are measured, the
+/// others are counted as refused, and the exit status says that requests failed.
+#[test]
+fn bench_counts_failed_requests_beside_the_served() {
+    let scratch = Scratch::new("bench-failures");
+    let mut served = ServedPart::start(&scratch, "bench_failures", Part::TPipe, 5);
+    let part = served.part.object_id().to_string();
+    let mut command = bench(
+        &served,
+        &[
+            "--objects",
+            &part,
+            "--objects",
+            UNKNOWN,
+            "--clients",
+            "2",
+            "--requests",
+            "4",
+            "--warmup",
+            "0",
+            "--json",
+        ],
+    );
+    let out = served.publish_until_done(command.spawn().unwrap());
+    show(&command, &out);
+    assert_eq!(out.status.code(), Some(1));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON on stdout");
+    assert_eq!(report["requests"], 2, "the part's two requests are served");
+    assert_eq!(report["failed"], 2);
+    let failures = report["failures"].as_array().unwrap();
+    assert_eq!(failures.len(), 1, "{failures:?}");
+    assert_eq!(failures[0]["count"], 2);
+    assert!(
+        failures[0]["kind"].as_str().unwrap().starts_with("refused"),
+        "{failures:?}"
+    );
+    let clients = report["per_client"].as_array().unwrap();
+    assert_eq!(
+        (clients[0]["requests"].clone(), clients[0]["failed"].clone()),
+        (2.into(), 0.into())
+    );
+    assert_eq!(
+        (clients[1]["requests"].clone(), clients[1]["failed"].clone()),
+        (0.into(), 2.into())
+    );
+    // The keys are the protocol's field names, as Python's `latency` has them.
+    for key in ["queue_wait", "rescoring", "icp", "end_to_end", "overhead"] {
+        assert!(report["latency"][key]["p50_ns"].is_u64(), "{key}: {report}");
+    }
+    assert!(report["latency"]["end_to_end"]["mean_ns"].is_u64());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("2 of 4 requests failed"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// One client's warm-up is refused: the run ends with that refusal, and the other client,
+/// which warmed up, does not wait at the start line for it.
+#[test]
+fn a_failed_warmup_ends_the_run() {
+    let scratch = Scratch::new("bench-warmup");
+    let mut served = ServedPart::start(&scratch, "bench_warmup", Part::TPipe, 5);
+    let part = served.part.object_id().to_string();
+    let mut command = bench(
+        &served,
+        &[
+            "--objects",
+            &part,
+            "--objects",
+            UNKNOWN,
+            "--clients",
+            "2",
+            "--requests",
+            "4",
+            "--warmup",
+            "1",
+        ],
+    );
+    let out = served.publish_until_done(command.spawn().unwrap());
+    show(&command, &out);
+    assert_eq!(out.status.code(), Some(1));
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        e.contains("client 1's warm-up") && e.contains(UNKNOWN),
+        "{e}"
+    );
+    assert!(
+        out.stdout.is_empty(),
+        "no figures for a run that never started"
+    );
+}
