@@ -12,11 +12,16 @@ use ppfd_models::synthetic::parts::Part;
 /// An object id the daemon does not hold.
 const UNKNOWN: &str = "99";
 
-fn bench(served: &ServedPart, args: &[&str]) -> Command {
+/// `ppf bench` with two clients, 4 requests in all and `warmup` each: client 0 asks for the
+/// served part, client 1 for an object the daemon does not hold.
+fn bench_one_unknown(served: &ServedPart, warmup: &str, json: bool) -> Command {
+    let part = served.part.object_id().to_string();
     let mut command = Command::new(env!("CARGO_BIN_EXE_ppf"));
     command
         .args(["bench", "--prefix", &served.prefix, "--camera", "cam"])
-        .args(args)
+        .args(["--objects", &part, "--objects", UNKNOWN])
+        .args(["--clients", "2", "--requests", "4", "--warmup", warmup])
+        .args(json.then_some("--json"))
         .stdout(Stdio::piped())
         .stderr(Stdio::piped());
     command
@@ -29,23 +34,7 @@ fn bench(served: &ServedPart, args: &[&str]) -> Command {
 fn bench_counts_failed_requests_beside_the_served() {
     let scratch = Scratch::new("bench-failures");
     let mut served = ServedPart::start(&scratch, "bench_failures", Part::TPipe, 5);
-    let part = served.part.object_id().to_string();
-    let mut command = bench(
-        &served,
-        &[
-            "--objects",
-            &part,
-            "--objects",
-            UNKNOWN,
-            "--clients",
-            "2",
-            "--requests",
-            "4",
-            "--warmup",
-            "0",
-            "--json",
-        ],
-    );
+    let mut command = bench_one_unknown(&served, "0", true);
     let out = served.publish_until_done(command.spawn().unwrap());
     show(&command, &out);
     assert_eq!(out.status.code(), Some(1));
@@ -86,22 +75,7 @@ fn bench_counts_failed_requests_beside_the_served() {
 fn a_failed_warmup_ends_the_run() {
     let scratch = Scratch::new("bench-warmup");
     let mut served = ServedPart::start(&scratch, "bench_warmup", Part::TPipe, 5);
-    let part = served.part.object_id().to_string();
-    let mut command = bench(
-        &served,
-        &[
-            "--objects",
-            &part,
-            "--objects",
-            UNKNOWN,
-            "--clients",
-            "2",
-            "--requests",
-            "4",
-            "--warmup",
-            "1",
-        ],
-    );
+    let mut command = bench_one_unknown(&served, "1", false);
     let out = served.publish_until_done(command.spawn().unwrap());
     show(&command, &out);
     assert_eq!(out.status.code(), Some(1));

@@ -20,22 +20,17 @@ const REQUESTS: usize = 20;
 /// Per request of one client: when its answer came (since the start) and its queue wait.
 type Served = Vec<(Duration, Duration)>;
 
-fn two_clients(parallel_detections: &str) -> (Served, Served) {
-    let prefix = Prefix::new("load");
-    let models = fake_model_dir("load", &[1, 2]);
-    let delay = DETECTION.as_millis().to_string();
+/// A daemon with the stand-in engine, taking `detection` per detection of objects 1 and 2,
+/// started with `args` besides its prefix and models, and a camera `cam0` publishing at 50 fps
+/// under the same prefix; both running, the daemon subscribed.
+fn fake_cell(prefix: &Prefix, name: &str, detection: Duration, args: &[&str]) -> (Proc, Proc) {
+    let models = fake_model_dir(name, &[1, 2]);
+    let delay = detection.as_millis().to_string();
+    let mut daemon_args = vec!["--prefix", &prefix.0, "--models", models.to_str().unwrap()];
+    daemon_args.extend_from_slice(args);
     let mut daemon = Proc::spawn(
         Path::new(DAEMON),
-        &[
-            "--prefix",
-            &prefix.0,
-            "--models",
-            models.to_str().unwrap(),
-            "--parallel-detections",
-            parallel_detections,
-            "--workers",
-            "2",
-        ],
+        &daemon_args,
         &[("PPFD_TEST_ENGINE", "fake"), ("PPFD_FAKE_DELAY_MS", &delay)],
     );
     daemon.wait_line("ppfd ready", STARTUP);
@@ -46,6 +41,22 @@ fn two_clients(parallel_detections: &str) -> (Served, Served) {
     );
     cam.wait_line("camera ready", STARTUP);
     std::thread::sleep(Duration::from_millis(300));
+    (daemon, cam)
+}
+
+fn two_clients(parallel_detections: &str) -> (Served, Served) {
+    let prefix = Prefix::new("load");
+    let (_daemon, _cam) = fake_cell(
+        &prefix,
+        "load",
+        DETECTION,
+        &[
+            "--parallel-detections",
+            parallel_detections,
+            "--workers",
+            "2",
+        ],
+    );
 
     let start = Arc::new(Barrier::new(2));
     let t0 = Instant::now();
@@ -119,15 +130,11 @@ fn two_clients_are_served_in_turn_two_detections_at_a_time() {
 fn a_detection_waiting_for_a_worker_is_queued_and_judged_when_it_starts() {
     const SLOW: Duration = Duration::from_millis(400);
     let prefix = Prefix::new("poolwait");
-    let models = fake_model_dir("poolwait", &[1]);
-    let delay = SLOW.as_millis().to_string();
-    let mut daemon = Proc::spawn(
-        Path::new(DAEMON),
+    let (_daemon, _cam) = fake_cell(
+        &prefix,
+        "poolwait",
+        SLOW,
         &[
-            "--prefix",
-            &prefix.0,
-            "--models",
-            models.to_str().unwrap(),
             "--workers",
             "1",
             "--parallel-detections",
@@ -135,16 +142,7 @@ fn a_detection_waiting_for_a_worker_is_queued_and_judged_when_it_starts() {
             "--max-frame-age-ms",
             "250",
         ],
-        &[("PPFD_TEST_ENGINE", "fake"), ("PPFD_FAKE_DELAY_MS", &delay)],
     );
-    daemon.wait_line("ppfd ready", STARTUP);
-    let mut cam = Proc::spawn(
-        Path::new(CAMERA),
-        &["--prefix", &prefix.0, "--camera", "cam0", "--fps", "50"],
-        &[],
-    );
-    cam.wait_line("camera ready", STARTUP);
-    std::thread::sleep(Duration::from_millis(300));
 
     let connect = |prefix: &str| {
         Client::connect_with(&ClientOptions {
