@@ -54,21 +54,24 @@ def main() -> None:
         overhead.append(found.latency["overhead_ns"])
     seconds = time.perf_counter() - started
 
-    rows = {"call": call, "end to end": end_to_end, "overhead": overhead}
+    # The keys of `ppf bench --json`: the stage's name and `p50_ns` ... `max_ns`.
+    rows = {"call": call, "end_to_end": end_to_end, "overhead": overhead}
     quantiles = {"p50": 0.5, "p90": 0.9, "p99": 0.99, "max": 1.0}
     table = {
         name: {q: nearest_rank(sorted(values), at) for q, at in quantiles.items()}
         for name, values in rows.items()
     }
     if args.json:
-        print(json.dumps({"requests": args.requests, "seconds": seconds, "latency_ns": table},
+        latency = {name: {f"{q}_ns": v for q, v in row.items()} for name, row in table.items()}
+        print(json.dumps({"requests": args.requests, "seconds": seconds, "latency": latency},
                          indent=2))
         return
     print(f"{args.requests} requests in {seconds:.2f} s: {args.requests / seconds:.1f} "
           f"requests/s (camera {args.camera}, objects {objects}, Python client)")
     print(f"{'ms':<20}" + "".join(f"{q:>10}" for q in quantiles))
     for name, values in table.items():
-        print(f"{name:<20}" + "".join(f"{v / 1e6:>10.3f}" for v in values.values()))
+        label = name.replace("_", " ")
+        print(f"{label:<20}" + "".join(f"{v / 1e6:>10.3f}" for v in values.values()))
 
 
 if __name__ == "__main__":

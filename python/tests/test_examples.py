@@ -83,14 +83,14 @@ def test_the_latency_bench_measures_the_call_around_the_transport(daemon, client
     assert bench.returncode == 0, bench.stderr
     result = json.loads(bench.stdout)
     assert result["requests"] == 5
-    latency = result["latency_ns"]
-    for name in ("call", "end to end", "overhead"):
+    latency = result["latency"]
+    for name in ("call", "end_to_end", "overhead"):
         row = latency[name]
-        assert 0 < row["p50"] <= row["p90"] <= row["p99"] <= row["max"], (name, row)
+        assert 0 < row["p50_ns"] <= row["p90_ns"] <= row["p99_ns"] <= row["max_ns"], (name, row)
     # Each call holds its request's whole way, and each end to end its detection: so does
     # every order statistic.
-    for q in ("p50", "max"):
-        assert latency["call"][q] >= latency["end to end"][q] >= latency["overhead"][q], q
+    for q in ("p50_ns", "max_ns"):
+        assert latency["call"][q] >= latency["end_to_end"][q] >= latency["overhead"][q], q
 
 
 def test_the_replay_example_names_a_folder_that_is_no_dataset(tmp_path):
