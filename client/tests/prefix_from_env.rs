@@ -8,8 +8,8 @@ use ppfd_client::{CameraPublisher, CameraViewer, Intrinsics};
 fn no_prefix_is_the_one_in_ppfd_prefix() {
     let prefix = format!("cenv{}_", std::process::id());
     std::env::set_var("PPFD_PREFIX", &prefix);
-    let publisher =
-        CameraPublisher::new(None, "envcam", 1, 64, 48, Intrinsics::LMO, 1.0).expect("a publisher");
+    let publisher = CameraPublisher::new(None, "envcam", 1, 640, 480, Intrinsics::LMO, 1.0)
+        .expect("a publisher");
     // Found under the variable's prefix, named explicitly; not under another.
     let viewer = CameraViewer::open(Some(&prefix), "envcam");
     assert!(viewer.is_ok(), "{:?}", viewer.err());

@@ -238,7 +238,7 @@ mod tests {
         assert_eq!(size_of::<ControlRequest>(), 288);
         assert_eq!(size_of::<LatencySummary>(), 40);
         assert_eq!(size_of::<DaemonStats>(), 18 * 8 + 3 * 40);
-        assert_eq!(size_of::<ControlResponseHeader>(), 16 + 264 + 192);
+        assert_eq!(size_of::<ControlResponseHeader>(), 16 + 264 + 512);
         assert_eq!(offset_of!(ControlResponseHeader, protocol_version), 0);
         assert_eq!(size_of::<ModelInfo>(), 80);
     }

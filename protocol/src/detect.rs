@@ -775,7 +775,7 @@ mod tests {
         assert_eq!(align_of::<PoseHypothesis>(), 4);
         assert_eq!(size_of::<LatencyBreakdown>(), 88);
         assert_eq!(size_of::<DetectCounts>(), 24);
-        assert_eq!(size_of::<DetectResponseHeader>(), 360 + DIAGNOSIS_BYTES);
+        assert_eq!(size_of::<DetectResponseHeader>(), 680 + DIAGNOSIS_BYTES);
         assert_eq!(offset_of!(DetectResponseHeader, protocol_version), 0);
     }
 
@@ -902,7 +902,12 @@ mod tests {
         r.flags = flags::INLINE_FRAME;
         r.inline_frame.width = 4;
         r.inline_frame.height = 2;
-        r.inline_frame.intrinsics = Intrinsics::LMO;
+        r.inline_frame.intrinsics = Intrinsics {
+            fx: 4.0,
+            fy: 4.0,
+            cx: 1.5,
+            cy: 0.5,
+        };
         assert_eq!(r.validate(8).unwrap(), FrameSource::Inline);
         let e = r.validate(7).unwrap_err();
         assert_eq!(e.status(), Status::InvalidFrame);

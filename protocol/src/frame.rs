@@ -30,11 +30,30 @@ impl Intrinsics {
         cy: 242.04899,
     };
 
-    /// Refuses focal lengths that are zero, negative or not finite, and non-finite centres.
+    /// The shortest focal length accepted, pixels: at 1 pixel a 640-pixel image spans 179.6°.
+    pub const MIN_FOCAL_PX: f32 = 1.0;
+    /// The longest focal length accepted, pixels: 10⁶ pixels is a 0.04° field of view at 640
+    /// pixels, far beyond any depth sensor.
+    pub const MAX_FOCAL_PX: f32 = 1.0e6;
+
+    /// Refuses focal lengths outside [`Self::MIN_FOCAL_PX`]..=[`Self::MAX_FOCAL_PX`] (zero,
+    /// negative, not finite, or a value in the wrong unit) and non-finite principal points.
+    /// [`Self::validate_for`] checks the principal point against the image too.
     pub fn validate(&self) -> Result<(), ProtocolError> {
-        let focal_ok = |f: f32| f.is_finite() && f > 0.0;
+        let focal_ok = |f: f32| (Self::MIN_FOCAL_PX..=Self::MAX_FOCAL_PX).contains(&f);
         if !focal_ok(self.fx) || !focal_ok(self.fy) || !self.cx.is_finite() || !self.cy.is_finite()
         {
+            return Err(ProtocolError::InvalidIntrinsics(*self));
+        }
+        Ok(())
+    }
+
+    /// [`Self::validate`], and a principal point within the image widened by its own size on
+    /// each side (a cropped image's centre may lie outside it, not a frame's width away).
+    pub fn validate_for(&self, width: u32, height: u32) -> Result<(), ProtocolError> {
+        self.validate()?;
+        let within = |c: f32, size: u32| (-(size as f32)..=2.0 * size as f32).contains(&c);
+        if !within(self.cx, width) || !within(self.cy, height) {
             return Err(ProtocolError::InvalidIntrinsics(*self));
         }
         Ok(())
@@ -119,7 +138,7 @@ impl FrameHeader {
                 values: payload_len,
             });
         }
-        self.intrinsics.validate()?;
+        self.intrinsics.validate_for(self.width, self.height)?;
         if !(self.depth_scale_mm.is_finite() && self.depth_scale_mm > 0.0) {
             return Err(ProtocolError::InvalidDepthScale(self.depth_scale_mm));
         }
@@ -196,6 +215,26 @@ mod tests {
         let mut h = vga();
         h.intrinsics.cy = f32::INFINITY;
         assert!(h.validate(640 * 480).is_err());
+        // Finite but impossible: the pose would come out ~10³⁰ mm away, or the focal length
+        // in the wrong unit would be blamed on the depth.
+        for (fx, cx) in [(1.0e30, 320.0), (f32::MIN_POSITIVE, 320.0), (0.5, 320.0)]
+            .into_iter()
+            .chain([(500.0, 1.0e30), (500.0, -641.0), (500.0, 1281.0)])
+        {
+            let mut h = vga();
+            (h.intrinsics.fx, h.intrinsics.cx) = (fx, cx);
+            assert!(
+                matches!(
+                    h.validate(640 * 480),
+                    Err(ProtocolError::InvalidIntrinsics(_))
+                ),
+                "fx {fx}, cx {cx}"
+            );
+        }
+        // A cropped image's principal point may lie outside it.
+        let mut h = vga();
+        (h.intrinsics.cx, h.intrinsics.cy) = (-300.0, 900.0);
+        assert!(h.validate(640 * 480).is_ok());
         let mut h = vga();
         h.depth_scale_mm = 0.0;
         assert!(matches!(

@@ -35,11 +35,13 @@ pub mod services;
 pub mod text;
 
 /// Version of this contract; it travels in every header.
-pub const PROTOCOL_VERSION: u32 = 4;
+pub const PROTOCOL_VERSION: u32 = 5;
 /// Bytes of a camera name field (names are at most one less: the last byte stays NUL).
 pub const CAMERA_NAME_BYTES: usize = 32;
-/// Bytes of a message field.
-pub const MESSAGE_BYTES: usize = 192;
+/// Bytes of a message field: room for the longest refusal, whose end says how to fix it (the
+/// depth scale that would fit a frame's values, the flag that raises a limit), and for the
+/// detector parameters in the statistics.
+pub const MESSAGE_BYTES: usize = 512;
 /// Bytes of a detect response's diagnosis ([`detect::flags::DIAGNOSE`]): the lines of about
 /// eight objects.
 pub const DIAGNOSIS_BYTES: usize = 8192;
@@ -103,7 +105,8 @@ pub enum ProtocolError {
         height: u32,
         max_pixels: u64,
     },
-    /// Zero, negative or non-finite focal lengths, or a non-finite principal point.
+    /// Focal lengths outside 1 to 10⁶ pixels (zero, negative, not finite), or a principal
+    /// point not finite or, for a frame, more than the image's size outside it.
     InvalidIntrinsics(frame::Intrinsics),
     /// Zero, negative or non-finite depth scale.
     InvalidDepthScale(f32),
@@ -213,9 +216,14 @@ impl std::fmt::Display for ProtocolError {
             ),
             ProtocolError::InvalidIntrinsics(k) => write!(
                 f,
-                "intrinsics must have finite positive focal lengths and a finite principal point, \
-                 got fx={} fy={} cx={} cy={}",
-                k.fx, k.fy, k.cx, k.cy
+                "intrinsics need focal lengths of {} to {} pixels and a principal point within \
+                 the image widened by its size on each side, got fx={} fy={} cx={} cy={}",
+                frame::Intrinsics::MIN_FOCAL_PX,
+                frame::Intrinsics::MAX_FOCAL_PX,
+                k.fx,
+                k.fy,
+                k.cx,
+                k.cy
             ),
             ProtocolError::InvalidDepthScale(s) => {
                 write!(f, "depth scale must be finite and positive, got {s}")

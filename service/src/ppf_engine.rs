@@ -63,7 +63,8 @@ fn ext_is(path: &Path, ext: &str) -> bool {
         .is_some_and(|e| e.eq_ignore_ascii_case(ext))
 }
 
-/// The object id a file name implies: the digits of its stem (`obj_000005.ply` → 5).
+/// The object id a file name implies: the digits of its stem (`obj_000005.ply` → 5); none when
+/// they do not fit a `u32`.
 pub fn object_id_of_file(path: &Path) -> Option<u32> {
     let stem = path.file_stem()?.to_str()?;
     let digits: String = stem
@@ -177,8 +178,10 @@ impl PpfEngine {
                 EngineError::new(
                     Status::ModelError,
                     format!(
-                        "{}: no object id: name the file obj_<id>.ply or give an id",
-                        path.display()
+                        "{}: no object id: name the file obj_<id>.ply (an id of at most {}) or \
+                         give an id",
+                        path.display(),
+                        u32::MAX
                     ),
                 )
             })?;
@@ -375,11 +378,23 @@ impl DetectionEngine for PpfEngine {
 mod tests {
     use super::*;
 
+    /// The daemon's protocol and the detector accept the same focal lengths: a frame the
+    /// protocol lets through is not refused by the detector for another reason.
+    #[test]
+    fn the_protocol_and_the_detector_accept_the_same_focal_lengths() {
+        use ppfd_protocol::frame::Intrinsics as Wire;
+        assert_eq!(
+            (Wire::MIN_FOCAL_PX, Wire::MAX_FOCAL_PX),
+            (Intrinsics::MIN_FOCAL_PX, Intrinsics::MAX_FOCAL_PX)
+        );
+    }
+
     #[test]
     fn object_ids_come_from_trailing_digits() {
         assert_eq!(object_id_of_file(Path::new("/m/obj_000005.ply")), Some(5));
         assert_eq!(object_id_of_file(Path::new("part12.ppfm")), Some(12));
         assert_eq!(object_id_of_file(Path::new("duck.ply")), None);
+        assert_eq!(object_id_of_file(Path::new("obj_4294967296.ply")), None);
     }
 
     #[test]

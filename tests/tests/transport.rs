@@ -438,11 +438,21 @@ fn malformed_requests_are_refused_each_with_its_error_and_the_daemon_keeps_servi
         "{message}"
     );
 
-    for bad in [0.0, f32::NAN] {
+    // Zero, NaN, or finite but no lens's focal length (one the detector would blame on the
+    // depth); a principal point far outside the frame (poses would come out ~10³⁰ mm away).
+    let bad_focal = [0.0, f32::NAN, 1.0e30, f32::MIN_POSITIVE].map(|fx| Intrinsics {
+        fx,
+        ..Intrinsics::LMO
+    });
+    let bad_centre = [1.0e30, -1000.0].map(|cx| Intrinsics {
+        cx,
+        ..Intrinsics::LMO
+    });
+    for bad in bad_focal.into_iter().chain(bad_centre) {
         let mut k = inline;
-        k.inline_frame.intrinsics.fx = bad;
+        k.inline_frame.intrinsics = bad;
         let (status, _, message) = refusal(client.send_raw(&k, &depth, t));
-        assert_eq!(status, Status::InvalidIntrinsics, "{message}");
+        assert_eq!(status, Status::InvalidIntrinsics, "{bad:?}: {message}");
     }
 
     // Stamped with wall-clock time instead of the monotonic clock: decades ahead, so its age

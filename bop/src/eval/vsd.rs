@@ -42,7 +42,7 @@ pub fn depth_to_distance(
     intrinsics: &Intrinsics,
 ) -> Result<Vec<f32>> {
     check_len(depth_mm.len(), width, height, "depth image")?;
-    intrinsics.validate()?;
+    intrinsics.validate_for(width, height)?;
     let (fx, fy) = (intrinsics.fx as f64, intrinsics.fy as f64);
     let (cx, cy) = (intrinsics.cx as f64, intrinsics.cy as f64);
     let xs: Vec<f64> = (0..width).map(|u| (u as f64 - cx) / fx).collect();

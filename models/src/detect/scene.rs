@@ -1083,7 +1083,10 @@ mod tests {
         let thin = DepthFrame {
             width: 640,
             height: 1,
-            intrinsics: Intrinsics::LMO,
+            intrinsics: Intrinsics {
+                cy: 0.0,
+                ..Intrinsics::LMO
+            },
             depth_scale_mm: 1.0,
             depth: &row,
         };

@@ -28,18 +28,45 @@ impl Intrinsics {
         cy: 242.049,
     };
 
-    /// Refuses focal lengths that are zero, negative or not finite, and non-finite centres.
+    /// The shortest focal length accepted, pixels (as the daemon's protocol,
+    /// `ppfd_protocol::frame::Intrinsics`): at 1 pixel a 640-pixel image spans 179.6°.
+    pub const MIN_FOCAL_PX: f32 = 1.0;
+    /// The longest focal length accepted, pixels: 10⁶ pixels is a 0.04° field of view at 640
+    /// pixels, far beyond any depth sensor.
+    pub const MAX_FOCAL_PX: f32 = 1.0e6;
+
+    /// Refuses focal lengths outside [`Self::MIN_FOCAL_PX`]..=[`Self::MAX_FOCAL_PX`] (zero,
+    /// negative, not finite, or a value in the wrong unit) and non-finite principal points.
+    /// [`Self::validate_for`] checks the principal point against the image too.
     pub fn validate(&self) -> Result<()> {
-        let ok_focal = |f: f32| f.is_finite() && f > 0.0;
+        let ok_focal = |f: f32| (Self::MIN_FOCAL_PX..=Self::MAX_FOCAL_PX).contains(&f);
         if !ok_focal(self.fx) || !ok_focal(self.fy) {
             return Err(Error::InvalidFrame(format!(
-                "focal lengths must be finite and positive, got fx={} fy={}",
-                self.fx, self.fy
+                "focal lengths must be {} to {} pixels, got fx={} fy={}",
+                Self::MIN_FOCAL_PX,
+                Self::MAX_FOCAL_PX,
+                self.fx,
+                self.fy
             )));
         }
         if !self.cx.is_finite() || !self.cy.is_finite() {
             return Err(Error::InvalidFrame(format!(
                 "principal point must be finite, got cx={} cy={}",
+                self.cx, self.cy
+            )));
+        }
+        Ok(())
+    }
+
+    /// [`Self::validate`], and a principal point within the image widened by its own size on
+    /// each side (a cropped image's centre may lie outside it, not a frame's width away).
+    pub fn validate_for(&self, width: u32, height: u32) -> Result<()> {
+        self.validate()?;
+        let within = |c: f32, size: u32| (-(size as f32)..=2.0 * size as f32).contains(&c);
+        if !within(self.cx, width) || !within(self.cy, height) {
+            return Err(Error::InvalidFrame(format!(
+                "principal point ({}, {}) lies more than the image's size outside the {width}x{height} \
+                 image",
                 self.cx, self.cy
             )));
         }
@@ -118,7 +145,7 @@ impl<'a> DepthFrame<'a> {
                 self.depth.len()
             )));
         }
-        self.intrinsics.validate()?;
+        self.intrinsics.validate_for(self.width, self.height)?;
         if !(self.depth_scale_mm.is_finite() && self.depth_scale_mm > 0.0) {
             return Err(Error::InvalidFrame(format!(
                 "depth scale must be finite and positive, got {}",
@@ -162,6 +189,29 @@ impl OwnedDepthFrame {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Finite but impossible intrinsics are refused: a focal length in the wrong unit, or a
+    /// principal point a frame's size away, would put poses 10³⁰ mm off or blame the depth.
+    #[test]
+    fn impossible_intrinsics_are_refused() {
+        let with = |fx: f32, cx: f32| Intrinsics {
+            fx,
+            cx,
+            ..Intrinsics::LMO
+        };
+        for (fx, cx) in [(1.0e30, 320.0), (f32::MIN_POSITIVE, 320.0), (0.5, 320.0)] {
+            assert!(with(fx, cx).validate().is_err(), "fx {fx}");
+        }
+        for cx in [1.0e30, -641.0, 1281.0] {
+            assert!(
+                with(572.0, cx).validate().is_ok(),
+                "no image to judge cx {cx} by"
+            );
+            assert!(with(572.0, cx).validate_for(640, 480).is_err(), "cx {cx}");
+        }
+        assert!(with(1.0, -640.0).validate_for(640, 480).is_ok());
+        assert!(with(1.0e6, 1280.0).validate_for(640, 480).is_ok());
+    }
 
     /// A point seen through the coarser camera lands in the coarse pixel whose block of full
     /// pixels holds the pixel it lands in at full resolution.

@@ -113,7 +113,7 @@ impl NoiseModel {
     /// Applies the noise to a clean depth image (mm, 0 = none) in place.
     fn apply(&self, depth: &mut DepthImage, intrinsics: &Intrinsics, rng: &mut Rng) -> Result<()> {
         self.validate()?;
-        intrinsics.validate()?;
+        intrinsics.validate_for(depth.width, depth.height)?;
         let (w, h) = (depth.width as usize, depth.height as usize);
         let clean = depth.depth_mm.clone();
         let at = |u: usize, v: usize| clean[v * w + u];
@@ -399,7 +399,7 @@ impl<'a> SceneSpec<'a> {
         if let Some(noise) = &self.noise {
             noise.validate()?;
         }
-        self.intrinsics.validate()
+        self.intrinsics.validate_for(self.width, self.height)
     }
 
     /// Places everything, renders, adds noise.
