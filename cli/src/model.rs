@@ -161,8 +161,9 @@ pub(crate) fn object_ids(meshes: &[PathBuf], id: Option<u32>) -> Result<Vec<u32>
             None => {
                 return Err(format!(
                     "{}: no object id: name the file obj_<id>.ply (the digits ending the name \
-                     are the id, as for ppfd) or give --id",
-                    path.display()
+                     are the id, as for ppfd; at most {}) or give --id",
+                    path.display(),
+                    u32::MAX
                 ))
             }
         };

@@ -441,6 +441,15 @@ impl Client {
         } else {
             header.set_diagnosis_poses(&options.diagnose)?;
         }
+        // A request whose deadline is its send time can only be refused "deadline passed".
+        if options.timeout.is_zero() {
+            return Err(ppfd_protocol::ProtocolError::Requirement {
+                field: "timeout",
+                value: "0 s".into(),
+                expected: "more than 0".into(),
+            }
+            .into());
+        }
         // 0 on the wire takes the daemon's limit, so a zero age is refused here rather than
         // sent as that.
         if options.max_frame_age == Some(Duration::ZERO) {

@@ -41,6 +41,7 @@ def test_no_daemon_raises_no_daemon_naming_the_prefix(prefix):
         (("bad name", [1]), {}, "bad name"),
         (("parts", [1]), {"timeout": -1.0}, "timeout must be a finite number of seconds"),
         (("parts", [1]), {"timeout": float("nan")}, "timeout must be a finite number"),
+        (("parts", [1]), {"timeout": 0.0}, "timeout 0 s is out of range"),
         (("parts", [1]), {"max_frame_age": -0.5}, "max_frame_age must be"),
         (("parts", [1]), {"max_frame_age": 0.0}, "maximum frame age 0 s is out of range"),
     ],

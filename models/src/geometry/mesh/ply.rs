@@ -223,7 +223,44 @@ pub(super) fn read_mesh<R: Read>(source: R, path: &Path) -> Result<Mesh> {
             _ => drop(read_element::<Skipped>(input, &header, element, &mut line).map_err(fail)?),
         }
     }
+    let last = header.elements.values().last();
+    check_end(reader.get_mut(), header.encoding, line, last).map_err(fail)?;
     build_mesh(&vertices, &faces, layout.has_normals).map_err(fail)
+}
+
+/// Refuses data after the last element (whitespace aside): a header that declares fewer items
+/// than the file holds is as wrong as one that declares more, and reading only the declared
+/// ones would build a model of part of the mesh.
+fn check_end(
+    input: &mut impl BufRead,
+    encoding: Encoding,
+    line_number: usize,
+    last: Option<&ElementDef>,
+) -> std::result::Result<(), String> {
+    let mut offset = 0usize;
+    loop {
+        let chunk = input.fill_buf().map_err(|e| e.to_string())?;
+        if chunk.is_empty() {
+            return Ok(());
+        }
+        if let Some(at) = chunk.iter().position(|b| !b.is_ascii_whitespace()) {
+            let lines = chunk[..at].iter().filter(|&&b| b == b'\n').count();
+            let declared = last.map_or(String::new(), |e| {
+                format!(" (the header declares {} {})", e.count, noun(e))
+            });
+            let place = match encoding {
+                Encoding::Ascii => format!("line {}", line_number + lines),
+                _ => format!("byte {} after the declared data", offset + at),
+            };
+            return Err(format!(
+                "data after the last element{declared}, at {place}: does the header declare \
+                 all the items the file holds?"
+            ));
+        }
+        let n = chunk.len();
+        offset += n;
+        input.consume(n);
+    }
 }
 
 /// The plural a message uses for `element`'s items.
@@ -855,6 +892,41 @@ mod tests {
         let header_len = cube_fixture().header(Format::Le, 8).len();
         let cut = &bytes[..header_len + 3 * 19 + 5];
         expect_ply_error(read(cut), &["truncated", "after 3 of the 8 vertices"]);
+    }
+
+    /// More data than the header declares is as wrong as less: a file holding more faces, or
+    /// bytes after the binary data, is refused rather than read in part. Whitespace after the
+    /// last element is no data.
+    #[test]
+    fn data_after_the_declared_elements_is_refused() {
+        let fixture = cube_fixture();
+        let mut ascii = fixture.bytes(Format::Ascii);
+        let intact = read(&ascii).unwrap();
+        ascii.extend_from_slice(b"\n  \r\n");
+        assert_eq!(read(&ascii).unwrap().faces, intact.faces);
+        // Header lines, then 8 vertex lines and 6 face lines: the stray face is line 16 after
+        // the header.
+        let header_lines = fixture.header(Format::Ascii, 8).lines().count();
+        ascii.extend_from_slice(b"3 0 1 2\n");
+        let reason = expect_ply_error(
+            read(&ascii),
+            &["data after the last element", "declares 6 faces"],
+        );
+        assert!(
+            reason.contains(&format!("line {}", header_lines + 8 + 6 + 3)),
+            "{reason}"
+        );
+        for format in [Format::Le, Format::Be] {
+            let mut binary = fixture.bytes(format);
+            binary.extend_from_slice(&[b' ', b'\n', b'\t', 0, 7]);
+            expect_ply_error(
+                read(&binary),
+                &[
+                    "data after the last element",
+                    "at byte 3 after the declared data",
+                ],
+            );
+        }
     }
 
     #[test]
