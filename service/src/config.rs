@@ -108,7 +108,9 @@ pub struct DaemonConfig {
 }
 
 /// The `[detector]` table, flattened: `voting.reference_step = 4` (a dotted key, or a
-/// `[detector.voting]` table) becomes `("voting.reference_step", "4")`.
+/// `[detector.voting]` table) becomes `("voting.reference_step", "4")`. A value is a number or
+/// true/false, and a parameter is set once: TOML refuses a key given twice in one form, and this
+/// the same parameter given as a dotted key and in a table, where the last would win unseen.
 fn detector_table<'de, D>(deserializer: D) -> Result<Vec<(String, String)>, D::Error>
 where
     D: serde::Deserializer<'de>,
@@ -129,7 +131,6 @@ where
                     flatten(&key, t, out)?;
                     continue;
                 }
-                toml::Value::String(s) => s.clone(),
                 toml::Value::Integer(i) => i.to_string(),
                 toml::Value::Float(f) => f.to_string(),
                 toml::Value::Boolean(b) => b.to_string(),
@@ -139,6 +140,11 @@ where
                     )))
                 }
             };
+            if out.iter().any(|(k, _)| *k == key) {
+                return Err(E::custom(format!(
+                    "detector.{key} is set twice (as a dotted key and in a table): set it once"
+                )));
+            }
             out.push((key, text));
         }
         Ok(())
@@ -402,6 +408,14 @@ mod tests {
             (
                 "[detector]\nfilters.min_silhouette_fraction = nan\n",
                 "finite",
+            ),
+            (
+                "[detector]\nscene.max_depth_mm = \"4000\"\n",
+                "detector.scene.max_depth_mm: a number or true/false, got \"4000\"",
+            ),
+            (
+                "[detector.voting]\nreference_step = 2\n[detector]\n\"voting.reference_step\" = 3\n",
+                "detector.voting.reference_step is set twice",
             ),
         ] {
             let e = DaemonConfig::from_toml(text)
