@@ -252,6 +252,15 @@ impl DetectionEngine for PpfEngine {
                     ),
                 ));
             }
+        } else if let Some(named) = object_id_of_file(path).filter(|&n| n != model.object_id()) {
+            // The id a model file holds is its id; a name that says another is kept from a
+            // rename or a copy, and loading it takes an id its name does not show.
+            tracing::warn!(
+                path = %path.display(),
+                object_id = model.object_id(),
+                name_says = named,
+                "the model file holds another object id than its name's digits: loaded under the one it holds"
+            );
         }
         Ok(loaded(model, path))
     }
@@ -503,6 +512,28 @@ mod tests {
             err.message.contains("metres") && err.message.contains("--scale 1000"),
             "{}",
             err.message
+        );
+        std::fs::remove_dir_all(&root).unwrap();
+    }
+
+    /// A model file whose name's digits say another id than the one it holds loads under the
+    /// one it holds, and the log says so.
+    #[test]
+    fn a_model_file_named_for_another_id_is_loaded_with_a_warning() {
+        let root = scratch("renamed");
+        let e = PpfEngine::default();
+        let ply = root.join("obj_000001.ply");
+        write_box_ply(&ply, [60.0, 40.0, 20.0]);
+        drop(e.load(&ply, None, None).unwrap());
+        let renamed = root.join("obj_000007.ppfm");
+        std::fs::rename(ply.with_extension(MODEL_EXTENSION), &renamed).unwrap();
+        std::fs::remove_file(&ply).unwrap();
+        let mut model = None;
+        let log = crate::test_log::capture(|| model = Some(e.load(&renamed, None, None)));
+        assert_eq!(model.unwrap().unwrap().info.object_id, 1);
+        assert!(
+            log.contains("holds another object id than its name") && log.contains("name_says=7"),
+            "{log}"
         );
         std::fs::remove_dir_all(&root).unwrap();
     }

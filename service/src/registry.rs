@@ -38,8 +38,10 @@ impl Registry {
         for path in entries.filter_map(|e| e.ok().map(|e| e.path())) {
             if path.is_file() {
                 files.push(path);
+            } else if path.symlink_metadata().is_ok() && path.metadata().is_err() {
+                tracing::warn!(path = %path.display(), "a link to nothing: skipped");
             } else if !path.is_dir() {
-                // A FIFO, socket or device (or a dangling link): never read, and said so.
+                // A FIFO, socket or device: never read, and said so.
                 tracing::warn!(path = %path.display(), "not a regular file: skipped");
             }
         }
@@ -169,7 +171,8 @@ impl Registry {
 mod tests {
     use super::*;
 
-    /// A FIFO in the models folder is never opened, and the log says it was skipped.
+    /// A FIFO and a link to nothing in the models folder are never opened, and the log says
+    /// each was skipped, and why.
     #[test]
     fn special_files_in_the_models_folder_are_skipped_with_a_log_line() {
         let dir = std::env::temp_dir().join(format!("ppfd-registry-fifo-{}", std::process::id()));
@@ -180,6 +183,7 @@ mod tests {
         // SAFETY: a valid NUL-terminated path.
         assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
         std::fs::write(dir.join("obj_000002.ply"), "ply").unwrap();
+        std::os::unix::fs::symlink(dir.join("gone.ply"), dir.join("obj_000003.ply")).unwrap();
         let engine = crate::ppf_engine::PpfEngine::default();
         let mut files = Vec::new();
         let log = crate::test_log::capture(|| {
@@ -189,6 +193,10 @@ mod tests {
         assert_eq!(files, vec![dir.join("obj_000002.ply")]);
         assert!(
             log.contains("not a regular file: skipped") && log.contains("obj_000001.ply"),
+            "{log}"
+        );
+        assert!(
+            log.contains("a link to nothing: skipped") && log.contains("obj_000003.ply"),
             "{log}"
         );
     }
