@@ -81,6 +81,39 @@ pub struct Responder {
     control_service: ControlService<Ipc>,
     wake: Mutex<Wake>,
     abandoned: Mutex<Abandoned>,
+    refusals: Mutex<RefusalLog>,
+}
+
+/// How often the log names a refusal of one status: a misconfigured camera refused at every
+/// request of a picking loop would otherwise fill the journal.
+const REFUSAL_LOG_PERIOD_NS: u64 = 60_000_000_000;
+
+/// When each status's refusal was last logged, and how many went unlogged since.
+#[derive(Default)]
+struct RefusalLog {
+    by_status: HashMap<u32, (u64, u64)>,
+}
+
+impl RefusalLog {
+    /// Whether a refusal of `status` at `now_ns` is logged, and if so how many of that status
+    /// went unlogged before it: the first of a status is, then one per
+    /// [`REFUSAL_LOG_PERIOD_NS`].
+    fn note(&mut self, status: u32, now_ns: u64) -> Option<u64> {
+        match self.by_status.get_mut(&status) {
+            Some((last, quiet)) if now_ns.saturating_sub(*last) < REFUSAL_LOG_PERIOD_NS => {
+                *quiet += 1;
+                None
+            }
+            Some((last, quiet)) => {
+                *last = now_ns;
+                Some(std::mem::take(quiet))
+            }
+            None => {
+                self.by_status.insert(status, (now_ns, 0));
+                Some(0)
+            }
+        }
+    }
 }
 
 /// At most this many requests of dead clients are held back (see
@@ -115,6 +148,7 @@ impl Responder {
                 keys: HashMap::new(),
             }),
             abandoned: Mutex::new(Abandoned::default()),
+            refusals: Mutex::new(RefusalLog::default()),
         }
     }
 
@@ -192,7 +226,23 @@ impl Responder {
         if !self.detect_client_alive(&active) {
             return self.abandon(active, request.request_id);
         }
-        tracing::debug!(request = request.request_id, status = %e.status, reason = %e.message, "request refused");
+        let logged = self
+            .refusals
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .note(e.status.code(), monotonic_now_ns());
+        match logged {
+            Some(unlogged) => tracing::info!(
+                request = request.request_id,
+                status = %e.status,
+                reason = %e.message,
+                unlogged_since = unlogged,
+                "request refused (one line per status a minute; ppf stats counts them all)"
+            ),
+            None => {
+                tracing::debug!(request = request.request_id, status = %e.status, reason = %e.message, "request refused")
+            }
+        }
         let mut response = DetectResponseHeader {
             request_id: request.request_id,
             status: e.status.code(),
@@ -404,6 +454,21 @@ impl Responder {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The first refusal of a status is logged, then one a minute per status with the count
+    /// of those left out; another status is logged at once.
+    #[test]
+    fn refusals_are_logged_once_a_minute_per_status() {
+        let mut log = RefusalLog::default();
+        let second = 1_000_000_000;
+        assert_eq!(log.note(4, 10 * second), Some(0));
+        assert_eq!(log.note(4, 11 * second), None);
+        assert_eq!(log.note(4, 69 * second), None);
+        assert_eq!(log.note(7, 69 * second), Some(0), "another status");
+        assert_eq!(log.note(4, 70 * second), Some(2));
+        assert_eq!(log.note(4, 71 * second), None);
+        assert_eq!(log.note(4, 200 * second), Some(1));
+    }
 
     fn crosses_threads<T: Send>() {}
     fn shared_by_threads<T: Send + Sync>() {}
