@@ -202,7 +202,7 @@ class Client:
         diagnose: Optional[Iterable[Union[Detection, tuple[int, npt.ArrayLike]]]] = None,
     ) -> Detections:
         """Detects `object_ids` in the newest frame of `camera`, releasing the GIL while the
-        daemon works. `hypotheses` per object, 1 to 16; `timeout` in seconds (None: 3 s);
+        daemon works. `hypotheses` per object, 1 to 16; `timeout` in seconds, above 0 (None: 3 s);
         `max_frame_age` in seconds, above 0, the oldest frame accepted (None: the daemon's limit).
 
         What the poses must satisfy; the defaults ask for nothing:

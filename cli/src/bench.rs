@@ -275,7 +275,7 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             .collect();
         let out = serde_json::json!({
             "camera": args.camera, "objects": args.objects.iter().map(|o| o.0.clone()).collect::<Vec<_>>(),
-            "requests": all.len(), "failed": failed, "failures": failures.json(), "clients": args.clients,
+            "served": all.len(), "failed": failed, "failures": failures.json(), "clients": args.clients,
             "seconds": elapsed.as_secs_f64(), "throughput_per_s": throughput,
             "latency": rows, "end_to_end_distribution": distribution,
             "per_client": per_client.iter().map(ClientFigures::json).collect::<Vec<_>>(),
@@ -464,7 +464,7 @@ impl ClientFigures {
 
     fn json(&self) -> serde_json::Value {
         serde_json::json!({
-            "client": self.client, "objects": self.objects, "requests": self.end_to_end.len(),
+            "client": self.client, "objects": self.objects, "served": self.end_to_end.len(),
             "failed": self.failed,
             "end_to_end_p50_ns": nearest_rank(&self.end_to_end, 0.5),
             "end_to_end_p99_ns": nearest_rank(&self.end_to_end, 0.99),

@@ -148,6 +148,18 @@ pub fn millis(ms: u64) -> Duration {
     Duration::from_millis(ms)
 }
 
+/// The median: the middle value, or the mean of the two middle ones; `v` is not empty.
+pub fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    (v[(n - 1) / 2] + v[n / 2]) / 2.0
+}
+
+/// The median of `durations` in milliseconds.
+pub fn median_ms(durations: &[Duration]) -> f64 {
+    median(durations.iter().map(|d| d.as_secs_f64() * 1e3).collect())
+}
+
 /// Hypotheses per object a detect request may ask for: the protocol's limit, as clap ranges take
 /// it (`ppf detect --hypotheses`, `ppf demo --hypotheses`).
 pub const MAX_HYPOTHESES: i64 = ppfd_client::protocol::MAX_HYPOTHESES_PER_OBJECT as i64;
@@ -215,6 +227,15 @@ pub fn scenes_there(scenes: &[u32]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_median_of_an_even_count_is_the_mean_of_the_middle_two() {
+        assert_eq!(median(vec![3.0, 1.0, 2.0]), 2.0);
+        assert_eq!(median(vec![10.0, 1.0]), 5.5);
+        assert_eq!(median(vec![4.0, 1.0, 3.0, 2.0]), 2.5);
+        let ms = Duration::from_millis;
+        assert_eq!(median_ms(&[ms(10), ms(2)]), 6.0);
+    }
     use ppfd_client::PoseHypothesis;
 
     fn pose(object_id: u32, instance_rank: u32, score: f32) -> PoseHypothesis {

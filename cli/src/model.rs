@@ -2,7 +2,7 @@
 //! loading.
 
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use clap::{Args, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -430,12 +430,6 @@ fn first_model_file(dir: &Path) -> Option<PathBuf> {
 }
 
 /// The median: the middle value, or the mean of the two middle ones.
-fn median(mut v: Vec<Duration>) -> Duration {
-    v.sort();
-    let n = v.len();
-    (v[(n - 1) / 2] + v[n / 2]) / 2
-}
-
 fn bench(args: BenchArgs) -> Result<(), Box<dyn std::error::Error>> {
     for path in &args.meshes {
         check_mesh_path(path)?;
@@ -473,11 +467,11 @@ fn bench(args: BenchArgs) -> Result<(), Box<dyn std::error::Error>> {
         }
         println!(
             "| {name} | {:.0} | {} | {} | {:.2} | {:.2} | {:.2} |",
-            median(builds).as_secs_f64() * 1e3,
+            crate::common::median_ms(&builds),
             model.point_count(),
             model.table_entry_count(),
             model.byte_size() as f64 / 1e6,
-            median(loads).as_secs_f64() * 1e3,
+            crate::common::median_ms(&loads),
             model.diameter_mm()
         );
     }
@@ -487,13 +481,6 @@ fn bench(args: BenchArgs) -> Result<(), Box<dyn std::error::Error>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn the_median_of_an_even_count_is_the_mean_of_the_middle_two() {
-        let ms = Duration::from_millis;
-        assert_eq!(median(vec![ms(3), ms(1), ms(2)]), ms(2));
-        assert_eq!(median(vec![ms(10), ms(2)]), ms(6));
-    }
 
     fn paths(names: &[&str]) -> Vec<PathBuf> {
         names.iter().map(PathBuf::from).collect()

@@ -11,6 +11,7 @@ use ppfd_models::detect::detector::{
     Checks, DetectParams, Detector, Hint, RunOptions, StageTimings,
 };
 
+use crate::common::median;
 use crate::offline::dataset_models;
 
 #[derive(Args, Debug)]
@@ -41,13 +42,6 @@ pub struct ProfileArgs {
 
 fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
-}
-
-/// The median: the middle value, or the mean of the two middle ones.
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    (v[(n - 1) / 2] + v[n / 2]) / 2.0
 }
 
 pub fn run(args: ProfileArgs) -> Result<(), Box<dyn std::error::Error>> {
@@ -203,16 +197,4 @@ fn compare_hinted(
         a / b
     );
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_median_of_an_even_count_is_the_mean_of_the_middle_two() {
-        assert_eq!(median(vec![3.0, 1.0, 2.0]), 2.0);
-        assert_eq!(median(vec![10.0, 1.0]), 5.5);
-        assert_eq!(median(vec![4.0, 1.0, 3.0, 2.0]), 2.5);
-    }
 }

@@ -39,7 +39,7 @@ fn bench_counts_failed_requests_beside_the_served() {
     show(&command, &out);
     assert_eq!(out.status.code(), Some(1));
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON on stdout");
-    assert_eq!(report["requests"], 2, "the part's two requests are served");
+    assert_eq!(report["served"], 2, "the part's two requests are served");
     assert_eq!(report["failed"], 2);
     let failures = report["failures"].as_array().unwrap();
     assert_eq!(failures.len(), 1, "{failures:?}");
@@ -50,11 +50,11 @@ fn bench_counts_failed_requests_beside_the_served() {
     );
     let clients = report["per_client"].as_array().unwrap();
     assert_eq!(
-        (clients[0]["requests"].clone(), clients[0]["failed"].clone()),
+        (clients[0]["served"].clone(), clients[0]["failed"].clone()),
         (2.into(), 0.into())
     );
     assert_eq!(
-        (clients[1]["requests"].clone(), clients[1]["failed"].clone()),
+        (clients[1]["served"].clone(), clients[1]["failed"].clone()),
         (0.into(), 2.into())
     );
     // The keys are the protocol's field names, as Python's `latency` has them.

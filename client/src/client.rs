@@ -112,6 +112,7 @@ pub struct DetectOptions {
     /// is about six times what eight objects in a cluttered VGA frame take on two cores
     /// (0.51 s on the LM-O frame, docs/BENCHMARKS.md): room for a busy host, larger frames and
     /// a diagnosis (twice the time), and a hung cycle still ends within a few picking cycles.
+    /// Zero is refused.
     pub timeout: Duration,
     /// Oldest acceptable camera frame (`None`: the daemon's limit; zero is refused).
     pub max_frame_age: Option<Duration>,

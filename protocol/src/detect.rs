@@ -159,7 +159,7 @@ pub struct PoseHint {
     /// Object id of the model; one of the request's objects.
     pub object_id: u32,
     /// Rotation `R`, row-major (`r[3 * row + col]`), unitless: orthonormal with determinant 1
-    /// (to 1e-2; the nearest rotation is used).
+    /// (to 1e-2; a unit rotation close to it is used).
     pub rotation: [f32; 9],
     /// Translation `t`, millimetres.
     pub translation_mm: [f32; 3],
@@ -178,12 +178,12 @@ impl From<&PoseHypothesis> for PoseHint {
 
 /// How far a hint's rotation may be from orthonormal, per entry of `R Rᵀ − I` and for the
 /// determinant: what a matrix written with a few decimals keeps (the ground truth of BOP's LM-O
-/// frame is off by up to 2e-3). The daemon uses the nearest rotation; a scaled matrix, a shear
+/// frame is off by up to 2e-3). The daemon uses a unit rotation close to it; a scaled matrix, a shear
 /// or a reflection is off by far more.
 const ROTATION_TOLERANCE: f32 = 1e-2;
 
 impl PoseHint {
-    /// The hint's pose as a nalgebra isometry, the nearest rotation to its matrix
+    /// The hint's pose as a nalgebra isometry, with a unit rotation close to its matrix
     /// ([`PoseHypothesis::isometry`]).
     pub fn isometry(&self) -> nalgebra::Isometry3<f32> {
         isometry_of(&self.rotation, &self.translation_mm)

@@ -143,8 +143,8 @@ pub enum ProtocolError {
     DiagnoseWithoutPoses,
     /// Hints and poses to diagnose against in one request: they share one field.
     DiagnoseWithHints,
-    /// A request option out of its range: a value of [`detect::Requirements`], or the
-    /// maximum frame age.
+    /// A request option out of its range: a value of [`detect::Requirements`], the maximum
+    /// frame age, or the timeout.
     Requirement {
         field: &'static str,
         value: String,

@@ -110,7 +110,8 @@ pub struct DaemonConfig {
 /// The `[detector]` table, flattened: `voting.reference_step = 4` (a dotted key, or a
 /// `[detector.voting]` table) becomes `("voting.reference_step", "4")`. A value is a number or
 /// true/false, and a parameter is set once: TOML refuses a key given twice in one form, and this
-/// the same parameter given as a dotted key and in a table, where the last would win unseen.
+/// the same parameter given as a quoted key (`"voting.reference_step"`) and in a table, where the
+/// last would win unseen.
 fn detector_table<'de, D>(deserializer: D) -> Result<Vec<(String, String)>, D::Error>
 where
     D: serde::Deserializer<'de>,
@@ -142,7 +143,8 @@ where
             };
             if out.iter().any(|(k, _)| *k == key) {
                 return Err(E::custom(format!(
-                    "detector.{key} is set twice (as a dotted key and in a table): set it once"
+                    "detector.{key} is set twice (as a quoted \"a.b\" key and in a table): set it \
+                     once"
                 )));
             }
             out.push((key, text));

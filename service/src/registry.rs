@@ -39,7 +39,7 @@ impl Registry {
             if path.is_file() {
                 files.push(path);
             } else if path.symlink_metadata().is_ok() && path.metadata().is_err() {
-                tracing::warn!(path = %path.display(), "a link to nothing: skipped");
+                tracing::warn!(path = %path.display(), "a link whose target cannot be read: skipped");
             } else if !path.is_dir() {
                 // A FIFO, socket or device: never read, and said so.
                 tracing::warn!(path = %path.display(), "not a regular file: skipped");
@@ -171,8 +171,8 @@ impl Registry {
 mod tests {
     use super::*;
 
-    /// A FIFO and a link to nothing in the models folder are never opened, and the log says
-    /// each was skipped, and why.
+    /// A FIFO and a dangling link in the models folder are never opened, and the log says each
+    /// was skipped, and why.
     #[test]
     fn special_files_in_the_models_folder_are_skipped_with_a_log_line() {
         let dir = std::env::temp_dir().join(format!("ppfd-registry-fifo-{}", std::process::id()));
@@ -196,7 +196,8 @@ mod tests {
             "{log}"
         );
         assert!(
-            log.contains("a link to nothing: skipped") && log.contains("obj_000003.ply"),
+            log.contains("a link whose target cannot be read: skipped")
+                && log.contains("obj_000003.ply"),
             "{log}"
         );
     }

@@ -56,7 +56,7 @@ pub enum Outcome {
         overhead_ns: u64,
         detection_ns: u64,
     },
-    /// Poses computed but the response could not be loaned or sent.
+    /// An answer (poses or a refusal) that could not be loaned or sent.
     Undelivered,
     /// Refused with an error status (sent if the client could still take it).
     Refused,
@@ -253,8 +253,10 @@ impl Responder {
         if request.send_time_ns != 0 {
             response.latency.transport_ns = received_ns.saturating_sub(request.send_time_ns);
         }
-        self.send_detect(&active, request.reply_token, response, &[]);
-        Outcome::Refused
+        match self.send_detect(&active, request.reply_token, response, &[]) {
+            Some(_) => Outcome::Refused,
+            None => Outcome::Undelivered,
+        }
     }
 
     /// Whether the client that sent `active` still exists. A dead client's connection slot may

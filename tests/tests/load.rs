@@ -185,7 +185,9 @@ fn a_detection_waiting_for_a_worker_is_queued_and_judged_when_it_starts() {
     match refused {
         ppfd_client::Error::Refused { status, value, .. } => {
             assert_eq!(*status, ppfd_client::Status::CameraStale);
-            assert!(*value >= SLOW.as_nanos() as u64, "{refused}");
+            // Its frame may be one that arrived after the first detection started: older than
+            // the limit, not necessarily than the first detection.
+            assert!(*value > 250_000_000, "{refused}");
         }
         other => panic!("{other}"),
     }

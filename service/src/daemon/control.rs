@@ -105,11 +105,12 @@ impl Daemon {
         stats.model_bytes = self.registry.bytes();
         // Jobs handed to the pool wait there until a worker takes them.
         let running = self
-            .running
-            .load(std::sync::atomic::Ordering::Relaxed)
-            .min(self.in_flight.len() as u64);
-        stats.in_flight = running;
-        stats.queued = (self.queue.len() + self.in_flight.len()) as u64 - running;
+            .in_flight
+            .values()
+            .filter(|j| j.started.load(std::sync::atomic::Ordering::Relaxed))
+            .count();
+        stats.in_flight = running as u64;
+        stats.queued = (self.queue.len() + self.in_flight.len() - running) as u64;
         (
             stats.startup_files,
             stats.startup_files_done,

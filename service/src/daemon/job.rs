@@ -3,7 +3,7 @@
 //! the engine and answers the client itself.
 
 use std::rc::Rc;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 use iceoryx2::identifiers::UniqueClientId;
@@ -46,6 +46,10 @@ pub(super) struct InFlight {
     pub(super) client: UniqueClientId,
     /// Set to stop the detection early: its client is gone.
     pub(super) cancel: Arc<AtomicBool>,
+    /// Set by the worker when it starts the job: a job handed to the pool may wait there for
+    /// a worker (the statistics' queued and running detections). It stays set until the I/O
+    /// thread has the job's completion, so a finished job counts as running, never as waiting.
+    pub(super) started: Arc<AtomicBool>,
 }
 
 /// A job's report, sent after its worker answered the request.
@@ -169,10 +173,11 @@ impl Daemon {
         let (active, header, received_ns) = (q.active, q.header, q.received_ns);
         let client = active.origin();
         let request_id = header.request_id;
-        let running = self.running.clone();
+        let started = Arc::new(AtomicBool::new(false));
+        let started_flag = started.clone();
         self.pool.spawn(move || {
             let started_ns = monotonic_now_ns();
-            let _running = Running::start(&running);
+            started_flag.store(true, Ordering::Relaxed);
             let _span = tracing::debug_span!("detect", request = request_id).entered();
             let frame_age_ns = if frame_header.capture_time_ns != 0 {
                 started_ns.saturating_sub(frame_header.capture_time_ns)
@@ -226,6 +231,7 @@ impl Daemon {
                 _frame: hold,
                 client,
                 cancel,
+                started,
             },
         );
         Ok(())
@@ -235,23 +241,6 @@ impl Daemon {
     pub(super) fn finish(&mut self, c: Completion) {
         self.in_flight.remove(&c.job);
         self.count(c.outcome);
-    }
-}
-
-/// Counts a job as running from its start on a worker to its end, for the statistics' running
-/// and queued detections: a job handed to the pool may wait there for a worker.
-struct Running<'a>(&'a AtomicU64);
-
-impl<'a> Running<'a> {
-    fn start(count: &'a AtomicU64) -> Running<'a> {
-        count.fetch_add(1, Ordering::Relaxed);
-        Running(count)
-    }
-}
-
-impl Drop for Running<'_> {
-    fn drop(&mut self) {
-        self.0.fetch_sub(1, Ordering::Relaxed);
     }
 }
 

@@ -31,7 +31,6 @@
 //! - `shutdown`: the clean stop, and waiting for the running detections.
 
 use std::collections::{HashMap, VecDeque};
-use std::sync::atomic::AtomicU64;
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -135,8 +134,6 @@ pub(crate) struct Daemon {
     /// refused "shutting down" while the running detections finish.
     shutting_down: bool,
     in_flight: HashMap<u64, InFlight>,
-    /// Of `in_flight`, the jobs running on a worker now; the rest wait in the pool for one.
-    running: Arc<AtomicU64>,
     queue: VecDeque<Queued>,
     control_pending: HashMap<u64, ControlActive>,
     /// Model loads waiting for their turn, and the job of the one running (one at a time).
@@ -390,7 +387,6 @@ impl Daemon {
             held_control: Vec::new(),
             shutting_down: false,
             in_flight: HashMap::new(),
-            running: Arc::new(AtomicU64::new(0)),
             queue: VecDeque::new(),
             control_pending: HashMap::new(),
             waiting_loads: VecDeque::new(),

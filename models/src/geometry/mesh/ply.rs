@@ -904,8 +904,8 @@ mod tests {
         let intact = read(&ascii).unwrap();
         ascii.extend_from_slice(b"\n  \r\n");
         assert_eq!(read(&ascii).unwrap().faces, intact.faces);
-        // Header lines, then 8 vertex lines and 6 face lines: the stray face is line 16 after
-        // the header.
+        // Header lines, then 8 vertex lines, 6 face lines and two blank ones: the stray face is
+        // line 17 after the header.
         let header_lines = fixture.header(Format::Ascii, 8).lines().count();
         ascii.extend_from_slice(b"3 0 1 2\n");
         let reason = expect_ply_error(
