@@ -45,24 +45,21 @@ pub struct Stage {
     pub ns: u64,
 }
 
-/// The stages of a breakdown in pipeline order.
+/// The stages of a breakdown in pipeline order ([`LatencyBreakdown::stages`]), labelled for
+/// tables.
 pub fn stages(l: &LatencyBreakdown) -> [Stage; 9] {
-    let stage = |label, key, ns| Stage { label, key, ns };
-    [
-        stage("transport", "transport", l.transport_ns),
-        stage("queue wait", "queue_wait", l.queue_wait_ns),
-        stage(
-            "scene preparation",
-            "scene_preparation",
-            l.scene_preparation_ns,
-        ),
-        stage("kd-tree", "kd_tree", l.kd_tree_ns),
-        stage("voting", "voting", l.voting_ns),
-        stage("clustering", "clustering", l.clustering_ns),
-        stage("re-scoring", "rescoring", l.rescoring_ns),
-        stage("ICP", "icp", l.icp_ns),
-        stage("filters", "filters", l.filters_ns),
-    ]
+    l.stages().map(|(key, ns)| Stage {
+        label: match key {
+            "queue_wait" => "queue wait",
+            "scene_preparation" => "scene preparation",
+            "kd_tree" => "kd-tree",
+            "rescoring" => "re-scoring",
+            "icp" => "ICP",
+            other => other,
+        },
+        key,
+        ns,
+    })
 }
 
 pub fn ms(ns: u64) -> String {

@@ -549,6 +549,24 @@ pub struct LatencyBreakdown {
     pub total_ns: u64,
 }
 
+impl LatencyBreakdown {
+    /// The stages in pipeline order, each by its field's name without `_ns` (the keys of
+    /// `ppf bench --json` and of Python's `latency`), with its time in ns.
+    pub fn stages(&self) -> [(&'static str, u64); 9] {
+        [
+            ("transport", self.transport_ns),
+            ("queue_wait", self.queue_wait_ns),
+            ("scene_preparation", self.scene_preparation_ns),
+            ("kd_tree", self.kd_tree_ns),
+            ("voting", self.voting_ns),
+            ("clustering", self.clustering_ns),
+            ("rescoring", self.rescoring_ns),
+            ("icp", self.icp_ns),
+            ("filters", self.filters_ns),
+        ]
+    }
+}
+
 /// Sizes of the work done for one request.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
 #[type_name("ppfd::DetectCounts")]
@@ -1116,6 +1134,26 @@ mod tests {
         }
         assert_eq!(Status::from_code(9), Some(Status::CameraStale));
         assert_eq!(Status::from_code(1000), None);
+    }
+
+    /// Every stage field, each once, in pipeline order.
+    #[test]
+    fn the_stages_are_the_stage_fields_in_order() {
+        let l = LatencyBreakdown {
+            transport_ns: 1,
+            queue_wait_ns: 2,
+            scene_preparation_ns: 3,
+            kd_tree_ns: 4,
+            voting_ns: 5,
+            clustering_ns: 6,
+            rescoring_ns: 7,
+            icp_ns: 8,
+            filters_ns: 9,
+            detection_ns: 10,
+            total_ns: 11,
+        };
+        assert_eq!(l.stages().map(|(_, ns)| ns), [1, 2, 3, 4, 5, 6, 7, 8, 9]);
+        assert_eq!(l.stages()[6].0, "rescoring");
     }
 
     #[test]

@@ -225,16 +225,10 @@ fn latency_dict<'py>(py: Python<'py>, found: &Found) -> PyResult<Bound<'py, PyDi
     let l = &found.latency;
     let d = &l.daemon;
     let dict = PyDict::new(py);
+    for (stage, ns) in d.stages() {
+        dict.set_item(format!("{stage}_ns"), ns)?;
+    }
     for (key, ns) in [
-        ("transport_ns", d.transport_ns),
-        ("queue_wait_ns", d.queue_wait_ns),
-        ("scene_preparation_ns", d.scene_preparation_ns),
-        ("kd_tree_ns", d.kd_tree_ns),
-        ("voting_ns", d.voting_ns),
-        ("clustering_ns", d.clustering_ns),
-        ("rescoring_ns", d.rescoring_ns),
-        ("icp_ns", d.icp_ns),
-        ("filters_ns", d.filters_ns),
         ("detection_ns", d.detection_ns),
         ("total_ns", d.total_ns),
         ("hand_back_ns", l.hand_back_ns()),
