@@ -78,3 +78,53 @@ fn a_frame_in_another_unit_is_refused_with_the_scale_that_fits() {
         other => panic!("{other:?}"),
     }
 }
+
+/// A driver that publishes frames whose header names another camera (a copied header, a
+/// driver started with the wrong name) has them refused, both cameras named: poses in another
+/// camera's frame of reference would send a robot to the wrong place.
+#[test]
+fn a_frame_naming_another_camera_is_refused() {
+    let scratch = Scratch::new("refusal-name");
+    let served = ServedPart::start(&scratch, "refusal_name", Part::TPipe, 5);
+    let client = client(&served);
+    let f = &served.scene.frame;
+    let k = header(&served).intrinsics;
+    let mut other = ppfd_client::CameraPublisher::new(
+        Some(&served.prefix),
+        "left",
+        2,
+        f.width,
+        f.height,
+        k,
+        f.depth_scale_mm,
+    )
+    .unwrap();
+    let objects = [served.part.object_id()];
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(20);
+    let refused = loop {
+        let mut frame = other.loan().unwrap().write_from_slice(&f.depth).unwrap();
+        frame.header_mut().camera_name =
+            ppfd_client::protocol::text::encode_name("camera", "right").unwrap();
+        frame.send(monotonic_now_ns()).unwrap();
+        match client.detect("left", &objects, &DetectOptions::default()) {
+            Err(Error::Refused {
+                status: Status::NoFrame | Status::UnknownCamera,
+                ..
+            }) if std::time::Instant::now() < deadline => {
+                std::thread::sleep(std::time::Duration::from_millis(50))
+            }
+            other => break other,
+        }
+    };
+    match refused {
+        Err(Error::Refused {
+            status: Status::InvalidFrame,
+            message,
+            ..
+        }) => assert!(
+            message.contains("camera \"left\"") && message.contains("named camera \"right\""),
+            "{message}"
+        ),
+        other => panic!("{other:?}"),
+    }
+}

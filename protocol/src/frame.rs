@@ -71,7 +71,8 @@ pub struct FrameHeader {
     pub protocol_version: u32,
     /// A number the driver chooses for its camera (for logs; the name is what requests use).
     pub camera_id: u32,
-    /// Camera name, NUL-padded UTF-8 (see [`FrameHeader::camera_name`]).
+    /// Camera name, NUL-padded UTF-8 (see [`FrameHeader::camera_name`]): the name the frame is
+    /// published under, or empty; the daemon refuses a camera's frame that names another.
     pub camera_name: [u8; CAMERA_NAME_BYTES],
     /// Frame counter of the driver, increasing by one per published frame.
     pub sequence: u64,

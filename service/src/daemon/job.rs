@@ -126,6 +126,20 @@ impl Daemon {
                     );
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 }
+                let named = fh.camera_name();
+                if !named.is_empty() && named != name.as_str() {
+                    // Poses in another camera's frame of reference would send a robot to the
+                    // wrong place.
+                    let e = EngineError::new(
+                        Status::InvalidFrame,
+                        format!(
+                            "{whose} named camera {named:?} in their header: a driver publishes \
+                             another camera's frames under this name (each camera needs a name of \
+                             its own)"
+                        ),
+                    );
+                    return Err(Box::new((q.active, q.header, q.received_ns, e)));
+                }
                 if let Some(e) = stamped_ahead(&fh, now, &whose) {
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 }
