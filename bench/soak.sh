@@ -30,9 +30,14 @@ work=$(mktemp -d /tmp/ppfd-soak.XXXXXX)
 export PPFD_PREFIX="soak_$$_"
 pids=()
 cleanup() {
+    # The daemon first, with a clean stop; what is left, killed. The killed processes leave
+    # their shared-memory files under this run's prefix, which nobody else uses: removed here.
+    if [ -n "${daemon_pid:-}" ] && kill -TERM "$daemon_pid" 2>/dev/null; then sleep 1; fi
     for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null || true; done
     pkill -9 -f "replay .* --camera soak" 2>/dev/null || true
     wait 2>/dev/null || true
+    rm -f /dev/shm/"$PPFD_PREFIX"* /tmp/iceoryx2/services/"$PPFD_PREFIX"* \
+        /tmp/iceoryx2/"$PPFD_PREFIX"* 2>/dev/null || true
 }
 trap cleanup EXIT
 
