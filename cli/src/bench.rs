@@ -15,7 +15,7 @@ use clap::Args;
 use hdrhistogram::Histogram;
 use ppfd_client::{DetectOptions, Error, Latency};
 
-use crate::common::{millis, ms, stages, Connect};
+use crate::common::{detect_once_framed, millis, ms, stages, Connect};
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
@@ -151,21 +151,13 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
                     // out within the request's timeout, as `ppf detect` does, not counted.
                     let mut answered = false;
                     let mut request = |client: &ppfd_client::Client| {
-                        let deadline = Instant::now() + options.timeout;
-                        loop {
-                            match client.detect(&args.camera, objects, options) {
-                                Err(Error::Refused {
-                                    status: ppfd_client::Status::NoFrame,
-                                    ..
-                                }) if !answered && Instant::now() < deadline => {
-                                    std::thread::sleep(millis(20))
-                                }
-                                found => {
-                                    answered |= found.is_ok();
-                                    break found;
-                                }
-                            }
-                        }
+                        let found = if answered {
+                            client.detect(&args.camera, objects, options)
+                        } else {
+                            detect_once_framed(client, &args.camera, objects, options)
+                        };
+                        answered |= found.is_ok();
+                        found
                     };
                     let warmed = args.connect.client().and_then(|client| {
                         for _ in 0..args.warmup {

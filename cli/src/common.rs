@@ -145,6 +145,27 @@ pub fn millis(ms: u64) -> Duration {
     Duration::from_millis(ms)
 }
 
+/// Detects as [`Client::detect`] does, but a camera without a frame yet ("no frame yet": the
+/// daemon has just subscribed to it, and its driver's next frame is on the way) is asked again
+/// until it has one, within the request's timeout.
+pub fn detect_once_framed(
+    client: &Client,
+    camera: &str,
+    objects: &[u32],
+    options: &ppfd_client::DetectOptions,
+) -> ppfd_client::Result<Detections> {
+    let deadline = std::time::Instant::now() + options.timeout;
+    loop {
+        match client.detect(camera, objects, options) {
+            Err(ppfd_client::Error::Refused {
+                status: ppfd_client::Status::NoFrame,
+                ..
+            }) if std::time::Instant::now() < deadline => std::thread::sleep(millis(20)),
+            found => return found,
+        }
+    }
+}
+
 /// The median: the middle value, or the mean of the two middle ones; `v` is not empty.
 pub fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);

@@ -2,7 +2,6 @@
 //! breakdown.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use ppfd_client::{DetectOptions, PoseHint};
 
@@ -131,18 +130,8 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
         diagnose,
         ..Default::default()
     };
-    // A camera the daemon has just subscribed to has no frame until its driver's next one;
-    // that frame is worth waiting for within the request's timeout.
-    let deadline = Instant::now() + millis(args.timeout_ms);
-    let found = loop {
-        match client.detect(&args.camera, &args.objects, &options) {
-            Err(ppfd_client::Error::Refused {
-                status: ppfd_client::Status::NoFrame,
-                ..
-            }) if Instant::now() < deadline => std::thread::sleep(millis(20)),
-            found => break found.map_err(|e| e.to_string())?,
-        }
-    };
+    let found = crate::common::detect_once_framed(&client, &args.camera, &args.objects, &options)
+        .map_err(|e| e.to_string())?;
     if let (Some((path, models)), Some(recorder)) = (&args.overlay, recorder) {
         write_overlay(path, models, &recorder.finish()?, &found, &args.objects)?;
     }
