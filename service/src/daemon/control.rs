@@ -44,7 +44,11 @@ impl Daemon {
         }
         if self.startup.is_some() && !matches!(command, ControlCommand::Statistics) {
             // Listed, loaded or dropped once the models folder is: a load now could be undone
-            // by a file of the folder with the same id.
+            // by a file of the folder with the same id. Clients that come and go faster than
+            // housekeeping runs are let go of here too.
+            if self.held_control.len() >= limits::MAX_CLIENTS {
+                self.drop_dead_clients_held_control();
+            }
             self.held_control.push(active);
             return;
         }

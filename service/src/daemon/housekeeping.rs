@@ -21,6 +21,7 @@ impl Daemon {
         self.forget_driverless_cameras();
         self.responder.trim();
         self.drop_dead_clients_requests();
+        self.drop_dead_clients_held_control();
         self.cancel_dead_clients_detections();
         self.release_abandoned();
     }
@@ -59,6 +60,24 @@ impl Daemon {
         let held = self.responder.abandoned_held();
         if held > 0 {
             tracing::debug!(held, "requests of dead clients not yet released");
+        }
+    }
+
+    /// Lets go of the control requests held while the models folder loads whose clients are
+    /// gone: each keeps the dead client's connection in the server's buffer of expired
+    /// connections, which iceoryx2 panics beyond, and a monitor polling the model list with a
+    /// short timeout leaves one per poll for as long as the folder takes to load.
+    pub(super) fn drop_dead_clients_held_control(&mut self) {
+        if self.held_control.is_empty() {
+            return;
+        }
+        let held = std::mem::take(&mut self.held_control);
+        for active in held {
+            if self.responder.control_client_alive(&active) {
+                self.held_control.push(active);
+            } else {
+                self.responder.abandon_control(active);
+            }
         }
     }
 
