@@ -218,7 +218,9 @@ class Client:
         - `order`: each object's poses best score first, or nearest first.
 
         `hints`: poses already known, at most 64, each a `Detection` of an earlier answer or a
-        pair `(object_id, pose)` with a 4×4 pose of one of `object_ids`. A hinted object is
+        pair `(object_id, pose)` with a 4×4 (or 3×4) pose of one of `object_ids`; a `Detection`
+        of an object not in `object_ids` is left out, so a whole earlier answer can be passed
+        while the objects asked for change. A hinted object is
         first refined from its hints (ICP, re-scoring, both filters, the minimum score) and
         goes through voting only when none passes; its pose then has `Checks.HINT`.
 
@@ -289,7 +291,10 @@ def monotonic_now_ns() -> int:
 
 def remove_prefix_leftovers(prefix: str) -> int:
     """Removes what iceoryx2 leaves under a prefix made for one run, once its processes are
-    gone. Returns how many entries were removed."""
+    gone (a daemon, driver or client killed without cleanup leaves files in `/dev/shm` and
+    `/tmp/iceoryx2`). Returns how many entries were removed. Raises `ProtocolError` while a
+    daemon runs under the prefix, removing nothing; this process's own clients and publishers
+    under it are to be dropped first."""
 
 class Error(Exception):
     """Anything that went wrong talking to the ppfd daemon."""

@@ -138,7 +138,7 @@ pub use ppfd_protocol::services::prefix_from_env;
 
 /// Removes the files iceoryx2 leaves behind under `prefix` once every process using it has
 /// ended ([`ppfd_protocol::services::remove_prefix_leftovers`]). Returns how many entries were
-/// removed.
+/// removed; refuses a prefix a running daemon serves.
 pub fn remove_prefix_leftovers(prefix: &str) -> Result<usize> {
     Ok(ppfd_protocol::services::remove_prefix_leftovers(prefix)?)
 }

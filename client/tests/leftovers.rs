@@ -83,3 +83,39 @@ fn the_node_directory_of_a_process_that_never_cleaned_up_is_removed() {
     assert_eq!(node_dirs_of(&prefix), Vec::<PathBuf>::new());
     assert_eq!(entries(&prefix), Vec::<String>::new());
 }
+
+/// A prefix whose daemon runs is refused and its files are left: removing them would cut the
+/// daemon off from its clients and cameras. Once the daemon's node is gone, the same call goes
+/// through.
+#[test]
+fn a_prefix_a_running_daemon_serves_is_refused() {
+    let prefix = format!("cserved{}_", std::process::id());
+    let mut config = iceoryx2::config::Config::default();
+    config.global.prefix = FileName::new(prefix.as_bytes()).unwrap();
+    let daemon = NodeBuilder::new()
+        .name(&NodeName::new(ppfd_protocol::services::DAEMON_NODE).unwrap())
+        .config(&config)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<ipc::Service>()
+        .unwrap();
+    let service = daemon
+        .service_builder(&ServiceName::new("leftovers/served").unwrap())
+        .event()
+        .open_or_create()
+        .unwrap();
+    let before = entries(&prefix);
+    assert!(!before.is_empty());
+    let e = ppfd_client::remove_prefix_leftovers(&prefix).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        format!(
+            "a ppfd daemon is running under the iceoryx2 prefix {prefix:?}: its files are removed \
+             only after it has stopped, or its clients and cameras could no longer reach it"
+        )
+    );
+    assert_eq!(entries(&prefix), before);
+    drop(service);
+    drop(daemon);
+    ppfd_client::remove_prefix_leftovers(&prefix).unwrap();
+    assert_eq!(entries(&prefix), Vec::<String>::new());
+}

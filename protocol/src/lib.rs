@@ -143,6 +143,8 @@ pub enum ProtocolError {
     DiagnoseWithoutPoses,
     /// Hints and poses to diagnose against in one request: they share one field.
     DiagnoseWithHints,
+    /// [`services::remove_prefix_leftovers`] for a prefix a running daemon serves.
+    PrefixServed { prefix: String },
     /// A request option out of its range: a value of [`detect::Requirements`], the maximum
     /// frame age, or the timeout.
     Requirement {
@@ -260,6 +262,12 @@ impl std::fmt::Display for ProtocolError {
                 f,
                 "the request asks for a diagnosis but carries no pose to diagnose against (the \
                  poses the objects are believed at, in the hints field)"
+            ),
+            ProtocolError::PrefixServed { prefix } => write!(
+                f,
+                "a ppfd daemon is running under the iceoryx2 prefix {prefix:?}: its files are \
+                 removed only after it has stopped, or its clients and cameras could no longer \
+                 reach it"
             ),
             ProtocolError::DiagnoseWithHints => write!(
                 f,

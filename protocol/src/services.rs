@@ -14,7 +14,7 @@
 //! `ppfd/daemon` after sending a request, and the daemon notifies the client's own listener on
 //! `ppfd/responses` after answering.
 
-use iceoryx2::node::Node;
+use iceoryx2::node::{Node, NodeView};
 use iceoryx2::prelude::*;
 use iceoryx2::service::builder::{event, publish_subscribe, request_response};
 
@@ -261,11 +261,18 @@ pub fn reply_listener_name(reply_token: u64) -> String {
 /// own, made for one run (as `ppf demo` does), after its daemon, drivers and clients are gone;
 /// never for a prefix that processes still use. Only the prefix's own entries go, not those of
 /// a longer prefix that starts with it ([`is_entry_of_prefix`]). Returns how many entries were
-/// removed.
+/// removed. Refuses a prefix whose daemon is still running ([`ProtocolError::PrefixServed`]):
+/// removing its files would cut off its clients and cameras. The caller's own clients and
+/// publishers under the prefix are its to have dropped first.
 pub fn remove_prefix_leftovers(prefix: &str) -> Result<usize, ProtocolError> {
     check_prefix(prefix)?;
     // The default configuration's folders, which ppfd's processes all use.
     let config = iceoryx2::config::Config::default();
+    if daemon_running(prefix, &config) {
+        return Err(ProtocolError::PrefixServed {
+            prefix: prefix.to_owned(),
+        });
+    }
     let nodes = std::path::PathBuf::from(config.global.node_dir().to_string());
     let folders = [
         std::path::PathBuf::from("/dev/shm"),
@@ -294,6 +301,30 @@ pub fn remove_prefix_leftovers(prefix: &str) -> Result<usize, ProtocolError> {
         }
     }
     Ok(removed)
+}
+
+/// Whether a live node named [`DAEMON_NODE`] is listed under `prefix`.
+fn daemon_running(prefix: &str, config: &iceoryx2::config::Config) -> bool {
+    let mut config = config.clone();
+    let Ok(name) = FileName::new(prefix.as_bytes()) else {
+        return false;
+    };
+    config.global.prefix = name;
+    let mut running = false;
+    let _ = Node::<ipc::Service>::list(&config, |state| {
+        if let NodeState::Alive(view) = &state {
+            if view
+                .details()
+                .as_ref()
+                .is_some_and(|d| d.name().as_str() == DAEMON_NODE)
+            {
+                running = true;
+                return CallbackProgression::Stop;
+            }
+        }
+        CallbackProgression::Continue
+    });
+    running
 }
 
 /// Removes the entries of `prefix` in one node's folder, and the folder once they were its
