@@ -299,6 +299,7 @@ impl Client {
     /// Connects. Works before the daemon starts: requests then fail with [`Error::NoDaemon`]
     /// until it serves, and the same client keeps working across daemon restarts.
     pub fn connect_with(options: &ClientOptions) -> Result<Client> {
+        above_zero("control timeout", options.control_timeout)?;
         let config = iceoryx_config(options.prefix.as_deref())?;
         let node = NodeBuilder::new()
             .config(&config)
@@ -442,15 +443,7 @@ impl Client {
         } else {
             header.set_diagnosis_poses(&options.diagnose)?;
         }
-        // A request whose deadline is its send time can only be refused "deadline passed".
-        if options.timeout.is_zero() {
-            return Err(ppfd_protocol::ProtocolError::Requirement {
-                field: "timeout",
-                value: "0 s".into(),
-                expected: "more than 0".into(),
-            }
-            .into());
-        }
+        above_zero("timeout", options.timeout)?;
         // 0 on the wire takes the daemon's limit, so a zero age is refused here rather than
         // sent as that.
         if options.max_frame_age == Some(Duration::ZERO) {
@@ -570,6 +563,7 @@ impl Client {
         mut request: ControlRequest,
         timeout: Duration,
     ) -> Result<(ControlResponseHeader, Vec<ModelInfo>)> {
+        above_zero("timeout", timeout)?;
         request.request_id = self.request_id();
         request.reply_token = self.reply_token;
         let pending = self
@@ -725,6 +719,20 @@ fn decode_detect(
     })
 }
 
+/// Refuses a zero timeout before anything is sent: a request whose deadline is its send time
+/// can only fail (refused "deadline passed", or a timeout while the daemon carries it out).
+fn above_zero(field: &'static str, timeout: Duration) -> Result<()> {
+    if timeout.is_zero() {
+        return Err(ppfd_protocol::ProtocolError::Requirement {
+            field,
+            value: "0 s".into(),
+            expected: "more than 0".into(),
+        }
+        .into());
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -812,6 +820,19 @@ mod tests {
         assert_eq!(d.latency.end_to_end_ns, 1000);
         assert_eq!(d.latency.overhead_ns(), 300);
         assert_eq!(d.hypotheses.len(), 1);
+    }
+
+    #[test]
+    fn a_zero_control_timeout_is_refused_before_connecting() {
+        let options = ClientOptions {
+            control_timeout: Duration::ZERO,
+            ..Default::default()
+        };
+        let e = Client::connect_with(&options).err().expect("refused");
+        assert_eq!(
+            e.to_string(),
+            "control timeout 0 s is out of range: expected more than 0"
+        );
     }
 }
 

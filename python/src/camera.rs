@@ -4,6 +4,7 @@ use numpy::{PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use ppfd_client::{monotonic_now_ns, Intrinsics};
 use pyo3::prelude::*;
 
+use crate::client::unsigned;
 use crate::errors::{protocol_error, to_py};
 use crate::thread::ThreadBound;
 
@@ -28,16 +29,19 @@ impl CameraPublisher {
     fn new(
         py: Python<'_>,
         name: &str,
-        width: u32,
-        height: u32,
+        width: i64,
+        height: i64,
         fx: f32,
         fy: f32,
         cx: f32,
         cy: f32,
         depth_scale: f32,
         prefix: Option<String>,
-        camera_id: u32,
+        camera_id: i64,
     ) -> PyResult<Self> {
+        let width = unsigned(py, "width", width)?;
+        let height = unsigned(py, "height", height)?;
+        let camera_id = unsigned(py, "camera_id", camera_id)?;
         let prefix = prefix.or_else(ppfd_client::prefix_from_env);
         let intrinsics = Intrinsics { fx, fy, cx, cy };
         let publisher = ppfd_client::CameraPublisher::new(

@@ -22,6 +22,59 @@ pub fn seconds(py: Python<'_>, what: &str, value: f64) -> PyResult<Duration> {
     })
 }
 
+/// A whole number from 0 to 2³²−1 given in Python; `what` names the argument in the error
+/// (pyo3's own conversion to `u32` raises an `OverflowError` that names none).
+pub fn unsigned(py: Python<'_>, what: &str, value: i64) -> PyResult<u32> {
+    u32::try_from(value).map_err(|_| {
+        protocol_error(
+            py,
+            format!(
+                "{what} must be a whole number from 0 to {}; got {value}",
+                u32::MAX
+            ),
+        )
+    })
+}
+
+/// The object ids of a request: each as [`unsigned`], named by its place in the list.
+fn object_id_list(py: Python<'_>, value: &Bound<'_, PyAny>) -> PyResult<Vec<u32>> {
+    if value.is_instance_of::<pyo3::types::PyString>() {
+        return Err(protocol_error(
+            py,
+            format!(
+                "object_ids must be a list of object ids; got {}",
+                value.repr()?
+            ),
+        ));
+    }
+    let items = value.try_iter().map_err(|_| {
+        let got = value
+            .repr()
+            .map_or_else(|_| "an unprintable value".into(), |r| r.to_string());
+        protocol_error(
+            py,
+            format!("object_ids must be a list of object ids; got {got}"),
+        )
+    })?;
+    items
+        .enumerate()
+        .map(|(i, item)| {
+            let item = item?;
+            let n = item.extract::<i64>().map_err(|_| {
+                protocol_error(
+                    py,
+                    format!(
+                        "object_ids[{i}] must be an object id; got {}",
+                        item.repr()
+                            .map_or_else(|_| "an unprintable value".into(), |r| r.to_string())
+                    ),
+                )
+            })?;
+            unsigned(py, &format!("object_ids[{i}]"), n)
+        })
+        .collect()
+}
+
 /// One pose hypothesis: `pose` maps model to camera coordinates, millimetres.
 #[pyclass(module = "ppfd", frozen)]
 pub struct Detection {
@@ -190,17 +243,21 @@ impl Detections {
     }
 
     /// The detections of one object, best first.
-    fn of(&self, py: Python<'_>, object_id: u32) -> Vec<Py<Detection>> {
-        self.detections
+    fn of(&self, py: Python<'_>, object_id: i64) -> PyResult<Vec<Py<Detection>>> {
+        let object_id = unsigned(py, "object_id", object_id)?;
+        Ok(self
+            .detections
             .iter()
             .filter(|d| d.get().hypothesis.object_id == object_id)
             .map(|d| d.clone_ref(py))
-            .collect()
+            .collect())
     }
 
     /// The best-scored detection of one object, or None.
-    fn best(&self, py: Python<'_>, object_id: u32) -> Option<Py<Detection>> {
-        self.detections
+    fn best(&self, py: Python<'_>, object_id: i64) -> PyResult<Option<Py<Detection>>> {
+        let object_id = unsigned(py, "object_id", object_id)?;
+        Ok(self
+            .detections
             .iter()
             .filter(|d| d.get().hypothesis.object_id == object_id)
             .max_by(|a, b| {
@@ -209,7 +266,7 @@ impl Detections {
                     .score
                     .total_cmp(&b.get().hypothesis.score)
             })
-            .map(|d| d.clone_ref(py))
+            .map(|d| d.clone_ref(py)))
     }
 
     fn __repr__(&self) -> String {
@@ -362,8 +419,8 @@ impl Client {
     /// the request is sent.
     ///
     /// `hints`: poses already known (None: none), each a `Detection` of an earlier answer or a
-    /// pair `(object_id, pose)` with a 4×4 pose; at most 64, each of one of `object_ids`. A
-    /// hinted object is first refined from its hints and goes through voting only when none
+    /// pair `(object_id, pose)` with a 4×4 (or 3×4) pose; at most 64. A pair must be of one of
+    /// `object_ids`; a `Detection` of another object is left out. A hinted object is first refined from its hints and goes through voting only when none
     /// passes; `Detection.checks` has `Checks.HINT` on a pose that came from a hint.
     ///
     /// `diagnose`: poses the objects are believed at, given as `hints` are (None: no
@@ -380,8 +437,8 @@ impl Client {
         &self,
         py: Python<'_>,
         camera: &str,
-        object_ids: Vec<u32>,
-        hypotheses: u32,
+        object_ids: &Bound<'_, PyAny>,
+        hypotheses: i64,
         timeout: Option<f64>,
         max_frame_age: Option<f64>,
         min_score: f32,
@@ -394,6 +451,8 @@ impl Client {
         hints: Option<&Bound<'_, PyAny>>,
         diagnose: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Detections> {
+        let object_ids = object_id_list(py, object_ids)?;
+        let hypotheses = unsigned(py, "hypotheses", hypotheses)?;
         let requirements = RequirementArgs {
             min_score,
             instance_distance,
@@ -415,11 +474,11 @@ impl Client {
                 .transpose()?,
             requirements,
             hints: match hints {
-                Some(h) => pose_list(py, "hints", h)?,
+                Some(h) => pose_list(py, "hints", h, &object_ids)?,
                 None => Vec::new(),
             },
             diagnose: match diagnose {
-                Some(d) => pose_list(py, "diagnose", d)?,
+                Some(d) => pose_list(py, "diagnose", d, &object_ids)?,
                 None => Vec::new(),
             },
         };
@@ -461,9 +520,10 @@ impl Client {
         &self,
         py: Python<'py>,
         path: std::path::PathBuf,
-        object_id: u32,
+        object_id: i64,
         timeout: Option<f64>,
     ) -> PyResult<Bound<'py, PyDict>> {
+        let object_id = unsigned(py, "object_id", object_id)?;
         let path = path
             .to_str()
             .ok_or_else(|| protocol_error(py, format!("model path {path:?} is not valid UTF-8")))?;
@@ -481,7 +541,8 @@ impl Client {
     }
 
     /// Drops a model from the daemon.
-    fn drop_model(&self, py: Python<'_>, object_id: u32) -> PyResult<()> {
+    fn drop_model(&self, py: Python<'_>, object_id: i64) -> PyResult<()> {
+        let object_id = unsigned(py, "object_id", object_id)?;
         let client = &self.inner;
         py.detach(|| client.get().map(|c| c.drop_model(object_id)))?
             .map_err(|e| to_py(py, e))

@@ -114,17 +114,22 @@ fn numbers<'py, T: FromPyObjectOwned<'py>, const N: usize>(
 /// (a previous answer) or a pair `(object_id, pose)` with `pose` a 4×4 (or 3×4) array-like
 /// `[[R, t], [0, 0, 0, 1]]` in millimetres. A value of the wrong form raises `ProtocolError`
 /// naming the item; whether the pose is a rotation, and its object one of the request's, is the
-/// client library's to check.
+/// client library's to check. A `Detection` of an object not in `object_ids` is left out: a
+/// picking loop passes its last answer whole while the objects it asks for change.
 pub fn poses<'py>(
     py: Python<'py>,
     name: &str,
     value: &Bound<'py, PyAny>,
+    object_ids: &[u32],
 ) -> PyResult<Vec<PoseHint>> {
     let mut out = Vec::new();
     for (index, item) in value.try_iter()?.enumerate() {
         let item = item?;
         if let Ok(detection) = item.cast::<Detection>() {
-            out.push(detection.get().hint());
+            let hint = detection.get().hint();
+            if object_ids.contains(&hint.object_id) {
+                out.push(hint);
+            }
             continue;
         }
         let wrong = |what: &str| {

@@ -44,6 +44,10 @@ def test_no_daemon_raises_no_daemon_naming_the_prefix(prefix):
         (("parts", [1]), {"timeout": 0.0}, "timeout 0 s is out of range"),
         (("parts", [1]), {"max_frame_age": -0.5}, "max_frame_age must be"),
         (("parts", [1]), {"max_frame_age": 0.0}, "maximum frame age 0 s is out of range"),
+        (("parts", [5, -1]), {}, "object_ids[1] must be a whole number from 0 to 4294967295; got -1"),
+        (("parts", [2**32]), {}, "object_ids[0] must be a whole number"),
+        (("parts", "15"), {}, "object_ids must be a list of object ids; got '15'"),
+        (("parts", [1]), {"hypotheses": -1}, "hypotheses must be a whole number"),
     ],
 )
 def test_a_malformed_request_is_a_value_error_before_it_is_sent(prefix, args, options, says):
@@ -52,6 +56,23 @@ def test_a_malformed_request_is_a_value_error_before_it_is_sent(prefix, args, op
         client.detect(*args, **options)
     assert isinstance(e.value, ValueError) and isinstance(e.value, ppfd.Error)
     assert says in str(e.value)
+
+
+def test_zero_timeouts_and_negative_ids_are_refused_naming_the_argument(prefix):
+    with pytest.raises(ppfd.ProtocolError, match="control timeout 0 s is out of range"):
+        ppfd.Client(prefix=prefix, control_timeout=0.0)
+    client = ppfd.Client(prefix=prefix)
+    # Refused before it is sent: without a daemon, anything sent would raise NoDaemon.
+    with pytest.raises(ppfd.ProtocolError, match="timeout 0 s is out of range"):
+        client.load_model("obj_000001.ply", 1, timeout=0.0)
+    # Negative ids name the argument, as out-of-range values of the other arguments do.
+    with pytest.raises(ppfd.ProtocolError, match="object_id must be a whole number"):
+        client.drop_model(-1)
+    with pytest.raises(ppfd.ProtocolError, match="object_id must be a whole number"):
+        client.load_model("obj_000001.ply", -1)
+    with pytest.raises(ppfd.ProtocolError, match="camera_id must be a whole number"):
+        ppfd.CameraPublisher("cam", 640, 480, 500.0, 500.0, 320.0, 240.0, prefix=prefix, camera_id=-3)
+    del client
 
 
 @pytest.mark.parametrize(

@@ -385,6 +385,12 @@ def test_hints_from_an_answer_or_the_truth_come_back_refined(client, camera, sce
         assert np.linalg.norm(after.pose[:3, 3] - before.pose[:3, 3]) < 5.0, object_id
         assert rotation_deg(after.pose, before.pose) < 3.0, object_id
 
+    # The whole answer as hints for fewer objects: the other objects' poses are left out.
+    first = scene.object_ids[0]
+    fewer = detect_when_subscribed(client, camera, scene.depth, [first], hints=voted)
+    assert {d.object_id for d in fewer} == {first}
+    assert fewer.best(first).checks & ppfd.Checks.HINT
+
     # The truth as (object id, 4×4 array) pairs, one of them moved far away: the far hint
     # fails and its part is voted for, at its true pose all the same.
     far_id, far_truth = scene.truth[0]
