@@ -215,19 +215,7 @@ fn write_overlay(
             header.sequence, found.frame_sequence
         );
     }
-    let mut meshes = Vec::new();
-    for entry in std::fs::read_dir(models).map_err(|e| format!("{}: {e}", models.display()))? {
-        let file = entry.map_err(|e| e.to_string())?.path();
-        let id = ppfd::ppf_engine::object_id_of_file(&file);
-        let usable = file.extension().is_some_and(|e| {
-            e.eq_ignore_ascii_case("ply") || e == ppfd::ppf_engine::MODEL_EXTENSION
-        });
-        if let Some(id) = id.filter(|id| usable && objects.contains(id)) {
-            if !meshes.iter().any(|(m, _)| *m == id) {
-                meshes.push((id, crate::overlay::mesh_of_file(&file)?));
-            }
-        }
-    }
+    let meshes = meshes_in(models, objects)?;
     if let Some(missing) = objects
         .iter()
         .find(|id| !meshes.iter().any(|(m, _)| m == *id))
@@ -254,6 +242,37 @@ fn write_overlay(
     // On stderr: stdout may be the JSON answer.
     eprintln!("overlay written to {}", path.display());
     Ok(())
+}
+
+/// The meshes of `objects` in the folder `models`, each object's first: a PLY mesh's object is
+/// the number its name ends in, a model file's the id it holds, as the daemon takes them.
+fn meshes_in(
+    models: &std::path::Path,
+    objects: &[u32],
+) -> Result<Vec<(u32, ppfd_models::geometry::mesh::Mesh)>, String> {
+    let mut meshes: Vec<(u32, ppfd_models::geometry::mesh::Mesh)> = Vec::new();
+    for entry in std::fs::read_dir(models).map_err(|e| format!("{}: {e}", models.display()))? {
+        let file = entry.map_err(|e| e.to_string())?.path();
+        let wanted = |id: u32| objects.contains(&id) && !meshes.iter().any(|(m, _)| *m == id);
+        let is = |ext: &str| {
+            file.extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case(ext))
+        };
+        if is("ply") {
+            if let Some(id) = ppfd::ppf_engine::object_id_of_file(&file).filter(|&id| wanted(id)) {
+                meshes.push((id, crate::overlay::mesh_of_file(&file)?));
+            }
+        } else if is(ppfd_models::model::store::EXTENSION) {
+            match ppfd_models::model::store::load(&file) {
+                Ok(model) if wanted(model.object_id()) => {
+                    meshes.push((model.object_id(), model.render_mesh()))
+                }
+                Ok(_) => {}
+                Err(e) => eprintln!("note: {e}: not drawn from"),
+            }
+        }
+    }
+    Ok(meshes)
 }
 
 /// A camera frame as received: its header and depth.
@@ -327,5 +346,28 @@ impl FrameRecorder {
         self.thread
             .join()
             .map_err(|_| "the thread reading the camera's frames panicked".to_string())?
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use ppfd_models::synthetic::parts::Part;
+
+    /// A model file is drawn as the object it holds, whatever its name says.
+    #[test]
+    fn a_model_file_is_drawn_as_the_object_it_holds() {
+        let dir = std::env::temp_dir().join(format!("ppf-meshes-in-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let model = Part::TPipe.model().unwrap();
+        let id = model.object_id();
+        ppfd_models::model::store::save(&model, &dir.join("pipe.PPFM")).unwrap();
+        ppfd_models::model::store::save(&model, &dir.join(format!("obj_{}.ppfm", id + 1))).unwrap();
+        let found = super::meshes_in(&dir, &[id]).unwrap();
+        assert_eq!(found.len(), 1);
+        assert_eq!(found[0].0, id);
+        assert!(!found[0].1.faces.is_empty());
+        assert!(super::meshes_in(&dir, &[id + 1]).unwrap().is_empty());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

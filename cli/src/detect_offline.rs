@@ -227,11 +227,12 @@ impl DatasetDetectArgs {
     /// The detector's parameters with this command's overrides.
     pub fn params(&self) -> Result<ppfd_models::detect::detector::DetectParams, String> {
         let mut p = ppfd_models::detect::detector::DetectParams::new();
+        // Through `set`, for its ranges: the flags are names for two of its keys.
         if let Some(s) = self.reference_step {
-            p.voting.reference_step = s;
+            p.set("voting.reference_step", &s.to_string())?;
         }
         if let Some(k) = self.peaks {
-            p.voting.peaks_per_reference = k;
+            p.set("voting.peaks_per_reference", &k.to_string())?;
         }
         for kv in &self.set {
             p.set_from(kv)?;

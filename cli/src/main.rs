@@ -312,6 +312,47 @@ mod tests {
         assert!(e.contains("--diagnose"), "{e}");
     }
 
+    /// `--peaks` and `--reference-step` keep the ranges of the `--set` keys they name: a value
+    /// out of range is refused, not clamped where it is used.
+    #[test]
+    fn the_voting_flags_take_the_ranges_of_their_keys() {
+        let params = |extra: &[&str]| {
+            let base = [
+                "ppf",
+                "detect",
+                "--dataset",
+                "/d",
+                "--scene",
+                "2",
+                "--image",
+                "3",
+            ];
+            let args: Vec<&str> = base.iter().chain(extra).copied().collect();
+            match Cli::try_parse_from(args).unwrap().command {
+                Command::Detect(a) => match a.into_target().unwrap() {
+                    detect_offline::DetectTarget::Dataset(d) => d.params(),
+                    _ => panic!("not the dataset mode"),
+                },
+                other => panic!("{other:?}"),
+            }
+        };
+        assert_eq!(
+            params(&["--peaks", "3"])
+                .unwrap()
+                .voting
+                .peaks_per_reference,
+            3
+        );
+        for (flag, value, range) in [
+            ("--peaks", "0", "1..=32"),
+            ("--peaks", "33", "1..=32"),
+            ("--reference-step", "0", "1..=1000"),
+        ] {
+            let e = params(&[flag, value]).unwrap_err();
+            assert!(e.contains(range), "{flag} {value}: {e}");
+        }
+    }
+
     /// A flag of the other mode is refused with its name, not dropped.
     #[test]
     fn detect_refuses_the_flags_of_the_other_mode() {

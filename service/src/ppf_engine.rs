@@ -22,8 +22,7 @@ use crate::engine::{
 };
 use crate::model_cache::{self, MeshSource, ModelFiles};
 
-/// Extension of model files.
-pub const MODEL_EXTENSION: &str = "ppfm";
+use ppfd_models::model::store::EXTENSION as MODEL_EXTENSION;
 
 /// Detection with `ppfd_models::detect::detector::Detector`; models are `.ppfm` files (read without
 /// decoding) or PLY meshes, built once and saved as `.ppfm` for the next start.
