@@ -211,7 +211,7 @@ class Client:
         - `instance_distance`: poses whose model centres lie closer than this many diameters
           are one instance, above 0 to 2 (None: the daemon's setting).
         - `roi`: reference points only from this pixel rectangle `(x, y, width, height)`,
-          within the frame (None: the whole frame).
+          within the frame (None, or `(0, 0, 0, 0)`: the whole frame).
         - `max_tilt_deg`: only poses whose model axis `tilt_axis` (None: `(0, 0, 1)`), turned
           by the pose, lies within this angle of the camera direction `tilt_direction` (None:
           `(0, 0, -1)`, towards the camera), 0 to 180 (None: any pose).
@@ -224,7 +224,8 @@ class Client:
         first refined from its hints (ICP, re-scoring, both filters, the minimum score) and
         goes through voting only when none passes; its pose then has `Checks.HINT`.
 
-        `diagnose`: poses the objects are believed at, given as `hints` are. The detection
+        `diagnose`: poses the objects are believed at, given as `hints` are, at least one of
+        the objects asked for (an empty list raises `ProtocolError`). The detection
         then runs from scratch (not with `hints` as well), and `Detections.diagnosis` says per
         object with a pose, after each stage, where the best candidate near it stands and at
         which stage it was lost; about twice the detection's time.

@@ -24,6 +24,8 @@ def main() -> None:
     args = parser.parse_args()
     orders = [[int(i) for i in order.split(",") if i] for order in args.orders]
     orders = [order for order in orders if order]
+    if not orders:
+        parser.error("every order is empty: give object ids, comma-separated (1,5,6)")
 
     client = ppfd.Client(prefix=args.prefix)
     picked = 0

@@ -478,7 +478,19 @@ impl Client {
                 None => Vec::new(),
             },
             diagnose: match diagnose {
-                Some(d) => pose_list(py, "diagnose", d, &object_ids)?,
+                Some(d) => {
+                    let poses = pose_list(py, "diagnose", d, &object_ids)?;
+                    // An empty list would run a plain detection and say nothing.
+                    if poses.is_empty() {
+                        return Err(protocol_error(
+                            py,
+                            "diagnose holds no pose of the objects asked for: a diagnosis needs \
+                             at least one"
+                                .into(),
+                        ));
+                    }
+                    poses
+                }
                 None => Vec::new(),
             },
         };

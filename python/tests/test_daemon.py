@@ -428,6 +428,8 @@ def test_a_diagnosis_says_where_each_object_is_lost(client, camera, scene):
         client.detect("parts", [far_id], hints=[(far_id, far_truth)], diagnose=[(far_id, far_truth)])
     with pytest.raises(ppfd.ProtocolError, match=r"diagnose\[0\]"):
         client.detect("parts", [far_id], diagnose=[(far_id, far_truth[:2])])
+    with pytest.raises(ppfd.ProtocolError, match="diagnose holds no pose"):
+        client.detect("parts", [far_id], diagnose=[])
 
 
 def test_malformed_hints_are_refused_before_sending(client, camera, scene):

@@ -101,12 +101,9 @@ impl OutlineCounts {
     /// part mostly hidden in a pile is judged on the outline that shows.
     ///
     /// Re-scoring keeps its floor over the whole outline: a mostly hidden pose ranks below one
-    /// that shows more. Measured with `ppf eval` on the four data sets of `../shared/data`:
-    /// the floor of this method in re-scoring too took synth-lmo-dev from 0.931 to 0.898 and
-    /// ycbv-real-dev from 0.933 to 0.867; in the filter alone it changes none of their figures
-    /// and passes the LM-O ape's true pose (a fifth of it visible; 18 of its 120 outline pixels
-    /// show where an edge is expected, all on edges), which the whole-outline floor rejected
-    /// (METHOD.md §3.4).
+    /// that shows more. This floor in re-scoring too costs synth-lmo-dev and ycbv-real-dev
+    /// several targets; in the filter alone it passes the LM-O ape's true pose (a fifth of it
+    /// visible), which the whole-outline floor rejects (docs/METHOD.md §3.4 has the figures).
     pub fn fraction_in_view_of_at_least(&self, min_visible: f32) -> Option<f32> {
         let in_view = self.total - self.occluded;
         let denominator = (self.visible as f32).max(min_visible * in_view as f32);
@@ -155,9 +152,8 @@ impl SilhouetteFilter<'_> {
     ///
     /// On the LM-O frame the egg box's true pose shows 11 of its 200 outline pixels where an
     /// edge is expected, all on edges, and meets the table along 62: it passes, where the floor
-    /// failed it. A part laid flush in a generated table top at the table's border showed 55
-    /// of its 215 outline pixels on the border's edge and passed the floor; it fails now
-    /// (docs/METHOD.md §3.4).
+    /// alone fails it. A part laid flush in a generated table top at the table's border, which
+    /// the floor alone passes on its border's edge, fails (docs/METHOD.md §3.4).
     pub fn fraction(
         &self,
         measured: Option<OutlineCounts>,

@@ -32,24 +32,9 @@ pub struct VotingParams {
     /// with fewer points. See [`VotingParams::reference_step`] for the measurements.
     pub reference_spacing_fraction: f32,
     /// Every `reference_step`-th candidate (see `reference_spacing_fraction`) is a reference
-    /// point. Drost et al. use every 5th subsampled point. Measured on generated views (best
-    /// clusters of voting alone within 0.05 D and 5°; noise-free seed 11, 50 runs; noise and
-    /// two occluders, seeds 12–15, 160 runs; noise-free seed 21, 200 runs), reference points
-    /// summed over them all (the test
-    /// `evenly_spread_reference_points_find_more_best_clusters_than_every_second_point` in
-    /// `models/tests/generated_scenes.rs` prints the first and the fifth row; the others are
-    /// the same runs with the parameters changed):
-    ///
-    /// | selection | noise-free | noisy | noise-free (200) | reference points |
-    /// |---|---:|---:|---:|---:|
-    /// | every 2nd point | 48 | 130 | 186 | 44 231 |
-    /// | every 3rd point | 47 | 122 | 185 | 29 547 |
-    /// | every 4th point | 48 | 125 | 179 | 22 213 |
-    /// | cubes of 0.085 D | 48 | 137 | 185 | 54 069 |
-    /// | cubes of 0.1 D | 49 | 134 | 190 | 46 782 |
-    /// | cubes of 0.125 D | 48 | 131 | 189 | 33 408 |
-    /// | cubes of 0.15 D | 43 | 131 | 187 | 26 698 |
-    /// | cubes of 0.175 D | 46 | 127 | 184 | 20 562 |
+    /// point. Drost et al. use every 5th subsampled point; the even spread with every candidate
+    /// finds more of voting's best clusters on generated views than every 2nd, 3rd or 4th point
+    /// (docs/METHOD.md §2.3 has the table).
     pub reference_step: usize,
     /// Use the paper's neighbouring keys (≤ 15 extra) against quantisation noise.
     pub neighbour_keys: bool,
