@@ -96,9 +96,11 @@ impl DeadNodes {
 /// made (that takes milliseconds).
 const ORPHAN_AGE: Duration = Duration::from_secs(10);
 
-/// Removes the monitor files (`<prefix><id>.node_monitor…`) of nodes that iceoryx2 does not list
-/// at all (`listed`), older than [`ORPHAN_AGE`]: a process killed while it made its node leaves
-/// some of them, without the one listing needs. Returns how many nodes' files went.
+/// Removes what is left of nodes that iceoryx2 does not list at all (`listed`), older than
+/// [`ORPHAN_AGE`]: a process killed while it made its node leaves some of its monitor files
+/// (`<prefix><id>.node_monitor…`) without the one listing needs, or, killed earlier, only its
+/// details file in its folder `<id>/`. Clients that crash in a loop would otherwise fill the
+/// node directory, which every round reads. Returns how many nodes' files went.
 fn remove_orphan_monitors(
     config: &iceoryx2::config::Config,
     listed: &std::collections::HashSet<u128>,
@@ -108,9 +110,24 @@ fn remove_orphan_monitors(
     let Ok(entries) = std::fs::read_dir(&nodes) else {
         return 0;
     };
+    let old = |metadata: std::io::Result<std::fs::Metadata>| {
+        metadata
+            .and_then(|m| m.modified())
+            .ok()
+            .and_then(|t| t.elapsed().ok())
+            .is_some_and(|age| age >= ORPHAN_AGE)
+    };
     let mut orphans = std::collections::HashSet::new();
+    let mut with_monitor = std::collections::HashSet::new();
+    let mut folders = Vec::new();
     for e in entries.flatten() {
         let name = e.file_name().to_string_lossy().into_owned();
+        if name.bytes().all(|b| b.is_ascii_digit()) {
+            if let Ok(id) = name.parse::<u128>() {
+                folders.push((id, e.path()));
+            }
+            continue;
+        }
         if !services::is_entry_of_prefix(&name, &prefix) {
             continue;
         }
@@ -121,13 +138,26 @@ fn remove_orphan_monitors(
             continue;
         };
         let Ok(id) = id.parse::<u128>() else { continue };
-        let old = e
-            .metadata()
-            .and_then(|m| m.modified())
-            .ok()
-            .and_then(|t| t.elapsed().ok())
-            .is_some_and(|age| age >= ORPHAN_AGE);
-        if kind.starts_with("node_monitor") && !listed.contains(&id) && old {
+        if kind.starts_with("node_monitor") {
+            with_monitor.insert(id);
+            if !listed.contains(&id) && old(e.metadata()) {
+                orphans.insert(id);
+            }
+        }
+    }
+    // A folder holding entries of the prefix, all old, of a node without monitor files.
+    for (id, folder) in folders {
+        if listed.contains(&id) || with_monitor.contains(&id) {
+            continue;
+        }
+        let Ok(inside) = std::fs::read_dir(&folder) else {
+            continue;
+        };
+        let mut ours = inside
+            .flatten()
+            .filter(|e| services::is_entry_of_prefix(&e.file_name().to_string_lossy(), &prefix))
+            .peekable();
+        if ours.peek().is_some() && ours.all(|e| old(e.metadata())) {
             orphans.insert(id);
         }
     }
@@ -400,9 +430,23 @@ mod tests {
         };
         write(111, Duration::from_secs(60));
         write(222, Duration::ZERO);
+        // A process killed earlier leaves only its details file in its folder: one old, one
+        // fresh.
+        let details = |id: u128, age: Duration| {
+            let folder = nodes.join(id.to_string());
+            std::fs::create_dir_all(&folder).unwrap();
+            let file = std::fs::File::create(folder.join(format!("{prefix}node.details"))).unwrap();
+            file.set_modified(std::time::SystemTime::now() - age)
+                .unwrap();
+            folder
+        };
+        let old_folder = details(333, Duration::from_secs(60));
+        let fresh_folder = details(444, Duration::ZERO);
         let mut dead = DeadNodes::default();
         let sweep = dead.sweep(&config);
-        assert_eq!(sweep.leftovers, 1, "{sweep:?}");
+        assert_eq!(sweep.leftovers, 2, "{sweep:?}");
+        assert!(!old_folder.exists(), "the old details-only folder stays");
+        assert!(fresh_folder.exists(), "a node being made lost its folder");
         let left = ours();
         // By the whole name: a live node's random id may end in the same digits.
         let of = |id: u32| format!("{prefix}{id}.");
@@ -412,6 +456,7 @@ mod tests {
         // Nothing more to remove: the next round reports nothing.
         assert_eq!(dead.sweep(&config).leftovers, 0);
         let _ = remove_node_leftovers(&config, 222);
+        let _ = remove_node_leftovers(&config, 444);
         drop(live);
         services::remove_prefix_leftovers(&prefix).unwrap();
     }
