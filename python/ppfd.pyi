@@ -5,6 +5,7 @@ frames into shared memory, where the daemon reads them in place. Every error is 
 with the message of the Rust client library. docs/PYTHON.md is the guide.
 """
 
+from types import TracebackType
 from typing import Iterable, Iterator, Literal, Optional, Sequence, TypedDict, Union, overload
 import os
 
@@ -183,6 +184,18 @@ class Client:
     def __init__(self, prefix: Optional[str] = None, *, control_timeout: float = 5.0) -> None:
         """Connects under the iceoryx2 `prefix` (None: `PPFD_PREFIX`, else iceoryx2's
         default). Works before the daemon starts: requests then raise `NoDaemon`."""
+    def close(self) -> None:
+        """Closes the connection now, releasing its shared-memory ports (otherwise released
+        when the object is collected, and never when that happens on another thread); using it
+        afterwards raises `ValueError`. Closing again does nothing. `with ppfd.Client() as c:`
+        closes it at the end of the block."""
+    def __enter__(self) -> "Client": ...
+    def __exit__(
+        self,
+        kind: Optional[type[BaseException]],
+        value: Optional[BaseException],
+        traceback: Optional[TracebackType],
+    ) -> bool: ...
     def detect(
         self,
         camera: str,
@@ -273,6 +286,16 @@ class CameraPublisher:
     ) -> None:
         """Creates camera `name` of `width` × `height` pixels, pinhole intrinsics in pixels;
         `depth_scale` is millimetres per raw depth unit."""
+    def close(self) -> None:
+        """Closes the camera now, releasing its shared-memory ports and its name; using it
+        afterwards raises `ValueError`. Closing again does nothing. Also a context manager."""
+    def __enter__(self) -> "CameraPublisher": ...
+    def __exit__(
+        self,
+        kind: Optional[type[BaseException]],
+        value: Optional[BaseException],
+        traceback: Optional[TracebackType],
+    ) -> bool: ...
     @property
     def width(self) -> int: ...
     @property

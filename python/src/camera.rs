@@ -61,6 +61,28 @@ impl CameraPublisher {
         })
     }
 
+    /// Closes the camera now, releasing its shared-memory ports and its name (otherwise
+    /// released when the object is collected, and never when that happens on another thread);
+    /// using it afterwards raises `ValueError`. Closing again does nothing.
+    fn close(&mut self) -> PyResult<()> {
+        self.inner.close()
+    }
+
+    fn __enter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    /// Closes the camera at the end of a `with` block.
+    fn __exit__(
+        &mut self,
+        _kind: &Bound<'_, PyAny>,
+        _value: &Bound<'_, PyAny>,
+        _traceback: &Bound<'_, PyAny>,
+    ) -> PyResult<bool> {
+        self.inner.close()?;
+        Ok(false)
+    }
+
     /// Copies `depth`, a uint16 array of shape (height, width), into a loaned shared-memory
     /// frame and publishes it: the one copy from the array, none after. `capture_time_ns` is
     /// when the sensor captured it on `CLOCK_MONOTONIC` (`ppfd.monotonic_now_ns()`; None: now).

@@ -404,6 +404,28 @@ impl Client {
         })
     }
 
+    /// Closes the connection now, releasing its shared-memory ports (otherwise released when
+    /// the object is collected, and never when that happens on another thread); using it
+    /// afterwards raises `ValueError`. Closing again does nothing.
+    fn close(&mut self) -> PyResult<()> {
+        self.inner.close()
+    }
+
+    fn __enter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    /// Closes the client at the end of a `with` block.
+    fn __exit__(
+        &mut self,
+        _kind: &Bound<'_, PyAny>,
+        _value: &Bound<'_, PyAny>,
+        _traceback: &Bound<'_, PyAny>,
+    ) -> PyResult<bool> {
+        self.inner.close()?;
+        Ok(false)
+    }
+
     /// Detects `object_ids` in the newest frame of `camera`; the GIL is released while the
     /// daemon works. `hypotheses` per object (1 to 16); `timeout` in seconds (None: the
     /// client library's, 3 s); `max_frame_age` in seconds, above 0, the oldest frame accepted

@@ -5,14 +5,14 @@
 use std::mem::ManuallyDrop;
 use std::thread::ThreadId;
 
-use pyo3::exceptions::PyRuntimeError;
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::PyResult;
 
-/// A value used only on the thread that made it.
+/// A value used only on the thread that made it, until it is closed.
 pub struct ThreadBound<T> {
     owner: ThreadId,
     what: &'static str,
-    value: ManuallyDrop<T>,
+    value: ManuallyDrop<Option<T>>,
 }
 
 // SAFETY: the value is reached only through `get`, on its owner thread, and dropped only there
@@ -27,20 +27,35 @@ impl<T> ThreadBound<T> {
         ThreadBound {
             owner: std::thread::current().id(),
             what,
-            value: ManuallyDrop::new(value),
+            value: ManuallyDrop::new(Some(value)),
         }
     }
 
-    /// The value, on its owner thread.
+    /// The value, on its owner thread, unless closed.
     pub fn get(&self) -> PyResult<&T> {
         self.check()?;
-        Ok(&self.value)
+        self.value.as_ref().ok_or_else(|| self.closed())
     }
 
-    /// The value, mutably, on its owner thread.
+    /// The value, mutably, on its owner thread, unless closed.
     pub fn get_mut(&mut self) -> PyResult<&mut T> {
         self.check()?;
-        Ok(&mut self.value)
+        let what = self.what;
+        self.value
+            .as_mut()
+            .ok_or_else(|| PyValueError::new_err(format!("the {what} is closed")))
+    }
+
+    /// Drops the value now, on its owner thread, releasing its ports; using it afterwards
+    /// raises `ValueError`. Closing again does nothing.
+    pub fn close(&mut self) -> PyResult<()> {
+        self.check()?;
+        drop(self.value.take());
+        Ok(())
+    }
+
+    fn closed(&self) -> pyo3::PyErr {
+        PyValueError::new_err(format!("the {} is closed", self.what))
     }
 
     fn check(&self) -> PyResult<()> {

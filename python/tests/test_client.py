@@ -246,3 +246,19 @@ def test_the_type_hints_list_what_the_module_has():
         public = {m for m in vars(cls) if not m.startswith("_") or m in members[name]}
         stubbed = {m for m in members[name] if not m.startswith("__") or m in vars(cls)}
         assert public - {"__init__"} == stubbed - {"__init__"}, name
+
+
+def test_a_client_and_a_camera_close_and_refuse_use_after(prefix):
+    with ppfd.Client(prefix=prefix) as client:
+        with pytest.raises(ppfd.NoDaemon):
+            client.models()
+    with pytest.raises(ValueError, match="the ppfd.Client is closed"):
+        client.models()
+    client.close()
+    with ppfd.CameraPublisher("pyclose", 64, 48, 60.0, 60.0, 32.0, 24.0, prefix=prefix) as camera:
+        assert camera.publish(np.zeros((48, 64), np.uint16)) == 1
+    with pytest.raises(ValueError, match="the ppfd.CameraPublisher is closed"):
+        camera.publish(np.zeros((48, 64), np.uint16))
+    with pytest.raises(ValueError, match="closed"):
+        camera.idle(0.01)
+    camera.close()
