@@ -183,6 +183,17 @@ impl From<&PoseHypothesis> for PoseHint {
 const ROTATION_TOLERANCE: f32 = 1e-2;
 
 impl PoseHint {
+    /// A hint of object `object_id` at `pose` (model → camera, millimetres), as
+    /// [`wire_pose`] writes it.
+    pub fn from_isometry(object_id: u32, pose: &nalgebra::Isometry3<f32>) -> PoseHint {
+        let (rotation, translation_mm) = wire_pose(pose);
+        PoseHint {
+            object_id,
+            rotation,
+            translation_mm,
+        }
+    }
+
     /// The hint's pose as a nalgebra isometry, with a unit rotation close to its matrix
     /// ([`PoseHypothesis::isometry`]).
     pub fn isometry(&self) -> nalgebra::Isometry3<f32> {
@@ -497,6 +508,19 @@ impl PoseHypothesis {
     pub fn isometry(&self) -> nalgebra::Isometry3<f32> {
         isometry_of(&self.rotation, &self.translation_mm)
     }
+}
+
+/// A nalgebra isometry (model → camera, millimetres) as the wire carries a pose: `R` row-major
+/// and `t` in millimetres; the inverse of [`isometry_of`] to f32's rounding.
+pub fn wire_pose(pose: &nalgebra::Isometry3<f32>) -> ([f32; 9], [f32; 3]) {
+    let r = pose.rotation.to_rotation_matrix();
+    let m = r.matrix();
+    let mut rotation = [0f32; 9];
+    for (i, value) in rotation.iter_mut().enumerate() {
+        *value = m[(i / 3, i % 3)];
+    }
+    let t = pose.translation.vector;
+    (rotation, [t.x, t.y, t.z])
 }
 
 /// A wire pose, `R` row-major and `t` in millimetres, as a nalgebra isometry. The daemon's
@@ -1211,6 +1235,18 @@ mod tests {
             assert!(
                 (p - nalgebra::Point3::new(1.0, 3.0, 3.0)).norm() < 1e-5,
                 "{p}"
+            );
+        }
+        // And back: the wire's numbers, to f32's rounding.
+        let back = PoseHint::from_isometry(7, &h.isometry());
+        assert_eq!(back.object_id, 7);
+        assert_eq!(back.translation_mm, h.translation_mm);
+        for (a, b) in back.rotation.iter().zip(&h.rotation) {
+            assert!(
+                (a - b).abs() < 1e-6,
+                "{:?} against {:?}",
+                back.rotation,
+                h.rotation
             );
         }
     }

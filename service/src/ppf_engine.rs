@@ -332,24 +332,12 @@ impl DetectionEngine for PpfEngine {
                 .take(options.hypotheses_per_object)
                 .enumerate()
             {
-                let r = h.pose.rotation.to_rotation_matrix();
-                let m = r.matrix();
-                let t = h.pose.translation.vector;
+                let (rotation, translation_mm) = ppfd_protocol::detect::wire_pose(&h.pose);
                 hypotheses.push(PoseHypothesis {
                     object_id: object.object_id,
                     instance_rank: rank as u32,
-                    rotation: [
-                        m[(0, 0)],
-                        m[(0, 1)],
-                        m[(0, 2)],
-                        m[(1, 0)],
-                        m[(1, 1)],
-                        m[(1, 2)],
-                        m[(2, 0)],
-                        m[(2, 1)],
-                        m[(2, 2)],
-                    ],
-                    translation_mm: [t.x, t.y, t.z],
+                    rotation,
+                    translation_mm,
                     score: h.score,
                     votes: h.votes,
                     checks: h.checks.0,

@@ -302,24 +302,7 @@ impl PartsServed {
 
 /// `pose` of object `id` as the wire carries it.
 fn hint(id: u32, pose: Pose) -> ppfd_client::PoseHint {
-    let r = pose.rotation.to_rotation_matrix();
-    let m = r.matrix();
-    let t = pose.translation.vector;
-    ppfd_client::PoseHint {
-        object_id: id,
-        rotation: [
-            m[(0, 0)],
-            m[(0, 1)],
-            m[(0, 2)],
-            m[(1, 0)],
-            m[(1, 1)],
-            m[(1, 2)],
-            m[(2, 0)],
-            m[(2, 1)],
-            m[(2, 2)],
-        ],
-        translation_mm: [t.x, t.y, t.z],
-    }
+    ppfd_client::PoseHint::from_isometry(id, &pose)
 }
 
 #[test]

@@ -83,6 +83,15 @@ impl Default for DetectParams {
 }
 
 impl DetectParams {
+    /// Two hypotheses of an object of `diameter_mm` whose centres lie closer than this are one
+    /// instance: the request's instance distance, or [`DetectParams::nms_distance_fraction`].
+    pub fn instance_distance_mm(&self, requirements: &Requirements, diameter_mm: f32) -> f32 {
+        requirements
+            .instance_distance_fraction
+            .unwrap_or(self.nms_distance_fraction)
+            * diameter_mm
+    }
+
     /// The scene clouds a detection of `models` subsamples and which one each model votes on:
     /// models sorted by diameter share a cloud while their diameter is at most
     /// [`DetectParams::shared_cloud_diameter_ratio`] times the first's, whose leaf, scaled by
@@ -825,13 +834,9 @@ impl Detector {
         (out, contest)
     }
 
-    /// Two hypotheses of an object of `diameter_mm` whose centres lie closer than this are one
-    /// instance: the request's instance distance, or [`DetectParams::nms_distance_fraction`].
     fn instance_distance_mm(&self, opts: &RunOptions, diameter_mm: f32) -> f32 {
-        opts.requirements
-            .instance_distance_fraction
-            .unwrap_or(self.params.nms_distance_fraction)
-            * diameter_mm
+        self.params
+            .instance_distance_mm(&opts.requirements, diameter_mm)
     }
 
     /// One object's answer from the hypotheses that passed both filters and those that did
@@ -936,11 +941,14 @@ impl Detector {
             // Fitted where the scene supports it, reported canonical (METHOD.md §1.8); the
             // equivalents are one instance, at one distance (`v.centre`).
             let reported = v.symmetry.canonical(&s.pose);
-            if s.score < wanted.min_score
-                || !wanted.allows(&reported)
-                || !wanted.region_reached(&scene.intrinsics, &v.surface.positions, &s.pose)
-                || overlaps(&passed, &s.pose, &v.centre, nms)
-            {
+            let refused = wanted.refusal(
+                s.score,
+                &s.pose,
+                &reported,
+                &scene.intrinsics,
+                &v.surface.positions,
+            );
+            if refused.is_some() || overlaps(&passed, &s.pose, &v.centre, nms) {
                 continue;
             }
             let mut checks = Checks(Checks::RESCORED | Checks::REFINED);

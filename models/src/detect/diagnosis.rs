@@ -639,15 +639,13 @@ pub fn diagnose(
     // instance), in score order or nearest first.
     // What of the request leaves a refined pose out, if anything.
     let refused_by_request = |o: &Scored| {
-        if o.score < wanted.min_score {
-            Some("below the request's minimum score")
-        } else if !wanted.allows(&symmetry.canonical(&o.pose)) {
-            Some("refined outside the request's pose restriction")
-        } else if !wanted.region_reached(frame.intrinsics, &surface.positions, &o.pose) {
-            Some("refined outside the request's region of interest")
-        } else {
-            None
-        }
+        wanted.refusal(
+            o.score,
+            &o.pose,
+            &symmetry.canonical(&o.pose),
+            frame.intrinsics,
+            &surface.positions,
+        )
     };
     if let Some(why) = refused_by_request(s) {
         let line = if s.score < wanted.min_score {
@@ -658,10 +656,7 @@ pub fn diagnose(
         trace.report("result", false, line);
         return Ok(trace);
     }
-    let nms = wanted
-        .instance_distance_fraction
-        .unwrap_or(p.nms_distance_fraction)
-        * d;
+    let nms = p.instance_distance_mm(wanted, d);
     // The detector's centre: a point every symmetry leaves in place.
     let centre_of = symmetry.fixed_point(&sphere.0);
     let nearest_first = wanted.order == Order::Distance;

@@ -188,6 +188,29 @@ impl Requirements {
             .as_ref()
             .is_none_or(|r| r.allows(pose))
     }
+
+    /// What of these requirements leaves out a refined pose scoring `score`, if anything:
+    /// the minimum score, the pose restriction (judged on `reported`, the pose as the answer
+    /// gives it, canonical under the object's symmetry) or the region (reached by the surface
+    /// `points` at `pose`). The detector and its diagnosis ask this one question.
+    pub fn refusal(
+        &self,
+        score: f32,
+        pose: &Pose,
+        reported: &Pose,
+        intrinsics: &Intrinsics,
+        points: &[Point3<f32>],
+    ) -> Option<&'static str> {
+        if score < self.min_score {
+            Some("below the request's minimum score")
+        } else if !self.allows(reported) {
+            Some("refined outside the request's pose restriction")
+        } else if !self.region_reached(intrinsics, points, pose) {
+            Some("refined outside the request's region of interest")
+        } else {
+            None
+        }
+    }
 }
 
 #[cfg(test)]
