@@ -480,22 +480,45 @@ impl Client {
             });
         }
         let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
+        self.await_answer(
+            timeout,
+            || pending.is_connected(),
+            || {
+                while let Some(response) = pending
+                    .receive()
+                    .map_err(transport("cannot receive the response"))?
+                {
+                    let received_ns = monotonic_now_ns();
+                    let h = *response.user_header();
+                    if h.request_id == request_id {
+                        return decode_detect(&h, response.payload(), send_ns, received_ns)
+                            .map(Some);
+                    }
+                }
+                Ok(None)
+            },
+        )
+    }
+
+    /// Waits up to `timeout` for the answer to a request just sent: `answer` looks for it,
+    /// `held` says whether the daemon still holds the request. Ends with the answer, or
+    /// [`Error::Dropped`] when the daemon let go of the request without one,
+    /// [`Error::DaemonGone`], or [`Error::Timeout`].
+    fn await_answer<T>(
+        &self,
+        timeout: Duration,
+        held: impl Fn() -> bool,
+        mut answer: impl FnMut() -> Result<Option<T>>,
+    ) -> Result<T> {
         let deadline = instant_after(timeout);
         let mut alive = AliveCheck::new();
         loop {
             // Whether the daemon still holds the request, read before looking for the answer:
             // it answers before it lets go, so an answer sent before is found below.
-            let held = pending.is_connected();
+            let held = held();
             let gone = alive.daemon_gone(&self._detect_service);
-            while let Some(response) = pending
-                .receive()
-                .map_err(transport("cannot receive the response"))?
-            {
-                let received_ns = monotonic_now_ns();
-                let h = *response.user_header();
-                if h.request_id == request_id {
-                    return decode_detect(&h, response.payload(), send_ns, received_ns);
-                }
+            if let Some(found) = answer()? {
+                return Ok(found);
             }
             if !held {
                 return Err(Error::Dropped);
@@ -577,15 +600,16 @@ impl Client {
             });
         }
         let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
-        let deadline = instant_after(timeout);
-        let mut alive = AliveCheck::new();
-        loop {
-            let held = pending.is_connected();
-            let gone = alive.daemon_gone(&self._detect_service);
-            if let Some(response) = pending
-                .receive()
-                .map_err(transport("cannot receive the response"))?
-            {
+        self.await_answer(
+            timeout,
+            || pending.is_connected(),
+            || {
+                let Some(response) = pending
+                    .receive()
+                    .map_err(transport("cannot receive the response"))?
+                else {
+                    return Ok(None);
+                };
                 let h = *response.user_header();
                 let status = Status::from_code(h.status).unwrap_or(Status::Internal);
                 if status != Status::Ok {
@@ -601,20 +625,9 @@ impl Client {
                         value,
                     });
                 }
-                return Ok((h, response.payload().to_vec()));
-            }
-            if !held {
-                return Err(Error::Dropped);
-            }
-            if gone {
-                return Err(Error::DaemonGone);
-            }
-            let left = deadline.saturating_duration_since(Instant::now());
-            if left.is_zero() {
-                return Err(Error::Timeout(timeout));
-            }
-            self.wait_reply(left.min(HELD_CHECK_PERIOD))?;
-        }
+                Ok(Some((h, response.payload().to_vec())))
+            },
+        )
     }
 
     /// The loaded models, by object id; at most
