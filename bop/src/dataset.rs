@@ -33,7 +33,9 @@ use serde_json::Value;
 
 use ppfd_models::geometry::camera::{Intrinsics, OwnedDepthFrame};
 use ppfd_models::model::symmetry::{Symmetry, SymmetryAxis};
-use ppfd_models::{Error, Pose, Result};
+use ppfd_models::Pose;
+
+use crate::{Error, Result};
 
 /// Tolerance on `RᵀR = I` for rotations read from files: LM-O's annotated rotations deviate by
 /// up to 0.0094; they are replaced by the nearest rotation.
@@ -666,11 +668,13 @@ fn parse_file<T>(
     parse: impl FnOnce(&Value) -> std::result::Result<T, String>,
 ) -> Result<T> {
     let text = ppfd_models::file::read_text_bounded(path, &JSON_FILE).map_err(|e| match e {
-        Error::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound => {
+        ppfd_models::Error::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound => {
             dataset_error(path, "file is missing")
         }
-        Error::Io { source, .. } => dataset_error(path, format!("cannot be read: {source}")),
-        other => other,
+        ppfd_models::Error::Io { source, .. } => {
+            dataset_error(path, format!("cannot be read: {source}"))
+        }
+        other => other.into(),
     })?;
     let value: Value = serde_json::from_str(&text)
         .map_err(|e| dataset_error(path, format!("not valid JSON: {e}")))?;
@@ -1085,11 +1089,15 @@ fn open_depth_png(path: &Path) -> Result<std::fs::File> {
     ppfd_models::file::open_regular(path)
         .map(|(file, _)| file)
         .map_err(|e| match e {
-            Error::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound => {
+            ppfd_models::Error::Io { source, .. }
+                if source.kind() == std::io::ErrorKind::NotFound =>
+            {
                 dataset_error(path, "depth image is missing")
             }
-            Error::Io { source, .. } => dataset_error(path, format!("cannot be read: {source}")),
-            other => other,
+            ppfd_models::Error::Io { source, .. } => {
+                dataset_error(path, format!("cannot be read: {source}"))
+            }
+            other => other.into(),
         })
 }
 

@@ -8,8 +8,8 @@
 //!   and scores them against a `BopDataset` ([`eval::score_results`] → [`eval::ScoreReport`]):
 //!   the VSD, MSSD and MSPD pose errors, the BOP 2018 recall and the BOP 2019 average recall.
 //!
-//! Meshes, depth frames, rendering and poses are those of `ppfd-models`, and so are the errors
-//! ([`ppfd_models::Error`]).
+//! Meshes, depth frames, rendering and poses are those of `ppfd-models`; what they report
+//! reaches the caller inside this crate's [`Error`].
 //!
 //! ```no_run
 //! use ppfd_bop::dataset::BopDataset;
@@ -18,11 +18,14 @@
 //! let rows = read_results("results.csv")?;
 //! let report = score_results(&dataset, &rows, &ScoreOptions::default())?;
 //! println!("AR {:.3}", report.overall.ar);
-//! # Ok::<(), ppfd_models::Error>(())
+//! # Ok::<(), ppfd_bop::Error>(())
 //! ```
 
 pub mod dataset;
+mod error;
 pub mod eval;
+
+pub use error::{Error, Result};
 
 /// For tests: the dataset `name` of the shared test data (`../shared/data/<name>` beside the
 /// workspace, or `$PPFD_SHARED_DATA/<name>`; `""` for the folder itself), or `None` when it is

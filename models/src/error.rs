@@ -9,16 +9,29 @@ pub enum Error {
     /// Reading a file failed at the operating-system level.
     #[error("{path}: {source}")]
     Io {
+        /// The file.
         path: PathBuf,
+        /// The cause.
         #[source]
         source: std::io::Error,
     },
-    /// A file was refused before it was parsed: not a regular file, or larger than its limit.
+    /// A file was refused: not a regular file, larger than its limit, or (read for a mesh's
+    /// model, as a `models_info.json` beside it) malformed.
     #[error("{path}: {reason}")]
-    File { path: PathBuf, reason: String },
+    File {
+        /// The file.
+        path: PathBuf,
+        /// Why it was refused.
+        reason: String,
+    },
     /// A PLY file could not be read into a mesh; `reason` says what and where.
     #[error("{path}: malformed PLY: {reason}")]
-    Ply { path: PathBuf, reason: String },
+    Ply {
+        /// The file.
+        path: PathBuf,
+        /// What was wrong, and where in the file.
+        reason: String,
+    },
     /// A mesh (read or generated) cannot be used, e.g. it is empty.
     #[error("invalid mesh: {0}")]
     InvalidMesh(String),
@@ -28,22 +41,26 @@ pub enum Error {
     /// A parameter is out of its valid range.
     #[error("invalid parameter: {0}")]
     InvalidParameter(String),
-    /// An object id that no model of the set has (a BOP result scored against a dataset's
-    /// models, in `ppfd-bop`; the daemon checks its requests' ids itself).
-    #[error("unknown object id {0}")]
-    UnknownObject(u32),
     /// A model store file was refused (truncated, corrupted, wrong version or parameters).
     #[error("{path}: model file refused: {reason}")]
-    ModelStore { path: PathBuf, reason: String },
+    ModelStore {
+        /// The model file.
+        path: PathBuf,
+        /// Why it was refused.
+        reason: String,
+    },
     /// The caller's deadline passed before the detection finished.
     #[error("deadline exceeded after {elapsed:?}")]
-    DeadlineExceeded { elapsed: std::time::Duration },
+    DeadlineExceeded {
+        /// How long the detection had run.
+        elapsed: std::time::Duration,
+    },
     /// The caller cancelled the detection ([`crate::detect::detector::RunOptions::cancel`]).
     #[error("cancelled after {elapsed:?}")]
-    Cancelled { elapsed: std::time::Duration },
-    /// A dataset file (BOP layout) is missing or malformed; `reason` says what was wrong.
-    #[error("{path}: {reason}")]
-    Dataset { path: PathBuf, reason: String },
+    Cancelled {
+        /// How long the detection had run.
+        elapsed: std::time::Duration,
+    },
 }
 
 /// `Result` with this crate's [`Error`].

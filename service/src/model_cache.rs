@@ -146,7 +146,15 @@ pub fn load_or_build(
 /// there is such an entry and the mesh has it (see the module documentation).
 fn take_symmetry_beside(cached: &mut CachedModel, mesh: &Path) -> Result<(), ppfd_models::Error> {
     let id = cached.model.object_id();
-    let Some((symmetry, info)) = ppfd_bop::dataset::symmetry_beside(mesh, id)? else {
+    let beside = ppfd_bop::dataset::symmetry_beside(mesh, id).map_err(|e| match e {
+        ppfd_bop::Error::Models(e) => e,
+        ppfd_bop::Error::Dataset { path, reason } => ppfd_models::Error::File { path, reason },
+        other => ppfd_models::Error::File {
+            path: mesh.with_file_name("models_info.json"),
+            reason: other.to_string(),
+        },
+    })?;
+    let Some((symmetry, info)) = beside else {
         return Ok(());
     };
     if symmetry != cached.model.symmetry() {
@@ -537,12 +545,14 @@ mod tests {
         assert_eq!(kept.model.name(), "own");
         assert_eq!(kept.model.symmetry(), turned);
         assert!(kept.symmetry_from.is_none() && kept.symmetry_left_out.is_none());
-        // A malformed models_info.json is an error naming it.
+        // A malformed models_info.json is an error naming it, of a file (a load answered
+        // "model error", not "internal").
         std::fs::write(&info, "{").unwrap();
         let e = load_or_build(MeshSource::File(&ply), 5, &params, &files)
             .err()
-            .expect("refused")
-            .to_string();
+            .expect("refused");
+        assert!(matches!(e, ppfd_models::Error::File { .. }), "{e:?}");
+        let e = e.to_string();
         assert!(
             e.contains("models_info.json") && e.contains("not valid JSON"),
             "{e}"

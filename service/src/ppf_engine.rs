@@ -78,7 +78,6 @@ fn model_error(e: ppfd_models::Error) -> EngineError {
     use ppfd_models::Error;
     let status = match &e {
         Error::InvalidFrame(_) => Status::InvalidFrame,
-        Error::UnknownObject(_) => Status::UnknownObject,
         Error::DeadlineExceeded { .. } => Status::DeadlineExceeded,
         // Only a client that is gone has its detection cancelled: the answer goes nowhere.
         Error::Cancelled { .. } => Status::Internal,
@@ -90,15 +89,10 @@ fn model_error(e: ppfd_models::Error) -> EngineError {
         | Error::ModelStore { .. } => Status::ModelError,
         _ => Status::Internal,
     };
-    let value = if let Error::UnknownObject(id) = e {
-        id as u64
-    } else {
-        0
-    };
     EngineError {
         status,
         message: e.to_string(),
-        value,
+        value: 0,
     }
 }
 

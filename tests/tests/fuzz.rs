@@ -141,7 +141,7 @@ fn write_dataset(root: &Path, files: &[(&str, String)]) {
 }
 
 /// Everything the readers can be asked of the dataset at `root`; the first error, if any.
-fn read_everything(root: &Path) -> Result<usize, ppfd_models::Error> {
+fn read_everything(root: &Path) -> Result<usize, ppfd_bop::Error> {
     let d = BopDataset::open(root)?;
     let mut read = 0;
     for id in d.object_ids().to_vec() {

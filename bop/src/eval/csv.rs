@@ -10,7 +10,9 @@ use std::path::Path;
 
 use nalgebra::{Matrix3, Translation3};
 
-use ppfd_models::{Error, Pose, Result};
+use ppfd_models::Pose;
+
+use crate::{Error, Result};
 
 /// The header line of a BOP results file.
 pub const RESULTS_HEADER: &str = "scene_id,im_id,obj_id,score,R,t,time";
@@ -301,7 +303,8 @@ mod tests {
     fn missing_file_is_an_io_error_naming_it() {
         let e = read_results("/nonexistent/results.csv").unwrap_err();
         assert!(
-            matches!(e, Error::Io { .. }) && e.to_string().contains("/nonexistent/results.csv")
+            matches!(e, Error::Models(ppfd_models::Error::Io { .. }))
+                && e.to_string().contains("/nonexistent/results.csv")
         );
     }
 }

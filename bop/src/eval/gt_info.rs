@@ -24,7 +24,9 @@ use ppfd_models::geometry::camera::Intrinsics;
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::geometry::render::{Renderer, Roi};
 use ppfd_models::model::sampling::diameter;
-use ppfd_models::{Pose, Result};
+use ppfd_models::Pose;
+
+use crate::Result;
 
 /// δ of BOP's `calc_gt_info`, mm.
 pub const VISIBILITY_TOLERANCE_MM: f32 = 15.0;

@@ -26,7 +26,7 @@
 //! let rows = read_results("results.csv")?;
 //! let report = score_results(&dataset, &rows, &ScoreOptions::default())?;
 //! println!("AR {:.3}", report.overall.ar);
-//! # Ok::<(), ppfd_models::Error>(())
+//! # Ok::<(), ppfd_bop::Error>(())
 //! ```
 
 pub mod csv;

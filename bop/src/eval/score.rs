@@ -17,7 +17,9 @@ use super::vsd::{depth_to_distance, vsd_errors, CostType, VisibilityMode};
 use crate::dataset::{BopDataset, GtPose, ModelInfo, TestTarget};
 use ppfd_models::geometry::camera::Intrinsics;
 use ppfd_models::geometry::mesh::Mesh;
-use ppfd_models::{Error, Pose, Result};
+use ppfd_models::Pose;
+
+use crate::{Error, Result};
 
 /// What to score and with which settings. [`ScoreOptions::default`] is the benchmark's.
 #[derive(Clone, Debug)]

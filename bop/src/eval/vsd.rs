@@ -10,8 +10,8 @@
 //! outside their intersection or where the two renderings differ by τ or more; VSD is the mean
 //! cost ([`vsd_errors`]). An empty union costs 1.
 
+use crate::{Error, Result};
 use ppfd_models::geometry::camera::Intrinsics;
-use ppfd_models::{Error, Result};
 
 /// How a rendered pixel is judged visible against the test image.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
