@@ -67,6 +67,8 @@
 //! println!("pose {:?}, score {:.2}, {:?} in voting", best.pose, best.score, found.timings.voting);
 //! ```
 
+#![warn(missing_docs)]
+
 pub mod detect;
 pub mod error;
 pub mod file;

@@ -30,8 +30,11 @@ pub struct ClusteringParams {
     /// on 250 noise-free generated views (best cluster within 0.05 D and 5°): plain average
     /// 221, two iterations at 8° 231, three shrinking from 8° by 0.6 236.
     pub refine_rotation_deg: f32,
+    /// The factor, 0 to 1, by which the refinement's angle shrinks each iteration; 1 keeps it.
     pub refine_rotation_shrink: f32,
+    /// The refinement's translation window, a fraction of the model diameter D.
     pub refine_translation_fraction: f32,
+    /// How many times the mean is refined; 0 keeps the mean of all members.
     pub refine_iterations: usize,
 }
 

@@ -40,13 +40,19 @@ use nalgebra::Point3;
 /// `default()`) gives the paper's settings with this project's measured departures.
 #[derive(Clone, Debug)]
 pub struct DetectParams {
+    /// Scene preparation: points and normals from depth (METHOD.md §2.1).
     pub scene: SceneParams,
     /// The supporting plane and other large planes, on which no reference points are taken.
     pub plane: PlaneParams,
+    /// Reference points, voting and the accumulator's peaks (METHOD.md §2.3–2.5).
     pub voting: VotingParams,
+    /// Pose clustering (METHOD.md §3.1).
     pub clustering: ClusteringParams,
+    /// View-dependent re-scoring, before and after ICP (METHOD.md §3.2).
     pub rescoring: RescoringParams,
+    /// Projective ICP of the best re-scored poses (METHOD.md §3.3).
     pub icp: IcpParams,
+    /// The consistency and silhouette filters, and the depth edge map (METHOD.md §3.4).
     pub filters: FilterParams,
     /// Across objects: a pose on another object's surface gives way (METHOD.md §3.5).
     pub exclusion: ExclusionParams,
@@ -224,6 +230,7 @@ impl Default for RunOptions {
 /// bookkeeping (see [`RunOptions::hints`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Hint {
+    /// The object the hint is for: one of the requested models' ids.
     pub object_id: u32,
     /// Model to camera, mm.
     pub pose: Pose,
@@ -245,6 +252,7 @@ impl Checks {
     /// Refined from one of [`RunOptions::hints`], not found by voting.
     pub const HINT: u32 = 16;
 
+    /// Whether `bit` (one of the constants above) is set.
     pub fn has(&self, bit: u32) -> bool {
         self.0 & bit != 0
     }
@@ -259,13 +267,17 @@ pub struct Hypothesis {
     pub score: f32,
     /// Summed votes of the pose cluster.
     pub votes: u32,
+    /// The checks the hypothesis went through and passed.
     pub checks: Checks,
 }
 
 /// The hypotheses of one object, best first.
 #[derive(Clone, Debug)]
 pub struct ObjectDetections {
+    /// The object's id, as its model carries it.
     pub object_id: u32,
+    /// At most [`RunOptions::hypotheses_per_object`], one per instance; those that pass both
+    /// filters come first.
     pub hypotheses: Vec<Hypothesis>,
     /// The best pose clusters out of voting, by summed votes (at most
     /// [`DetectParams::clusters_kept`]), with their votes.
@@ -277,16 +289,25 @@ pub struct ObjectDetections {
 /// the cores the other objects hold, and their sum can exceed the detection's wall time.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StageTimings {
+    /// Back-projecting the frame, fitting its normals and finding its large planes.
     pub scene_preparation: Duration,
+    /// Subsampling the scene clouds and building their kd-trees.
     pub kd_tree: Duration,
+    /// Choosing reference points and voting.
     pub voting: Duration,
+    /// Pose clustering.
     pub clustering: Duration,
+    /// Re-scoring, before and after ICP.
     pub rescoring: Duration,
+    /// Projective ICP.
     pub icp: Duration,
+    /// The filters and what they share (silhouette meshes, the edge map), suppression and
+    /// exclusion.
     pub filters: Duration,
 }
 
 impl StageTimings {
+    /// The sum of the stages' times.
     pub fn total(&self) -> Duration {
         self.scene_preparation
             + self.kd_tree
@@ -331,7 +352,9 @@ pub struct Detections {
     /// Wall time of the whole detection. The objects' stages run two or more objects at a
     /// time, so `timings` (summed over objects) may exceed it.
     pub elapsed: Duration,
+    /// Wall time per stage, summed over objects.
     pub timings: StageTimings,
+    /// Sizes of the work done.
     pub counts: Counts,
     /// Per requested object, its own stage timings (scene preparation is shared and counted once
     /// in `timings`).
@@ -454,10 +477,12 @@ impl Default for Detector {
 }
 
 impl Detector {
+    /// A detector that runs with `params`.
     pub fn new(params: DetectParams) -> Self {
         Self { params }
     }
 
+    /// The parameters it runs with.
     pub fn params(&self) -> &DetectParams {
         &self.params
     }

@@ -33,6 +33,7 @@ use std::time::Instant;
 
 /// A pose counts as near the target within this fraction of the diameter and these degrees.
 pub const NEAR_TRANSLATION_FRACTION: f32 = 0.1;
+/// ...and within this many degrees of the target's rotation.
 pub const NEAR_ROTATION_DEG: f32 = 15.0;
 
 /// One stage's finding.
@@ -49,9 +50,11 @@ pub struct StageReport {
 /// The stages' findings for one object.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Diagnosis {
+    /// The object diagnosed.
     pub object_id: u32,
     /// What the object's scene cloud holds of it at the target.
     pub cloud: CloudOnTarget,
+    /// The stages' findings in the order they run, up to the first that loses the target.
     pub stages: Vec<StageReport>,
 }
 
@@ -62,10 +65,13 @@ pub struct Diagnosis {
 /// with the opposite normal.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CloudOnTarget {
+    /// Points in the object's subsampled scene cloud.
     pub cloud_points: usize,
+    /// Of them, the points on the target's facing surface (within 3 mm).
     pub on_object: usize,
     /// `None` when no point is on the object.
     pub normal_error_median_deg: Option<f32>,
+    /// Of the points on the object, how many are reference points.
     pub references_on_object: usize,
 }
 
@@ -209,8 +215,11 @@ fn first_near(
 pub struct PreparedFrame<'a> {
     /// The camera's, for a request's region of interest.
     pub intrinsics: &'a Intrinsics,
+    /// The frame's points and normals, per pixel.
     pub image: &'a SceneImage,
+    /// The large planes found in the frame (METHOD.md §2.3).
     pub planes: &'a [SupportingPlane],
+    /// The frame's depth edges (METHOD.md §3.4).
     pub edges: &'a EdgeMap,
 }
 
@@ -290,7 +299,9 @@ pub fn diagnose_targets(
 /// target's [`Diagnosis`].
 #[derive(Clone, Debug)]
 pub struct FrameDiagnosis {
+    /// The large planes the detector finds in the frame, largest first.
     pub planes: Vec<SupportingPlane>,
+    /// Each target's diagnosis, in the order of the models; objects without a target left out.
     pub objects: Vec<Diagnosis>,
 }
 

@@ -34,6 +34,7 @@ impl Default for ExclusionParams {
 }
 
 impl ExclusionParams {
+    /// Whether exclusion runs: a positive `min_shared_fraction` and at least one alternate.
     pub fn enabled(&self) -> bool {
         self.min_shared_fraction > 0.0 && self.alternates > 0
     }
@@ -48,6 +49,8 @@ pub struct Claim {
 }
 
 impl Claim {
+    /// The claim of `surface` at `pose`: the cells of its points that [`judge_point`] finds
+    /// inliers (tolerance and conflict distance in mm, the normals' angle in degrees).
     pub fn new(
         surface: &OrientedPoints,
         pose: &Pose,
@@ -82,6 +85,7 @@ impl Claim {
         self.cells.len()
     }
 
+    /// Whether the pose confirms no cell.
     pub fn is_empty(&self) -> bool {
         self.cells.is_empty()
     }

@@ -31,6 +31,7 @@ pub struct FilterParams {
     /// by more than `edge_jump_mm` or `edge_jump_fraction` of the depth, whichever is larger
     /// (depth noise and quantisation of structured-light sensors grow with distance).
     pub edge_jump_mm: f32,
+    /// The edges' depth jump as a fraction of the pixel's depth (see `edge_jump_mm`).
     pub edge_jump_fraction: f32,
     /// A silhouette pixel matches when a scene edge lies within this many pixels.
     pub edge_radius_px: u32,
@@ -137,6 +138,7 @@ pub fn see_through_off_edges(
 
 // The edge map is made by the filters' edge rule; `silhouette` measures outlines against it.
 impl EdgeMap {
+    /// The depth edges of `scene` by the jump rule of `params`, dilated by `edge_radius_px`.
     pub fn new(scene: &SceneImage, params: &FilterParams) -> Self {
         let (w, h) = (scene.width as i64, scene.height as i64);
         // Each pass writes one row from rows of the one before: the rows go side by side.

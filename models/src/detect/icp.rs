@@ -25,17 +25,20 @@ pub struct IcpParams {
     /// Correspondences farther apart than this fraction of the diameter are rejected in the
     /// first iteration; the limit halves each iteration down to `final_distance_fraction`.
     pub initial_distance_fraction: f32,
+    /// The smallest correspondence distance limit, a fraction of the diameter D.
     pub final_distance_fraction: f32,
     /// Pairs whose normals differ by more than this angle are rejected, degrees.
     pub max_normal_angle_deg: f32,
     /// Stop early when an update moves less than this, mm and radians.
     pub convergence_translation_mm: f32,
+    /// ...and turns it less than this, radians.
     pub convergence_rotation: f32,
     /// The first `coarse_iterations` use every `coarse_stride`-th surface point only (a
     /// uniform sample, as Rusinkiewicz & Levoy advise): a pose far off needs few points to
     /// move most of the way, and the remaining iterations use them all. Converging early in
     /// the coarse phase moves on to the fine one. `coarse_stride` 1 uses every point throughout.
     pub coarse_iterations: usize,
+    /// The coarse iterations' stride through the surface points; 1 uses every point.
     pub coarse_stride: usize,
     /// A motion the pairs constrain less than this fraction of the motion they constrain best
     /// (an eigenvalue of the 6×6 system against its largest, rotations counted by the arc they
@@ -87,11 +90,13 @@ pub const MIN_CORRESPONDENCES: u32 = 6;
 /// What one ICP run did.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct IcpResult {
+    /// The refined pose, model to camera (mm).
     pub pose: Pose,
     /// Correspondences used in the last iteration.
     pub correspondences: u32,
     /// Root mean square point-to-plane distance in the last iteration, mm.
     pub rms_mm: f32,
+    /// Iterations run, at most [`IcpParams::iterations`].
     pub iterations: u32,
 }
 

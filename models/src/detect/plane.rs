@@ -43,6 +43,7 @@ pub struct PlaneParams {
     /// A point lies on the plane within `tolerance_mm + tolerance_fraction × depth` (the
     /// sensor's noise grows with depth).
     pub tolerance_mm: f32,
+    /// The part of that tolerance that grows with depth, a fraction of the point's depth.
     pub tolerance_fraction: f32,
     /// ... and with its normal within this angle of the plane's.
     pub max_normal_angle_deg: f32,
@@ -51,6 +52,7 @@ pub struct PlaneParams {
     /// Further planes (up to `max_planes` in all) count when at least this fraction of the
     /// scene lies on them.
     pub min_secondary_fraction: f32,
+    /// The most planes found, the dominant one included; 0 finds none.
     pub max_planes: usize,
     /// Points behind the dominant plane (farther from the camera, beyond the plane's
     /// tolerance) are neither reference points nor partners: an object resting on the plane
@@ -59,6 +61,7 @@ pub struct PlaneParams {
     pub exclude_behind: bool,
     /// RANSAC: planes tried, and scene points sampled to judge them.
     pub iterations: u32,
+    /// Scene points sampled (every point when the scene holds fewer).
     pub samples: u32,
     /// Seed of the sampling (the result is deterministic for a frame).
     pub seed: u64,
@@ -85,7 +88,9 @@ impl Default for PlaneParams {
 /// A plane `normal · p + offset = 0` with a unit normal, and how it judges points.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SupportingPlane {
+    /// Unit normal, facing the camera.
     pub normal: Vector3<f32>,
+    /// Offset, mm: `normal · p + offset` is positive on the camera's side.
     pub offset: f32,
     /// Fraction of the sampled scene points on it.
     pub inlier_fraction: f32,

@@ -11,9 +11,13 @@ use crate::{Error, Pose, Result};
 /// A pixel rectangle of the depth frame: columns `x .. x + width`, rows `y .. y + height`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PixelRegion {
+    /// First column, pixels.
     pub x: u32,
+    /// First row, pixels.
     pub y: u32,
+    /// Columns, pixels.
     pub width: u32,
+    /// Rows, pixels.
     pub height: u32,
 }
 
@@ -129,6 +133,7 @@ pub struct Requirements {
     pub region: Option<PixelRegion>,
     /// Only poses this allows.
     pub pose_restriction: Option<PoseRestriction>,
+    /// The order of each object's hypotheses.
     pub order: Order,
 }
 

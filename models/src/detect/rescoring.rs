@@ -53,6 +53,7 @@ pub struct RescoringParams {
     /// beyond this depth difference, as a fraction of the diameter, and at least
     /// `min_conflict_mm`: small misalignments at the outline must not read as contradictions.
     pub conflict_fraction: f32,
+    /// The least conflict distance, mm (see `conflict_fraction`).
     pub min_conflict_mm: f32,
     /// Exponent of the support (inliers over the visible points, see [`Fit::support`]) in the
     /// score; 0 scores by the fit alone. With the residual below, 1.5 against 1: ycbv-real-dev's
@@ -79,6 +80,7 @@ pub struct RescoringParams {
     /// give the four data sets what every cluster's full fit gives (synth-lmo-dev 0.954, 0.949
     /// with 200 and 225), for about 4 % more time on the LM-O frame (docs/METHOD.md §3.2).
     pub prescore_stride: usize,
+    /// How many clusters the sparse fit passes on (see `prescore_stride`); 0 passes every one.
     pub prescore_keep: usize,
     /// Before ICP, outlines wider than this many pixels are drawn at a coarser scale (0:
     /// as [`crate::detect::filters::FilterParams::max_outline_px`] says for after ICP). A pose
@@ -96,6 +98,7 @@ pub struct RescoringParams {
     /// object) leaves more. Weight 0 leaves the scores as re-scoring gives them (METHOD.md
     /// §3.3).
     pub residual_scale_mm: f32,
+    /// The exponent of the residual factor (see `residual_scale_mm`); 0 turns it off.
     pub residual_weight: f32,
 }
 
@@ -157,11 +160,14 @@ fn fit_and_support(fit: &Fit, surface_points: usize, params: &RescoringParams) -
 /// than a quaternion rotation, which matters in loops over thousands of points per pose.
 #[derive(Clone, Copy, Debug)]
 pub struct PoseMatrix {
+    /// The rotation, as a 3 × 3 matrix.
     pub rotation: Matrix3<f32>,
+    /// The translation, mm.
     pub translation: Vector3<f32>,
 }
 
 impl PoseMatrix {
+    /// `pose` as a matrix and a translation.
     pub fn new(pose: &Pose) -> PoseMatrix {
         PoseMatrix {
             rotation: *pose.rotation.to_rotation_matrix().matrix(),
@@ -418,8 +424,11 @@ impl Moved {
 /// A pose with its re-scoring result.
 #[derive(Clone, Copy, Debug)]
 pub struct Scored {
+    /// The pose, model to camera (mm).
     pub pose: Pose,
+    /// The votes it came with: its cluster's, 0 for a hint.
     pub votes: u32,
+    /// How its visible surface meets the scene, at the tolerance it was scored with.
     pub fit: Fit,
     /// `fit.inliers / surface point count`.
     pub fit_score: f32,
@@ -491,7 +500,9 @@ fn rescore_with(
 /// sampling's order (docs/BENCHMARKS.md, "Where the time goes").
 #[derive(Clone, Debug)]
 pub struct FitPoints {
+    /// Every `prescore_stride`-th surface point, in Z order: what the sparse fit counts.
     pub sparse: OrientedPoints,
+    /// The other surface points, in Z order.
     pub rest: OrientedPoints,
 }
 
@@ -514,6 +525,7 @@ impl FitPoints {
         self.sparse.len() + self.rest.len()
     }
 
+    /// Whether there is no point to count.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
@@ -613,9 +625,13 @@ pub fn sparse_ranking(
 /// coordinates, the scene's depth edges, and the width in pixels beyond which an outline is
 /// drawn at a coarser scale (0: never).
 pub struct Outline<'a> {
+    /// The simplified mesh the outline is drawn from.
     pub mesh: &'a crate::geometry::mesh::Mesh,
+    /// The mesh's bounding sphere: centre (model coordinates) and radius, mm.
     pub sphere: &'a (Point3<f32>, f32),
+    /// The scene's depth edges.
     pub edges: &'a crate::detect::silhouette::EdgeMap,
+    /// The width, pixels, beyond which an outline is drawn at a coarser scale; 0 never.
     pub max_outline_px: u32,
 }
 

@@ -28,14 +28,17 @@ pub struct SceneParams {
     /// or drops steep surfaces (measured on generated views: 45 % of an L-bracket's pixels had no
     /// normal with a 6 mm threshold).
     pub max_slope_deg: f32,
+    /// The least depth difference the same-surface rule allows, mm: the sensor's noise.
     pub min_depth_jump_mm: f32,
     /// Depths outside this range are ignored, mm.
     pub min_depth_mm: f32,
+    /// The farthest depth kept, mm; `min_depth_mm` is the nearest.
     pub max_depth_mm: f32,
     /// Plane fit: after a first fit, window pixels within this distance of the plane (mm, or
     /// `plane_residual_fraction` of the depth, whichever is larger) make the second fit: it
     /// takes in a slope that the depth-jump rule cut off and drops other surfaces.
     pub plane_residual_mm: f32,
+    /// The second fit's distance as a fraction of the pixel's depth (see `plane_residual_mm`).
     pub plane_residual_fraction: f32,
     /// Plane fit: at most this many samples per window row and column (the window is strided
     /// beyond it), which bounds the cost of wide windows.
@@ -79,10 +82,15 @@ impl SceneParams {
 /// Per pixel: the camera-space point and its normal (NaN where either is missing), row-major.
 /// What re-scoring, projective ICP and the filters look things up in.
 pub struct SceneImage {
+    /// Image width, pixels.
     pub width: u32,
+    /// Image height, pixels.
     pub height: u32,
+    /// The camera's intrinsics.
     pub intrinsics: Intrinsics,
+    /// Per pixel, the camera-space point, mm; NaN where there is no depth.
     pub points: Vec<Point3<f32>>,
+    /// Per pixel, the unit normal facing the camera; NaN where none was fitted.
     pub normals: Vec<Vector3<f32>>,
     /// Per pixel, the z of `points` alone (NaN where there is none): what re-scoring reads
     /// for every model point it projects, in a third of the bytes, so that more of it stays
@@ -148,7 +156,9 @@ impl SceneImage {
 pub struct PreparedScene {
     /// The voxel leaf used, mm.
     pub leaf_mm: f32,
+    /// The subsampled oriented points, camera coordinates.
     pub points: OrientedPoints,
+    /// A kd-tree over `points`, its items their indices.
     pub tree: ImmutableKdTree<f32, 3>,
 }
 

@@ -60,8 +60,11 @@ impl Fit {
 /// depth discontinuity lies within `edge_radius_px` of the pixel. Computed once per frame, by
 /// [`EdgeMap::new`] from the filters' parameters ([`FilterParams`](crate::detect::filters::FilterParams)).
 pub struct EdgeMap {
+    /// Image width, pixels.
     pub width: u32,
+    /// Image height, pixels.
     pub height: u32,
+    /// Per pixel, row-major: whether a depth edge lies within `edge_radius_px`.
     pub near_edge: Vec<bool>,
     /// The depth-jump rule and outline probe the map was made with.
     pub(super) jump_mm: f32,
@@ -115,10 +118,15 @@ impl OutlineCounts {
 /// bounding sphere (model coordinates, limiting rendering to where the mesh can appear), its
 /// surface points, the scene and its depth edges, and the filter's tolerances and fractions.
 pub struct SilhouetteFilter<'a> {
+    /// The silhouette mesh: the model's simplified copy.
     pub mesh: &'a Mesh,
+    /// The mesh's bounding sphere: centre (model coordinates) and radius, mm.
     pub sphere: &'a (Point3<f32>, f32),
+    /// The model's surface points.
     pub surface: &'a OrientedPoints,
+    /// The scene the pose is judged against.
     pub scene: &'a SceneImage,
+    /// The scene's depth edges.
     pub edges: &'a EdgeMap,
     /// The scene this far (mm) in front of the model hides it: an occluded outline pixel or
     /// surface point says nothing.

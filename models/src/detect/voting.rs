@@ -71,7 +71,9 @@ impl Default for VotingParams {
 /// One pose proposed by one reference point's accumulator peak.
 #[derive(Clone, Copy, Debug)]
 pub struct VotedPose {
+    /// The pose `T_s⁻¹ R_x(α) T_m`, model to camera (mm).
     pub pose: Pose,
+    /// The peak's votes.
     pub votes: u32,
     /// Index of the scene reference point (in the prepared scene's points).
     pub scene_point: u32,
@@ -82,7 +84,9 @@ pub struct VotedPose {
 /// What voting did, for the latency breakdown.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct VotingCounts {
+    /// Reference points taken.
     pub reference_points: u32,
+    /// Point pairs formed: reference points with their partners within D.
     pub pairs: u64,
     /// Votes cast into the accumulator (table entries visited).
     pub votes: u64,

@@ -118,11 +118,15 @@ impl Intrinsics {
 /// is the depth (z) in millimetres; 0 means no measurement.
 #[derive(Clone, Copy, Debug)]
 pub struct DepthFrame<'a> {
+    /// Image width, pixels.
     pub width: u32,
+    /// Image height, pixels.
     pub height: u32,
+    /// The camera's intrinsics.
     pub intrinsics: Intrinsics,
     /// Millimetres per raw depth unit (BOP's `depth_scale`).
     pub depth_scale_mm: f32,
+    /// Raw depth values, `width × height`, row-major; 0 is no measurement.
     pub depth: &'a [u16],
 }
 
@@ -166,10 +170,15 @@ impl<'a> DepthFrame<'a> {
 /// An owned depth frame (what a renderer or a PNG reader produces).
 #[derive(Clone, Debug)]
 pub struct OwnedDepthFrame {
+    /// Image width, pixels.
     pub width: u32,
+    /// Image height, pixels.
     pub height: u32,
+    /// The camera's intrinsics.
     pub intrinsics: Intrinsics,
+    /// Millimetres per raw depth unit (BOP's `depth_scale`).
     pub depth_scale_mm: f32,
+    /// Raw depth values, `width × height`, row-major; 0 is no measurement.
     pub depth: Vec<u16>,
 }
 

@@ -53,8 +53,11 @@ const OFF_SCREEN: i32 = i32::MIN;
 /// A depth image in millimetres (camera z), row-major; 0.0 is background.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DepthImage {
+    /// Image width, pixels.
     pub width: u32,
+    /// Image height, pixels.
     pub height: u32,
+    /// Per pixel, row-major, camera z in mm; 0.0 is background.
     pub depth_mm: Vec<f32>,
 }
 
@@ -116,9 +119,13 @@ impl DepthImage {
 /// A rectangle of pixels `[u0, u0 + width) × [v0, v0 + height)` in full-image coordinates.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub struct Roi {
+    /// First column, full-image pixels.
     pub u0: u32,
+    /// First row, full-image pixels.
     pub v0: u32,
+    /// Columns, pixels.
     pub width: u32,
+    /// Rows, pixels.
     pub height: u32,
 }
 
@@ -216,6 +223,7 @@ pub fn bounding_sphere(mesh: &Mesh) -> (Point3<f32>, f32) {
 /// A depth image of several objects with, per pixel, which object is seen.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SceneRender {
+    /// The depth of all the objects together.
     pub depth: DepthImage,
     /// Index into the rendered object list of the object seen at each pixel, [`NO_OBJECT`] for
     /// background; row-major like `depth`.

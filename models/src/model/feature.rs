@@ -166,10 +166,12 @@ impl PairBatch {
         self.nz.push(n.z);
     }
 
+    /// How many partners it holds.
     pub fn len(&self) -> usize {
         self.x.len()
     }
 
+    /// Whether it holds no partner.
     pub fn is_empty(&self) -> bool {
         self.x.is_empty()
     }
@@ -216,8 +218,11 @@ pub const fn key_count(distance_bins: u32, angle_bins: u32) -> usize {
 /// split `[0, π]` evenly (the paper: 15 bins of 12°).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Quantizer {
+    /// Width of a distance bin, mm: `D / distance_bins`.
     pub distance_step_mm: f32,
+    /// Distance bins from 0 (the paper: 20 over `[0, D]`).
     pub distance_bins: u32,
+    /// Bins of each angle over `[0, π]` (the paper: 15).
     pub angle_bins: u32,
 }
 

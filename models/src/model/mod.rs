@@ -164,9 +164,11 @@ pub struct ModelData {
     pub source_crc: u32,
     /// Subsampled oriented points (mm, unit normals): the model points of the lookup table.
     pub points: Vec<[f32; 3]>,
+    /// Unit normals of `points`, index-aligned.
     pub normals: Vec<[f32; 3]>,
     /// Denser oriented points of the surface (see [`ModelParams::surface_leaf_fraction`]).
     pub surface_points: Vec<[f32; 3]>,
+    /// Unit normals of `surface_points`, index-aligned.
     pub surface_normals: Vec<[f32; 3]>,
     /// Lookup table offsets: `key_count + 1` values.
     pub table_offsets: Vec<u32>,
@@ -174,6 +176,7 @@ pub struct ModelData {
     pub table_entries: Vec<u32>,
     /// The mesh, for rendering: vertex positions (mm) and triangles.
     pub mesh_positions: Vec<[f32; 3]>,
+    /// Triangles, as indices into `mesh_positions`.
     pub mesh_faces: Vec<[u32; 3]>,
     /// The object's discrete symmetries, [`Symmetry::stored_discrete`]; empty without.
     pub symmetries_discrete: Vec<[f32; 7]>,
@@ -353,10 +356,12 @@ impl ObjectModel {
         unsafe { rkyv::access_unchecked::<ArchivedModelData>(self.archive_bytes()) }
     }
 
+    /// The object's id (BOP `obj_id` for dataset models).
     pub fn object_id(&self) -> u32 {
         self.data().object_id.to_native()
     }
 
+    /// A human-readable name (file stem or part name).
     pub fn name(&self) -> &str {
         self.data().name.as_str()
     }

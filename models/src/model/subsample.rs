@@ -16,19 +16,24 @@ use crate::geometry::grid::CellMap;
 /// Oriented points: positions (mm) with unit normals, index-aligned.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct OrientedPoints {
+    /// Positions, mm.
     pub positions: Vec<Point3<f32>>,
+    /// Unit normals, one per position.
     pub normals: Vec<Vector3<f32>>,
 }
 
 impl OrientedPoints {
+    /// How many points.
     pub fn len(&self) -> usize {
         self.positions.len()
     }
 
+    /// Whether there are no points.
     pub fn is_empty(&self) -> bool {
         self.positions.is_empty()
     }
 
+    /// Appends the point `p` with normal `n`.
     pub fn push(&mut self, p: Point3<f32>, n: Vector3<f32>) {
         self.positions.push(p);
         self.normals.push(n);

@@ -486,7 +486,12 @@ fn same_line(a: &SymmetryAxis, b: &SymmetryAxis) -> bool {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum SymmetryElement {
     /// The turns by multiples of 360°/`order` about `axis`.
-    Turns { axis: SymmetryAxis, order: u32 },
+    Turns {
+        /// The axis turned about.
+        axis: SymmetryAxis,
+        /// How many of the turns make a full turn; parsing takes 2 to 100.
+        order: u32,
+    },
     /// Any turn about the axis.
     Continuous(SymmetryAxis),
 }

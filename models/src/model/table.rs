@@ -52,7 +52,9 @@ pub fn entry_alpha(entry: u32) -> f32 {
 /// are keys.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct LookupTable {
+    /// Where each key's entries start in `entries`, and one past the last key's end.
     pub offsets: Vec<u32>,
+    /// The entries of every key, key after key (see [`pack_entry`]).
     pub entries: Vec<u32>,
 }
 

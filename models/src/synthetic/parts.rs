@@ -114,8 +114,10 @@ pub enum SymmetricPart {
 }
 
 impl SymmetricPart {
+    /// Every symmetric part, in object-id order.
     pub const ALL: [SymmetricPart; 2] = [SymmetricPart::UChannel, SymmetricPart::SteppedShaft];
 
+    /// A short snake-case name, usable in file names.
     pub fn name(&self) -> &'static str {
         match self {
             SymmetricPart::UChannel => "u_channel",
@@ -131,6 +133,7 @@ impl SymmetricPart {
         }
     }
 
+    /// Builds the part's mesh.
     pub fn mesh(&self) -> Mesh {
         match self {
             SymmetricPart::UChannel => u_channel(),

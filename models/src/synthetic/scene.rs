@@ -220,13 +220,20 @@ pub enum Placement {
 /// axis along z) into the world.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Occluder {
+    /// A rectangular box.
     Box {
+        /// Edge lengths along its x, y and z, mm.
         size_mm: Vector3<f32>,
+        /// Its frame into the world.
         pose: Pose,
     },
+    /// A closed cylinder with its axis along z.
     Cylinder {
+        /// Radius, mm.
         radius_mm: f32,
+        /// Length along the axis, mm.
         height_mm: f32,
+        /// Its frame into the world.
         pose: Pose,
     },
 }
