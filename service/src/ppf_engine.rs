@@ -87,7 +87,6 @@ fn model_error(e: ppfd_models::Error) -> EngineError {
         | Error::Ply { .. }
         | Error::InvalidMesh(_)
         | Error::ModelStore { .. } => Status::ModelError,
-        _ => Status::Internal,
     };
     EngineError {
         status,
