@@ -118,22 +118,22 @@ fn statistics_are_answered_while_the_models_load() {
 /// Clients that ask for the model list while the models load and leave before the answer are
 /// let go of: each would keep its connection in iceoryx2's buffer of expired connections, which
 /// panics beyond its size (128 here), so a monitor polling the list with a short timeout during
-/// a long first start took the daemon down. 200 such clients, then the list is answered whole.
+/// a long first start took the daemon down. After 200 such clients the daemon still answers.
 /// Clients that die this fast outrun iceoryx2's removal of their connections: past 32 held, the
 /// daemon lets go of one all the same, and a client on a reused channel may see its request
 /// dropped (`Error::Dropped`, at once) rather than time out.
 #[test]
 fn clients_that_leave_while_the_models_load_are_let_go_of() {
     let prefix = Prefix::new("loadleave");
-    let models = fake_model_dir("loadleave", &[1, 2]);
-    let mut d = spawn_daemon(&prefix, &models, &[("PPFD_FAKE_LOAD_DELAY_MS", "4000")]);
+    let models = fake_model_dir("loadleave", &[1]);
+    // Far longer than the clients take, on however loaded a machine.
+    let mut d = spawn_daemon(&prefix, &models, &[("PPFD_FAKE_LOAD_DELAY_MS", "60000")]);
     std::thread::sleep(Duration::from_millis(300));
     let hasty = ClientOptions {
         prefix: Some(prefix.0.clone()),
         control_timeout: Duration::from_millis(5),
         ..Default::default()
     };
-    let started = Instant::now();
     for _ in 0..200 {
         let client = Client::connect_with(&hasty).expect("client connects");
         match client.models() {
@@ -141,24 +141,15 @@ fn clients_that_leave_while_the_models_load_are_let_go_of() {
             other => panic!("expected no answer while the models load, got {other:?}"),
         }
     }
-    assert!(
-        started.elapsed() < Duration::from_secs(7),
-        "the clients took {:?}: the models were loaded before the last left",
-        started.elapsed()
+    // Statistics are answered while the models load: the daemon is up and serving.
+    let stats = connect(&prefix).stats().expect("the daemon answers");
+    assert_eq!(
+        (stats.startup_files, stats.startup_files_done),
+        (1, 0),
+        "{stats:?}"
     );
-    let patient = ClientOptions {
-        control_timeout: Duration::from_secs(20),
-        ..hasty
-    };
-    let listed: Vec<u32> = Client::connect_with(&patient)
-        .expect("client connects")
-        .models()
-        .expect("models listed once loaded")
-        .iter()
-        .map(|m| m.object_id)
-        .collect();
-    assert_eq!(listed, [1, 2]);
     assert_eq!(d.wait_exit(Duration::ZERO), None, "the daemon ended");
+    // Stopping would wait for the model being loaded; dropping `d` kills the daemon.
 }
 
 /// Model loads run one at a time: while they do, the statistics say how many run and wait, so
