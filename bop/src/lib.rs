@@ -21,6 +21,8 @@
 //! # Ok::<(), ppfd_bop::Error>(())
 //! ```
 
+#![warn(missing_docs)]
+
 pub mod dataset;
 mod error;
 pub mod eval;

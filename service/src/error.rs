@@ -18,7 +18,9 @@ pub enum Error {
     /// wrong kind).
     #[error("{}: {source}", path.display())]
     ConfigSyntax {
+        /// The configuration file.
         path: PathBuf,
+        /// The cause, with the line and column.
         #[source]
         source: toml::de::Error,
     },
@@ -45,16 +47,23 @@ pub enum Error {
         all = MAX_THREADS
     )]
     TooManyThreads {
+        /// The `workers` setting.
         workers: usize,
+        /// The `parallel_detections` setting.
         parallel_detections: usize,
+        /// Cores available to the process.
         cores: usize,
+        /// The bound on each: per-core bound × `cores`, never above [`MAX_THREADS`].
         max: usize,
     },
     /// A number above its bound.
     #[error("{key} may be at most {max} (was {value})")]
     TooLarge {
+        /// The setting.
         key: &'static str,
+        /// Its value, in the setting's unit.
         value: u64,
+        /// Its bound, in the same unit.
         max: u64,
     },
     /// `max_frame_pixels` is 0.
@@ -81,7 +90,9 @@ pub enum Error {
     /// The models folder cannot be listed.
     #[error("model directory {}: {source}", path.display())]
     ModelDirectory {
+        /// The models folder.
         path: PathBuf,
+        /// The cause.
         #[source]
         source: std::io::Error,
     },
@@ -91,7 +102,9 @@ pub enum Error {
          first"
     )]
     AlreadyServing {
+        /// Servers on the service, this daemon's included.
         servers: usize,
+        /// The service's name (`ppfd/detect` or `ppfd/control`).
         service: &'static str,
     },
     /// A request/response service is held open, under this prefix, with the messages of
@@ -101,11 +114,21 @@ pub enum Error {
          {version}) hold it under this prefix; stop them, so that the daemon and its clients \
          come from one release, or give this daemon another --prefix"
     )]
-    OtherProtocolVersion { service: &'static str, version: u32 },
+    OtherProtocolVersion {
+        /// The service's name (`ppfd/detect` or `ppfd/control`).
+        service: &'static str,
+        /// This daemon's protocol version.
+        version: u32,
+    },
     /// An iceoryx2 or operating-system resource the daemon needs failed (a node, a port, a
     /// thread, the signalfd, the WaitSet): `what` it was, and the cause as it was reported.
     #[error("{what}: {detail}")]
-    Resource { what: String, detail: String },
+    Resource {
+        /// What failed, as a phrase ("cannot create the WaitSet").
+        what: String,
+        /// The cause, as the failing call reported it.
+        detail: String,
+    },
     /// The housekeeping thread could not be started.
     #[error("cannot start the housekeeping thread: {0}")]
     HousekeeperThread(#[source] std::io::Error),

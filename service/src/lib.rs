@@ -16,6 +16,8 @@
 //!
 //! The wire contract is `ppfd_protocol`; clients use `ppfd_client`.
 
+#![warn(missing_docs)]
+
 pub mod cli;
 pub mod config;
 pub mod daemon;

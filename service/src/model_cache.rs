@@ -50,7 +50,12 @@ pub enum MeshSource<'a> {
     File(&'a Path),
     /// A mesh in memory (a generated part), and the name its model gets. With no file bytes to
     /// compare, only the fingerprint tells whether a saved model is this mesh's.
-    Mesh { mesh: &'a Mesh, name: &'a str },
+    Mesh {
+        /// The mesh, mm.
+        mesh: &'a Mesh,
+        /// The name of its model.
+        name: &'a str,
+    },
 }
 
 /// Where the model of a mesh may already be, and where a model built now is saved.
@@ -106,7 +111,9 @@ pub enum Origin {
 
 /// The model of a mesh, and how it came.
 pub struct CachedModel {
+    /// The model, with the symmetries it takes (see the module documentation).
     pub model: ObjectModel,
+    /// Whether it was reused from a saved file or built.
     pub origin: Origin,
     /// The file the model was read from: the candidate it was found in, or the file a model
     /// built now was saved to and read back from. `None` when a model built now could not be

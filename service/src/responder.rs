@@ -34,7 +34,9 @@ pub type ControlActive = ActiveRequest<Ipc, ControlRequest, (), [ModelInfo], Con
 /// The daemon's request ports.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Port {
+    /// The `ppfd/detect` server.
     Detect,
+    /// The `ppfd/control` server.
     Control,
 }
 
@@ -52,8 +54,11 @@ pub enum Release {
 pub enum Outcome {
     /// Poses sent; latencies in ns.
     Served {
+        /// From the client's send to the response's send; 0 when the client gave no send time.
         total_ns: u64,
+        /// Transport and queue wait: from the client's send to the start of the detection.
         overhead_ns: u64,
+        /// From the start of the detection to its end on the worker.
         detection_ns: u64,
     },
     /// An answer (poses or a refusal) that could not be loaned or sent.
@@ -67,11 +72,17 @@ pub enum Outcome {
 /// What the answer to a detection needs besides the engine's output.
 #[derive(Debug, Clone, Copy)]
 pub struct Served {
+    /// The request's header.
     pub header: DetectRequestHeader,
+    /// When the I/O thread took the request off the port, `CLOCK_MONOTONIC` ns.
     pub received_ns: u64,
+    /// Sequence number of the frame used (0 for an inline frame without one).
     pub frame_sequence: u64,
+    /// Age of that frame when the detection started, ns; 0 when it has no capture time.
     pub frame_age_ns: u64,
+    /// When the detection started on its worker, `CLOCK_MONOTONIC` ns.
     pub started_ns: u64,
+    /// When the detection ended, `CLOCK_MONOTONIC` ns.
     pub finished_ns: u64,
 }
 
@@ -135,6 +146,8 @@ struct Wake {
 }
 
 impl Responder {
+    /// A responder for the daemon's detect and control services, waking clients through the
+    /// `ppfd/responses` event `notifier`.
     pub fn new(
         detect_service: DetectService<Ipc>,
         control_service: ControlService<Ipc>,

@@ -9,12 +9,17 @@ use ppfd_protocol::control::{DaemonStats, LatencySummary};
 /// Counters and latency histograms since the daemon started.
 pub struct Stats {
     started: Instant,
-    /// See [`DaemonStats`].
+    /// Detect requests taken off the port; these counters are those of [`DaemonStats`].
     pub requests_received: u64,
+    /// Detect requests answered `Ok`.
     pub requests_served: u64,
+    /// Detect requests refused with an error status.
     pub requests_refused: u64,
+    /// Of the refused, detect requests whose deadline passed while they were queued.
     pub requests_expired: u64,
+    /// Requests whose answer did not reach their client.
     pub requests_abandoned: u64,
+    /// Camera frames taken off the camera ports.
     pub frames_received: u64,
     total: Latencies,
     overhead: Latencies,

@@ -97,10 +97,15 @@ impl EvalObject {
 /// One test image with its ground truth and targets.
 #[derive(Clone, Debug)]
 pub struct EvalImage {
+    /// The scene (6-digit folder of the split).
     pub scene_id: u32,
+    /// The image within the scene.
     pub im_id: u32,
+    /// Image width, pixels.
     pub width: u32,
+    /// Image height, pixels.
     pub height: u32,
+    /// Intrinsics of the image's camera, pixels.
     pub intrinsics: Intrinsics,
     /// The test depth (camera z), mm, row-major; 0 = no measurement.
     pub depth_mm: Vec<f32>,
@@ -120,6 +125,7 @@ pub type RenderFn<'a> = dyn FnMut(&Mesh, &Pose, &Intrinsics, u32, u32) -> Result
 pub struct GtInstance {
     /// Position in the image's `scene_gt.json` list.
     pub gt_index: usize,
+    /// Fraction of the instance's projected surface that is visible, 0..1.
     pub visib_fract: f32,
     /// Visible enough to count and to be matched.
     pub valid: bool,
@@ -129,6 +135,7 @@ pub struct GtInstance {
 /// [`TargetErrors::gt`]).
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct EstimateErrors {
+    /// The estimate's confidence, from the results file.
     pub score: f32,
     /// BOP 2018 VSD (τ = `bop18_tau_mm`, 2018 visibility rule).
     pub vsd_bop18: Vec<f64>,
@@ -144,13 +151,21 @@ pub struct EstimateErrors {
 /// (in decreasing order of score, at most `inst_count`).
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct TargetErrors {
+    /// The scene (6-digit folder of the split).
     pub scene_id: u32,
+    /// The image within the scene.
     pub im_id: u32,
+    /// The object to find.
     pub obj_id: u32,
+    /// Number of instances of the object to report.
     pub inst_count: u32,
+    /// The object's diameter, mm: the MSSD thresholds and VSD τ are fractions of it.
     pub diameter_mm: f32,
+    /// Width of the image, pixels: the MSPD thresholds scale with it.
     pub image_width: u32,
+    /// The annotated instances of the object in the image.
     pub gt: Vec<GtInstance>,
+    /// The errors of each estimate scored.
     pub estimates: Vec<EstimateErrors>,
 }
 
@@ -181,8 +196,11 @@ pub struct ObjectScore {
 /// includes its top edge).
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct VisibBin {
+    /// Lowest visible fraction of the bin, 0..1.
     pub min: f32,
+    /// Highest visible fraction of the bin (excluded but for the last bin), 0..1.
     pub max: f32,
+    /// Ground-truth instances that count (visible enough) in the bin.
     pub gt_count: usize,
     /// At each of `bop18_thresholds`.
     pub recall_bop18: Vec<f64>,
@@ -195,6 +213,7 @@ pub struct ScoreReport {
     pub objects: Vec<ObjectScore>,
     /// All objects together (recall over all instances, not a mean of per-object recalls).
     pub overall: ObjectScore,
+    /// BOP 2018 recall by visible fraction, one bin per pair of `visib_bin_edges`.
     pub visib_bins: Vec<VisibBin>,
     /// The BOP 2018 thresholds the `recall_bop18` lists follow.
     pub bop18_thresholds: Vec<f64>,
