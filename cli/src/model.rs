@@ -429,7 +429,7 @@ fn first_model_file(dir: &Path) -> Option<PathBuf> {
     files.into_iter().next()
 }
 
-/// The median: the middle value, or the mean of the two middle ones.
+/// `ppf model bench`: builds each mesh's model `repeat` times and reports the times and sizes.
 fn bench(args: BenchArgs) -> Result<(), Box<dyn std::error::Error>> {
     for path in &args.meshes {
         check_mesh_path(path)?;

@@ -191,6 +191,15 @@ mod tests {
     }
 
     #[test]
+    fn a_frame_without_pixels_says_so() {
+        let e = FrameHeader { width: 0, ..vga() }.validate(0).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "depth frame 0x480 has no pixels: its width and height must be at least 1"
+        );
+    }
+
+    #[test]
     fn size_mismatch_is_refused_with_both_numbers() {
         let e = vga().validate(1024).unwrap_err();
         let m = e.to_string();

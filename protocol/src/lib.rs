@@ -196,6 +196,13 @@ impl std::fmt::Display for ProtocolError {
             } => {
                 write!(f, "{field} name {name:?} {reason}")
             }
+            ProtocolError::FrameSize { width, height, .. } if *width == 0 || *height == 0 => {
+                write!(
+                    f,
+                    "depth frame {width}x{height} has no pixels: its width and height must be at \
+                     least 1"
+                )
+            }
             ProtocolError::FrameSize {
                 width,
                 height,

@@ -365,11 +365,16 @@ pub fn prefix_from_env() -> Option<String> {
     std::env::var("PPFD_PREFIX").ok().filter(|p| !p.is_empty())
 }
 
+/// The longest prefix taken: iceoryx2 begins every file name it makes with it, followed by up
+/// to about 70 bytes of ids, hashes and suffixes, within a file name's 255.
+pub const MAX_PREFIX_BYTES: usize = 64;
+
 /// Checks an iceoryx2 resource prefix as the daemon and its clients take it (`--prefix`,
-/// `PPFD_PREFIX`): a name of ASCII letters, digits, `_` and `-` (it becomes part of file names)
-/// that ends with `_`. iceoryx2 writes ids and hashes right after the prefix; without the
-/// separator one prefix can be the start of another's file names (`cell1` of `cell10`'s), and
-/// the daemon of one would take the other's live nodes for its own dead ones.
+/// `PPFD_PREFIX`): a name of ASCII letters, digits, `_` and `-` (it becomes part of file names),
+/// at most [`MAX_PREFIX_BYTES`] long, that ends with `_`. iceoryx2 writes ids and hashes right
+/// after the prefix; without the separator one prefix can be the start of another's file names
+/// (`cell1` of `cell10`'s), and the daemon of one would take the other's live nodes for its own
+/// dead ones.
 pub fn check_prefix(prefix: &str) -> Result<(), ProtocolError> {
     let reason = if prefix.is_empty() || prefix == "_" {
         "is empty"
@@ -378,6 +383,8 @@ pub fn check_prefix(prefix: &str) -> Result<(), ProtocolError> {
         .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
     {
         "may hold only ASCII letters, digits, '_' and '-'"
+    } else if prefix.len() > MAX_PREFIX_BYTES {
+        "is longer than 64 bytes (iceoryx2 makes file names of it)"
     } else if !prefix.ends_with('_') {
         "must end with '_' (\"cell1_\", not \"cell1\"), so that it is not the start of another \
          prefix's file names"
@@ -439,12 +446,15 @@ mod tests {
     fn a_prefix_ends_with_an_underscore() {
         assert!(check_prefix("cell1_").is_ok());
         assert!(check_prefix("ppfdt_a-b_7_").is_ok());
+        assert!(check_prefix(&format!("{}_", "a".repeat(63))).is_ok());
+        let long = format!("{}_", "a".repeat(64));
         for (bad, why) in [
             ("cell1", "must end with '_'"),
             ("", "is empty"),
             ("_", "is empty"),
             ("a/b_", "only ASCII"),
             ("caméra_", "only ASCII"),
+            (long.as_str(), "longer than 64 bytes"),
         ] {
             let e = check_prefix(bad).unwrap_err().to_string();
             assert!(e.contains(why), "{bad:?}: {e}");

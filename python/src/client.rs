@@ -8,16 +8,22 @@ use ppfd_client::{checks, ClientOptions, DetectOptions, Detections as Found, Pos
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::errors::{protocol_error, to_py};
+use crate::errors::{protocol_error, shown, to_py};
 use crate::requirements::{poses as pose_list, RequirementArgs};
 use crate::thread::ThreadBound;
 
 /// A duration from seconds given in Python; `what` names the argument in the error.
 pub fn seconds(py: Python<'_>, what: &str, value: f64) -> PyResult<Duration> {
     Duration::try_from_secs_f64(value).map_err(|_| {
+        // `{:e}` keeps a huge value short (1e300 written out is 301 digits).
+        let got = if value.is_finite() && value.abs() >= 1e9 {
+            format!("{value:e}")
+        } else {
+            value.to_string()
+        };
         protocol_error(
             py,
-            format!("{what} must be a finite number of seconds, not negative; got {value}"),
+            format!("{what} must be a finite, non-negative number of seconds; got {got}"),
         )
     })
 }
@@ -38,24 +44,20 @@ pub fn unsigned(py: Python<'_>, what: &str, value: i64) -> PyResult<u32> {
 
 /// The object ids of a request: each as [`unsigned`], named by its place in the list.
 fn object_id_list(py: Python<'_>, value: &Bound<'_, PyAny>) -> PyResult<Vec<u32>> {
-    if value.is_instance_of::<pyo3::types::PyString>() {
-        return Err(protocol_error(
+    let not_a_list = || {
+        protocol_error(
             py,
             format!(
                 "object_ids must be a list of object ids; got {}",
-                value.repr()?
+                shown(value)
             ),
-        ));
-    }
-    let items = value.try_iter().map_err(|_| {
-        let got = value
-            .repr()
-            .map_or_else(|_| "an unprintable value".into(), |r| r.to_string());
-        protocol_error(
-            py,
-            format!("object_ids must be a list of object ids; got {got}"),
         )
-    })?;
+    };
+    // A string iterates over its characters: "15" is no list of ids.
+    if value.is_instance_of::<pyo3::types::PyString>() {
+        return Err(not_a_list());
+    }
+    let items = value.try_iter().map_err(|_| not_a_list())?;
     items
         .enumerate()
         .map(|(i, item)| {
@@ -63,11 +65,7 @@ fn object_id_list(py: Python<'_>, value: &Bound<'_, PyAny>) -> PyResult<Vec<u32>
             let n = item.extract::<i64>().map_err(|_| {
                 protocol_error(
                     py,
-                    format!(
-                        "object_ids[{i}] must be an object id; got {}",
-                        item.repr()
-                            .map_or_else(|_| "an unprintable value".into(), |r| r.to_string())
-                    ),
+                    format!("object_ids[{i}] must be an object id; got {}", shown(&item)),
                 )
             })?;
             unsigned(py, &format!("object_ids[{i}]"), n)

@@ -243,6 +243,24 @@ fn raise(py: Python<'_>, error: &Error) -> PyResult<PyErr> {
 }
 
 /// A `ProtocolError` with `message`: bad input found in this package before anything is sent.
+/// A value as an error message shows it: its `repr` on one line, cut at 80 characters (a
+/// numpy array's is many lines long).
+pub fn shown(value: &Bound<'_, PyAny>) -> String {
+    const MAX: usize = 80;
+    let Ok(repr) = value.repr() else {
+        return "an unprintable value".into();
+    };
+    let line = repr
+        .to_string()
+        .split_whitespace()
+        .collect::<Vec<_>>()
+        .join(" ");
+    match line.char_indices().nth(MAX) {
+        Some((cut, _)) => format!("{}…", &line[..cut]),
+        None => line,
+    }
+}
+
 pub fn protocol_error(py: Python<'_>, message: String) -> PyErr {
     match classes(py).and_then(|c| c.protocol.bind(py).call1((message,))) {
         Ok(e) => PyErr::from_value(e),

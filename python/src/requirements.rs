@@ -9,7 +9,7 @@ use pyo3::conversion::FromPyObjectOwned;
 use pyo3::prelude::*;
 
 use crate::client::Detection;
-use crate::errors::protocol_error;
+use crate::errors::{protocol_error, shown};
 
 /// The requirement keywords as Python gave them; `None` leaves the protocol's default.
 pub struct RequirementArgs<'a, 'py> {
@@ -101,12 +101,9 @@ fn numbers<'py, T: FromPyObjectOwned<'py>, const N: usize>(
     form: &str,
     value: &Bound<'py, PyAny>,
 ) -> PyResult<[T; N]> {
-    value.extract::<[T; N]>().map_err(|_| {
-        let got = value
-            .repr()
-            .map_or_else(|_| "an unprintable value".into(), |r| r.to_string());
-        protocol_error(py, format!("{name} must be {form}, got {got}"))
-    })
+    value
+        .extract::<[T; N]>()
+        .map_err(|_| protocol_error(py, format!("{name} must be {form}, got {}", shown(value))))
 }
 
 /// The `hints` (or `diagnose`, as `name` says) keyword of `Client.detect` as the protocol's
@@ -133,13 +130,11 @@ pub fn poses<'py>(
             continue;
         }
         let wrong = |what: &str| {
-            let got = item
-                .repr()
-                .map_or_else(|_| "an unprintable value".into(), |r| r.to_string());
             protocol_error(
                 py,
                 format!(
-                    "{name}[{index}] must be a Detection or (object_id, 4×4 pose){what}; got {got}"
+                    "{name}[{index}] must be a Detection or (object_id, 4×4 pose){what}; got {}",
+                    shown(&item)
                 ),
             )
         };

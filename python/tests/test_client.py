@@ -39,8 +39,9 @@ def test_no_daemon_raises_no_daemon_naming_the_prefix(prefix):
         (("parts", [1]), {"hypotheses": 0}, "0"),
         (("parts", [1]), {"hypotheses": 17}, "17"),
         (("bad name", [1]), {}, "bad name"),
-        (("parts", [1]), {"timeout": -1.0}, "timeout must be a finite number of seconds"),
-        (("parts", [1]), {"timeout": float("nan")}, "timeout must be a finite number"),
+        (("parts", [1]), {"timeout": -1.0}, "timeout must be a finite, non-negative number of seconds; got -1"),
+        (("parts", [1]), {"timeout": 1e300}, "number of seconds; got 1e300"),
+        (("parts", [1]), {"timeout": float("nan")}, "timeout must be a finite, non-negative number of seconds; got NaN"),
         (("parts", [1]), {"timeout": 0.0}, "timeout 0 s is out of range"),
         (("parts", [1]), {"max_frame_age": -0.5}, "max_frame_age must be"),
         (("parts", [1]), {"max_frame_age": 0.0}, "maximum frame age 0 s is out of range"),
@@ -262,3 +263,13 @@ def test_a_client_and_a_camera_close_and_refuse_use_after(prefix):
     with pytest.raises(ValueError, match="closed"):
         camera.idle(0.01)
     camera.close()
+
+
+def test_a_bad_value_is_shown_on_one_short_line(prefix):
+    client = ppfd.Client(prefix=prefix)
+    with pytest.raises(ppfd.ProtocolError) as e:
+        client.detect("parts", [1], hints=[(1, np.zeros((5, 40)))])
+    message = str(e.value)
+    assert message.startswith("hints[0] must be a Detection or (object_id, 4×4 pose)"), message
+    assert "\n" not in message and message.endswith("…"), message
+    del client
