@@ -73,9 +73,9 @@ pub struct DetectCommand {
     /// score), and the ground truth's outline when known (PNG).
     #[arg(long, value_name = "PNG")]
     pub overlay: Option<PathBuf>,
-    /// With --camera --overlay: the folder of the daemon's models (PLY meshes or model files
-    /// named by object id, as given to `ppfd --models`), whose meshes the outlines are drawn
-    /// from.
+    /// With --camera --overlay: the folder of the daemon's models (PLY meshes named by object
+    /// id, or model files, which hold theirs; as given to `ppfd --models`), whose meshes the
+    /// outlines are drawn from.
     #[arg(long, requires = "overlay", conflicts_with = "dataset")]
     pub models: Option<PathBuf>,
     #[command(flatten)]
