@@ -3,7 +3,7 @@
 use std::cell::Cell;
 use std::time::{Duration, Instant};
 
-use iceoryx2::node::{Node, NodeState, NodeView};
+use iceoryx2::node::Node;
 use iceoryx2::port::client::Client as IoxClient;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
@@ -88,8 +88,8 @@ pub struct ClientOptions {
     /// Depth values of the largest inline frame this client will send (0 if it only names
     /// cameras). Preallocated in shared memory; larger frames grow it.
     pub inline_frame_capacity: usize,
-    /// Timeout of control requests. A model load can take longer (a large mesh builds for
-    /// seconds to minutes): see [`Client::load_model`].
+    /// Timeout of control requests, above 0 (zero is refused at connect). A model load can
+    /// take longer (a large mesh builds for seconds to minutes): see [`Client::load_model`].
     pub control_timeout: Duration,
 }
 
@@ -262,15 +262,7 @@ impl AliveCheck {
         self.next = Instant::now() + ALIVE_CHECK_PERIOD;
         let mut alive = false;
         let listed = service.nodes(|state| {
-            alive = match &state {
-                // A live node whose details cannot be read may be the daemon.
-                NodeState::Alive(view) => view
-                    .details()
-                    .as_ref()
-                    .is_none_or(|d| d.name().as_str() == services::DAEMON_NODE),
-                NodeState::Dead(_) => false,
-                NodeState::Inaccessible(_) | NodeState::Undefined(_) => true,
-            };
+            alive = services::may_be_the_daemon(&state);
             if alive {
                 CallbackProgression::Stop
             } else {

@@ -303,7 +303,23 @@ pub fn remove_prefix_leftovers(prefix: &str) -> Result<usize, ProtocolError> {
     Ok(removed)
 }
 
-/// Whether a live node named [`DAEMON_NODE`] is listed under `prefix`.
+/// Whether a listed node may be the daemon: a live node named [`DAEMON_NODE`], or one that
+/// cannot be told from it (a live node whose details cannot be read, a node of another user or
+/// in an undefined state). A client judges the daemon gone, and [`remove_prefix_leftovers`] the
+/// prefix free, only when no node may be.
+pub fn may_be_the_daemon(state: &NodeState<ipc::Service>) -> bool {
+    match state {
+        NodeState::Alive(view) => view
+            .details()
+            .as_ref()
+            .is_none_or(|d| d.name().as_str() == DAEMON_NODE),
+        NodeState::Dead(_) => false,
+        NodeState::Inaccessible(_) | NodeState::Undefined(_) => true,
+    }
+}
+
+/// Whether a daemon may be running under `prefix` ([`may_be_the_daemon`]), or its nodes cannot
+/// be listed: when in doubt, the files stay.
 fn daemon_running(prefix: &str, config: &iceoryx2::config::Config) -> bool {
     let mut config = config.clone();
     let Ok(name) = FileName::new(prefix.as_bytes()) else {
@@ -311,20 +327,15 @@ fn daemon_running(prefix: &str, config: &iceoryx2::config::Config) -> bool {
     };
     config.global.prefix = name;
     let mut running = false;
-    let _ = Node::<ipc::Service>::list(&config, |state| {
-        if let NodeState::Alive(view) = &state {
-            if view
-                .details()
-                .as_ref()
-                .is_some_and(|d| d.name().as_str() == DAEMON_NODE)
-            {
-                running = true;
-                return CallbackProgression::Stop;
-            }
+    let listed = Node::<ipc::Service>::list(&config, |state| {
+        running = may_be_the_daemon(&state);
+        if running {
+            CallbackProgression::Stop
+        } else {
+            CallbackProgression::Continue
         }
-        CallbackProgression::Continue
     });
-    running
+    running || listed.is_err()
 }
 
 /// Removes the entries of `prefix` in one node's folder, and the folder once they were its
@@ -365,9 +376,10 @@ pub fn prefix_from_env() -> Option<String> {
     std::env::var("PPFD_PREFIX").ok().filter(|p| !p.is_empty())
 }
 
-/// The longest prefix taken: iceoryx2 begins every file name it makes with it, followed by up
-/// to about 70 bytes of ids, hashes and suffixes, within a file name's 255.
-pub const MAX_PREFIX_BYTES: usize = 64;
+/// The longest prefix taken. iceoryx2 begins every file name it makes with it, and one is the
+/// path of a Unix socket, which must fit 108 bytes with its final NUL:
+/// `/tmp/iceoryx2/<prefix><listener id>.event`, the id up to 39 decimal digits.
+pub const MAX_PREFIX_BYTES: usize = 108 - "/tmp/iceoryx2/".len() - 39 - ".event".len() - 1;
 
 /// Checks an iceoryx2 resource prefix as the daemon and its clients take it (`--prefix`,
 /// `PPFD_PREFIX`): a name of ASCII letters, digits, `_` and `-` (it becomes part of file names),
@@ -384,7 +396,7 @@ pub fn check_prefix(prefix: &str) -> Result<(), ProtocolError> {
     {
         "may hold only ASCII letters, digits, '_' and '-'"
     } else if prefix.len() > MAX_PREFIX_BYTES {
-        "is longer than 64 bytes (iceoryx2 makes file names of it)"
+        "is longer than 48 bytes (iceoryx2 makes socket paths of it)"
     } else if !prefix.ends_with('_') {
         "must end with '_' (\"cell1_\", not \"cell1\"), so that it is not the start of another \
          prefix's file names"
@@ -446,19 +458,47 @@ mod tests {
     fn a_prefix_ends_with_an_underscore() {
         assert!(check_prefix("cell1_").is_ok());
         assert!(check_prefix("ppfdt_a-b_7_").is_ok());
-        assert!(check_prefix(&format!("{}_", "a".repeat(63))).is_ok());
-        let long = format!("{}_", "a".repeat(64));
+        assert_eq!(MAX_PREFIX_BYTES, 48);
+        assert!(check_prefix(&format!("{}_", "a".repeat(47))).is_ok());
+        let long = format!("{}_", "a".repeat(48));
         for (bad, why) in [
             ("cell1", "must end with '_'"),
             ("", "is empty"),
             ("_", "is empty"),
             ("a/b_", "only ASCII"),
             ("caméra_", "only ASCII"),
-            (long.as_str(), "longer than 64 bytes"),
+            (long.as_str(), "longer than 48 bytes"),
         ] {
             let e = check_prefix(bad).unwrap_err().to_string();
             assert!(e.contains(why), "{bad:?}: {e}");
         }
+    }
+
+    /// A prefix of the longest length taken makes a node and an event listener (a Unix socket,
+    /// the longest path iceoryx2 makes of it).
+    #[test]
+    fn the_longest_prefix_taken_makes_a_listener() {
+        let mut prefix = format!("ppfdlong{}_", std::process::id());
+        let fill = MAX_PREFIX_BYTES - prefix.len();
+        prefix.insert_str(0, &"p".repeat(fill));
+        assert_eq!(prefix.len(), MAX_PREFIX_BYTES);
+        check_prefix(&prefix).unwrap();
+        let mut config = iceoryx2::config::Config::default();
+        config.global.prefix = FileName::new(prefix.as_bytes()).unwrap();
+        {
+            let node = NodeBuilder::new()
+                .config(&config)
+                .signal_handling_mode(SignalHandlingMode::Disabled)
+                .create::<ipc::Service>()
+                .unwrap();
+            let service = node
+                .service_builder(&ServiceName::new("long/prefix").unwrap())
+                .event()
+                .open_or_create()
+                .unwrap();
+            let _listener = service.listener_builder().create().unwrap();
+        }
+        remove_prefix_leftovers(&prefix).unwrap();
     }
 
     #[test]
