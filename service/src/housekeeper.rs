@@ -85,7 +85,7 @@ impl DeadNodes {
             }
         }
         if listing.is_ok() {
-            sweep.leftovers += remove_orphan_monitors(config, &all);
+            sweep.leftovers += remove_orphan_nodes(config, &all);
         }
         self.cleaned.retain(|id| listed.contains(id));
         sweep
@@ -101,7 +101,7 @@ const ORPHAN_AGE: Duration = Duration::from_secs(10);
 /// (`<prefix><id>.node_monitor…`) without the one listing needs, or, killed earlier, only its
 /// details file in its folder `<id>/`. Clients that crash in a loop would otherwise fill the
 /// node directory, which every round reads. Returns how many nodes' files went.
-fn remove_orphan_monitors(
+fn remove_orphan_nodes(
     config: &iceoryx2::config::Config,
     listed: &std::collections::HashSet<u128>,
 ) -> u64 {
@@ -442,11 +442,23 @@ mod tests {
         };
         let old_folder = details(333, Duration::from_secs(60));
         let fresh_folder = details(444, Duration::ZERO);
+        // The live node's own details, aged as well: listed, it keeps its folder.
+        let live_folder = nodes.join(live.id().value().to_string());
+        std::fs::File::options()
+            .write(true)
+            .open(live_folder.join(format!("{prefix}node.details")))
+            .unwrap()
+            .set_modified(std::time::SystemTime::now() - Duration::from_secs(60))
+            .unwrap();
         let mut dead = DeadNodes::default();
         let sweep = dead.sweep(&config);
         assert_eq!(sweep.leftovers, 2, "{sweep:?}");
         assert!(!old_folder.exists(), "the old details-only folder stays");
         assert!(fresh_folder.exists(), "a node being made lost its folder");
+        assert!(
+            live_folder.join(format!("{prefix}node.details")).exists(),
+            "the live node lost its details"
+        );
         let left = ours();
         // By the whole name: a live node's random id may end in the same digits.
         let of = |id: u32| format!("{prefix}{id}.");
