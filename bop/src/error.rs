@@ -32,7 +32,18 @@ pub enum Error {
     UnknownObject(u32),
     /// A mesh, depth image or file that `ppfd-models` refused.
     #[error(transparent)]
-    Models(#[from] ppfd_models::Error),
+    Models(ppfd_models::Error),
+}
+
+impl From<ppfd_models::Error> for Error {
+    /// `ppfd-models`' error, its operating-system failures as this crate's own [`Error::Io`]:
+    /// one form of a failed read, whichever crate opened the file.
+    fn from(e: ppfd_models::Error) -> Error {
+        match e {
+            ppfd_models::Error::Io { path, source } => Error::Io { path, source },
+            other => Error::Models(other),
+        }
+    }
 }
 
 /// `Result` with this crate's [`Error`].

@@ -155,6 +155,7 @@ fn take_symmetry_beside(cached: &mut CachedModel, mesh: &Path) -> Result<(), ppf
     let id = cached.model.object_id();
     let beside = ppfd_bop::dataset::symmetry_beside(mesh, id).map_err(|e| match e {
         ppfd_bop::Error::Models(e) => e,
+        ppfd_bop::Error::Io { path, source } => ppfd_models::Error::Io { path, source },
         ppfd_bop::Error::Dataset { path, reason } => ppfd_models::Error::File { path, reason },
         other => ppfd_models::Error::File {
             path: mesh.with_file_name("models_info.json"),

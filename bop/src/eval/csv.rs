@@ -303,8 +303,7 @@ mod tests {
     fn missing_file_is_an_io_error_naming_it() {
         let e = read_results("/nonexistent/results.csv").unwrap_err();
         assert!(
-            matches!(e, Error::Models(ppfd_models::Error::Io { .. }))
-                && e.to_string().contains("/nonexistent/results.csv")
+            matches!(e, Error::Io { .. }) && e.to_string().contains("/nonexistent/results.csv")
         );
     }
 }
