@@ -183,7 +183,8 @@ class Client:
 
     def __init__(self, prefix: Optional[str] = None, *, control_timeout: float = 5.0) -> None:
         """Connects under the iceoryx2 `prefix` (None: `PPFD_PREFIX`, else iceoryx2's
-        default). Works before the daemon starts: requests then raise `NoDaemon`."""
+        default). Works before the daemon starts: requests then raise `NoDaemon`.
+        `control_timeout` in seconds, above 0, bounds model listings, loads and statistics."""
     def close(self) -> None:
         """Closes the connection now, releasing its shared-memory ports (otherwise released
         when the object is collected, and never when that happens on another thread); using it

@@ -133,7 +133,7 @@ impl CameraPublisher {
     /// run every 50 ms, so Ctrl-C ends it as it ends `time.sleep`.
     fn idle(&self, py: Python<'_>, seconds: f64) -> PyResult<()> {
         const STEP: std::time::Duration = std::time::Duration::from_millis(50);
-        let duration = crate::client::seconds(py, "idle", seconds)?;
+        let duration = crate::client::seconds(py, "seconds", seconds)?;
         let until = std::time::Instant::now() + duration;
         let publisher = &self.inner;
         loop {

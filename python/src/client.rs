@@ -440,13 +440,16 @@ impl Client {
     ///
     /// `hints`: poses already known (None: none), each a `Detection` of an earlier answer or a
     /// pair `(object_id, pose)` with a 4×4 (or 3×4) pose; at most 64. A pair must be of one of
-    /// `object_ids`; a `Detection` of another object is left out. A hinted object is first refined from its hints and goes through voting only when none
-    /// passes; `Detection.checks` has `Checks.HINT` on a pose that came from a hint.
+    /// `object_ids`; a `Detection` of another object is left out, so a whole earlier answer
+    /// can be passed. A hinted object is first refined from its hints and goes through voting
+    /// only when none passes; `Detection.checks` has `Checks.HINT` on a pose that came from a
+    /// hint.
     ///
-    /// `diagnose`: poses the objects are believed at, given as `hints` are (None: no
-    /// diagnosis). The detection then runs from scratch (not with `hints` as well), and
-    /// `Detections.diagnosis` says per object, after each stage, where the best candidate near
-    /// its pose stands and at which stage it was lost; about twice the detection's time.
+    /// `diagnose`: poses the objects are believed at, given as `hints` are, at least one of
+    /// the objects asked for (None: no diagnosis; an empty list raises `ProtocolError`). The
+    /// detection then runs from scratch (not with `hints` as well), and `Detections.diagnosis`
+    /// says per object, after each stage, where the best candidate near its pose stands and at
+    /// which stage it was lost; about twice the detection's time.
     #[pyo3(signature = (
         camera, object_ids, hypotheses=1, timeout=None, *, max_frame_age=None, min_score=0.0,
         instance_distance=None, roi=None, max_tilt_deg=None, tilt_axis=None,

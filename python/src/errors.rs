@@ -242,11 +242,10 @@ fn raise(py: Python<'_>, error: &Error) -> PyResult<PyErr> {
     Ok(PyErr::from_value(class.bind(py).call1((message,))?))
 }
 
-/// A `ProtocolError` with `message`: bad input found in this package before anything is sent.
-/// A value as an error message shows it: its `repr` on one line, cut at 80 characters (a
-/// numpy array's is many lines long).
+/// A value as an error message shows it: its `repr` on one line, cut to at most 80 characters
+/// with `…` (a numpy array's is many lines long).
 pub fn shown(value: &Bound<'_, PyAny>) -> String {
-    const MAX: usize = 80;
+    const MAX: usize = 79;
     let Ok(repr) = value.repr() else {
         return "an unprintable value".into();
     };
@@ -261,6 +260,7 @@ pub fn shown(value: &Bound<'_, PyAny>) -> String {
     }
 }
 
+/// A `ProtocolError` with `message`: bad input found in this package before anything is sent.
 pub fn protocol_error(py: Python<'_>, message: String) -> PyErr {
     match classes(py).and_then(|c| c.protocol.bind(py).call1((message,))) {
         Ok(e) => PyErr::from_value(e),

@@ -29,7 +29,7 @@ pub struct VotingParams {
     /// pixels first, so that is the cube's best-supported point. 0:
     /// every point is a candidate. Taking every n-th point instead leaves gaps and clumps
     /// where the cloud's order puts them; an even spread covers a small or occluded object
-    /// with fewer points. See [`VotingParams::reference_step`] for the measurements.
+    /// with fewer points. docs/METHOD.md §2.3 has the measurements.
     pub reference_spacing_fraction: f32,
     /// Every `reference_step`-th candidate (see `reference_spacing_fraction`) is a reference
     /// point. Drost et al. use every 5th subsampled point; the even spread with every candidate
