@@ -367,14 +367,24 @@ impl DetectionEngine for PpfEngine {
 mod tests {
     use super::*;
 
-    /// The daemon's protocol and the detector accept the same focal lengths: a frame the
-    /// protocol lets through is not refused by the detector for another reason.
+    /// The daemon's protocol and the detector, which do not depend on each other, hold the
+    /// same limits and constants: a frame or request the protocol lets through is not refused
+    /// by the detector for another reason.
     #[test]
-    fn the_protocol_and_the_detector_accept_the_same_focal_lengths() {
+    fn the_protocol_and_the_detector_share_their_limits() {
         use ppfd_protocol::frame::Intrinsics as Wire;
         assert_eq!(
             (Wire::MIN_FOCAL_PX, Wire::MAX_FOCAL_PX),
             (Intrinsics::MIN_FOCAL_PX, Intrinsics::MAX_FOCAL_PX)
+        );
+        let (wire, detector) = (Wire::LMO, Intrinsics::LMO);
+        assert_eq!(
+            [wire.fx, wire.fy, wire.cx, wire.cy],
+            [detector.fx, detector.fy, detector.cx, detector.cy]
+        );
+        assert_eq!(
+            ppfd_protocol::detect::MAX_INSTANCE_DISTANCE_FRACTION,
+            ppfd_models::detect::requirements::MAX_INSTANCE_DISTANCE_FRACTION
         );
     }
 

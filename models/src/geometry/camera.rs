@@ -20,12 +20,14 @@ pub struct Intrinsics {
 }
 
 impl Intrinsics {
-    /// The LM-O (Kinect v1) camera, 640×480: the embedded default for generated scenes.
+    /// The LM-O (Kinect v1) camera, 640×480 (digits as the dataset gives them): the embedded
+    /// default for generated scenes.
+    #[allow(clippy::excessive_precision)]
     pub const LMO: Intrinsics = Intrinsics {
         fx: 572.4114,
         fy: 573.57043,
         cx: 325.2611,
-        cy: 242.049,
+        cy: 242.04899,
     };
 
     /// The shortest focal length accepted, pixels (as the daemon's protocol,
