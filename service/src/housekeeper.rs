@@ -343,19 +343,37 @@ fn serve(
         let started = Instant::now();
         if !scan_only {
             next = started + period;
-            let sweep = dead.sweep(node.config());
-            if sweep.cleaned + sweep.leftovers > 0 {
-                tracing::info!(
-                    removed = sweep.cleaned,
-                    leftovers = sweep.leftovers,
-                    "removed resources of dead processes"
-                );
-            }
-            if sweep.failed > 0 {
-                tracing::debug!(failed = sweep.failed, "dead processes not cleaned up");
-            }
         }
-        let mut cameras = list_cameras(node.config());
+        // A round that panics (a bug, or iceoryx2 meeting files it does not expect) is logged
+        // and the next one runs as usual: a thread that ended would stop camera discovery and
+        // cleanup for as long as the daemon runs, unseen.
+        let round = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            #[cfg(test)]
+            if tests::take_panic(&node.config().global.prefix.to_string()) {
+                panic!("a round made to panic by a test");
+            }
+            if !scan_only {
+                let sweep = dead.sweep(node.config());
+                if sweep.cleaned + sweep.leftovers > 0 {
+                    tracing::info!(
+                        removed = sweep.cleaned,
+                        leftovers = sweep.leftovers,
+                        "removed resources of dead processes"
+                    );
+                }
+                if sweep.failed > 0 {
+                    tracing::debug!(failed = sweep.failed, "dead processes not cleaned up");
+                }
+            }
+            list_cameras(node.config())
+        }));
+        let mut cameras = match round {
+            Ok(cameras) => cameras,
+            Err(_) => {
+                tracing::error!("a housekeeping round panicked; the next one runs as usual");
+                continue;
+            }
+        };
         // A name whose service is gone is reported again when it comes back.
         reported.retain(|name| cameras.contains(name));
         cameras.retain(|name| reported.insert(name.clone()));
@@ -386,6 +404,20 @@ impl Drop for Housekeeper {
 mod tests {
     use super::*;
     use crate::wakeup::Wakeup;
+
+    /// The prefix whose housekeeper's next round panics (tests run side by side, each with a
+    /// prefix of its own).
+    static PANIC_PREFIX: std::sync::Mutex<Option<String>> = std::sync::Mutex::new(None);
+
+    /// Whether the round of `prefix`'s housekeeper is to panic; once.
+    pub(super) fn take_panic(prefix: &str) -> bool {
+        let mut asked = PANIC_PREFIX.lock().unwrap_or_else(|p| p.into_inner());
+        let take = asked.as_deref() == Some(prefix);
+        if take {
+            *asked = None;
+        }
+        take
+    }
 
     fn config(prefix: &str) -> iceoryx2::config::Config {
         let mut config = iceoryx2::config::Config::default();
@@ -485,6 +517,34 @@ mod tests {
             std::thread::sleep(Duration::from_millis(5));
         }
         Vec::new()
+    }
+
+    /// A round that panics leaves the thread running: the next scan reports a new camera.
+    #[test]
+    fn a_round_that_panics_is_followed_by_the_next() {
+        let prefix = format!("hkp{}_", std::process::id());
+        let config = config(&prefix);
+        let wake = Wakeup::new().unwrap();
+        let h = Housekeeper::start(&config, Duration::from_secs(3600), wake.signaller(), || {})
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(100));
+        *PANIC_PREFIX.lock().unwrap() = Some(prefix.clone());
+        h.scan_now();
+        let until = Instant::now() + Duration::from_secs(5);
+        while PANIC_PREFIX.lock().unwrap().is_some() {
+            assert!(Instant::now() < until, "no round ran");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let node = NodeBuilder::new().config(&config).create::<Ipc>().unwrap();
+        let _camera = services::camera_builder(&node, "after")
+            .unwrap()
+            .create()
+            .unwrap();
+        h.scan_now();
+        assert_eq!(next_found(&h, &wake), vec!["after".to_owned()]);
+        drop(h);
+        drop((_camera, node));
+        services::remove_prefix_leftovers(&prefix).unwrap();
     }
 
     #[test]
