@@ -34,6 +34,9 @@ type Ipc = ipc::Service;
 pub struct DeadNodes {
     /// Nodes cleaned up before, still listed at the last round.
     cleaned: std::collections::HashSet<u128>,
+    /// Node folders holding another prefix's entries, still present at the last round: a node
+    /// belongs to one prefix, so they are not read again.
+    foreign: std::collections::HashSet<u128>,
 }
 
 /// What one round of [`DeadNodes::sweep`] did.
@@ -85,7 +88,7 @@ impl DeadNodes {
             }
         }
         if listing.is_ok() {
-            sweep.leftovers += remove_orphan_nodes(config, &all);
+            sweep.leftovers += remove_orphan_nodes(config, &all, &mut self.foreign);
         }
         self.cleaned.retain(|id| listed.contains(id));
         sweep
@@ -100,10 +103,12 @@ const ORPHAN_AGE: Duration = Duration::from_secs(10);
 /// [`ORPHAN_AGE`]: a process killed while it made its node leaves some of its monitor files
 /// (`<prefix><id>.node_monitor…`) without the one listing needs, or, killed earlier, only its
 /// details file in its folder `<id>/`. Clients that crash in a loop would otherwise fill the
-/// node directory, which every round reads. Returns how many nodes' files went.
+/// node directory, which every round reads. The folders of other prefixes' nodes are read
+/// once and remembered in `foreign` while they exist. Returns how many nodes' files went.
 fn remove_orphan_nodes(
     config: &iceoryx2::config::Config,
     listed: &std::collections::HashSet<u128>,
+    foreign: &mut std::collections::HashSet<u128>,
 ) -> u64 {
     let nodes = std::path::PathBuf::from(config.global.node_dir().to_string());
     let prefix = config.global.prefix.to_string();
@@ -146,18 +151,24 @@ fn remove_orphan_nodes(
         }
     }
     // A folder holding entries of the prefix, all old, of a node without monitor files.
+    let present: std::collections::HashSet<u128> = folders.iter().map(|(id, _)| *id).collect();
+    foreign.retain(|id| present.contains(id));
     for (id, folder) in folders {
-        if listed.contains(&id) || with_monitor.contains(&id) {
+        if listed.contains(&id) || with_monitor.contains(&id) || foreign.contains(&id) {
             continue;
         }
         let Ok(inside) = std::fs::read_dir(&folder) else {
             continue;
         };
-        let mut ours = inside
+        let (ours, theirs): (Vec<_>, Vec<_>) = inside
             .flatten()
-            .filter(|e| services::is_entry_of_prefix(&e.file_name().to_string_lossy(), &prefix))
-            .peekable();
-        if ours.peek().is_some() && ours.all(|e| old(e.metadata())) {
+            .partition(|e| services::is_entry_of_prefix(&e.file_name().to_string_lossy(), &prefix));
+        if ours.is_empty() {
+            // Empty, it may be a node of this prefix being made: read again next round.
+            if !theirs.is_empty() {
+                foreign.insert(id);
+            }
+        } else if ours.iter().all(|e| old(e.metadata())) {
             orphans.insert(id);
         }
     }
@@ -474,6 +485,13 @@ mod tests {
         };
         let old_folder = details(333, Duration::from_secs(60));
         let fresh_folder = details(444, Duration::ZERO);
+        // Another prefix's node: left, and not read again while it exists.
+        let other_folder = nodes.join(format!("{}", 555_u128 + u128::from(std::process::id())));
+        std::fs::create_dir_all(&other_folder).unwrap();
+        std::fs::File::create(other_folder.join(format!("other{prefix}node.details")))
+            .unwrap()
+            .set_modified(std::time::SystemTime::now() - Duration::from_secs(60))
+            .unwrap();
         // The live node's own details, aged as well: listed, it keeps its folder.
         let live_folder = nodes.join(live.id().value().to_string());
         std::fs::File::options()
@@ -488,6 +506,13 @@ mod tests {
         assert!(!old_folder.exists(), "the old details-only folder stays");
         assert!(fresh_folder.exists(), "a node being made lost its folder");
         assert!(
+            other_folder.exists(),
+            "another prefix's node lost its folder"
+        );
+        assert!(dead
+            .foreign
+            .contains(&(555_u128 + u128::from(std::process::id()))));
+        assert!(
             live_folder.join(format!("{prefix}node.details")).exists(),
             "the live node lost its details"
         );
@@ -501,6 +526,7 @@ mod tests {
         assert_eq!(dead.sweep(&config).leftovers, 0);
         let _ = remove_node_leftovers(&config, 222);
         let _ = remove_node_leftovers(&config, 444);
+        std::fs::remove_dir_all(&other_folder).unwrap();
         drop(live);
         services::remove_prefix_leftovers(&prefix).unwrap();
     }
