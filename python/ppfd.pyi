@@ -60,10 +60,15 @@ class Model(TypedDict):
     point_count: int
     table_entries: int
     byte_size: int
+    discrete_symmetries: int
+    """Transforms other than the identity that map the object onto itself; a symmetric
+    object's pose is reported as the one of its equivalent poses nearest the model's frame."""
+    continuous_symmetry: bool
+    """Whether any turn about an axis maps the object onto itself."""
 
 class LatencySummary(TypedDict):
-    """Over the daemon's lifetime: percentiles from a histogram of three significant digits,
-    and the exact maximum."""
+    """Percentiles and the exact maximum: over the daemon's lifetime (`total` and its kin) from
+    a histogram of three significant digits, over the last minute (`recent_*`) exact."""
 
     count: int
     p50_ns: int
@@ -72,7 +77,8 @@ class LatencySummary(TypedDict):
     max_ns: int
 
 class Stats(TypedDict):
-    """The daemon's statistics since it started."""
+    """The daemon's statistics: counters and latencies since it started, and the latencies of
+    the last minute (`recent_*`)."""
 
     uptime_ns: int
     requests_received: int
@@ -108,6 +114,13 @@ class Stats(TypedDict):
     """Request transport and queue wait, as the daemon sees them: unlike
     `Latency.overhead_ns`, without the response's way back or the daemon's glue."""
     detection: LatencySummary
+    recent_window_ns: int
+    """The span the `recent_*` summaries cover, ending at the answer: one minute, less while
+    the daemon is younger or when it served more than 100 000 requests in that minute."""
+    recent_total: LatencySummary
+    """`total` over the requests served within `recent_window_ns`."""
+    recent_overhead: LatencySummary
+    recent_detection: LatencySummary
     message: str
     """The detector parameters the daemon runs with (`detector: defaults`, or
     `detector: voting.reference_step=2 …`)."""

@@ -13,6 +13,7 @@ use std::time::Instant;
 
 use clap::Args;
 use hdrhistogram::Histogram;
+use ppfd_client::protocol::control::nearest_rank;
 use ppfd_client::{DetectOptions, Error, Latency};
 
 use crate::common::{detect_once_framed, millis, ms, stages, Connect};
@@ -96,20 +97,11 @@ impl Measure {
     }
 
     /// The exact value at quantile `q` (nearest rank) of the samples, which must be sorted.
+    /// The histogram's own quantiles are its buckets' bounds, three significant digits: at half
+    /// a second a quarter of a millisecond apart, too coarse for the overhead beside a detection.
     fn at(&self, q: f64) -> u64 {
         nearest_rank(&self.samples, q)
     }
-}
-
-/// The smallest sample with at least `q` of the samples at or below it; 0 without samples.
-/// The histogram's own quantiles are its buckets' bounds, three significant digits: at half a
-/// second a quarter of a millisecond apart, too coarse for the overhead beside a detection.
-fn nearest_rank(sorted: &[u64], q: f64) -> u64 {
-    if sorted.is_empty() {
-        return 0;
-    }
-    let rank = (q.clamp(0.0, 1.0) * sorted.len() as f64).ceil() as usize;
-    sorted[rank.clamp(1, sorted.len()) - 1]
 }
 
 pub fn run(args: BenchArgs) -> Result<(), String> {
@@ -492,7 +484,5 @@ mod tests {
             h.highest_equivalent(544_700_000)
         );
         assert_eq!(h.value_at_quantile(0.25), h.value_at_quantile(0.75));
-        assert_eq!(nearest_rank(&[], 0.5), 0);
-        assert_eq!(nearest_rank(&[7], 0.99), 7);
     }
 }

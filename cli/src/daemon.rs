@@ -62,22 +62,38 @@ pub fn models(args: ModelsArgs) -> Result<(), String> {
     let listing = client.model_listing().map_err(|e| e.to_string())?;
     let models = &listing.models;
     println!(
-        "{:>6}  {:<24} {:>8} {:>12} {:>12} {:>10}",
+        "{:>6}  {:<24} {:>8} {:>12} {:>12} {:>10}  symmetry",
         "object", "name", "points", "table", "bytes", "diameter"
     );
     for m in models {
         println!(
-            "{:>6}  {:<24} {:>8} {:>12} {:>12} {:>8.1}mm",
+            "{:>6}  {:<24} {:>8} {:>12} {:>12} {:>8.1}mm  {}",
             m.object_id,
             m.name(),
             m.point_count,
             m.table_entries,
             m.byte_size,
-            m.diameter_mm
+            m.diameter_mm,
+            symmetry_text(m)
         );
     }
     println!("{}", count_line(&listing));
     Ok(())
+}
+
+/// A model's symmetry in a few words: "none", "axis", "3 turns", "axis, 1 turn".
+fn symmetry_text(m: &ppfd_client::ModelInfo) -> String {
+    let turns = match m.discrete_symmetries {
+        0 => None,
+        1 => Some("1 turn".to_string()),
+        n => Some(format!("{n} turns")),
+    };
+    match (m.continuous_symmetry != 0, turns) {
+        (false, None) => "none".into(),
+        (false, Some(turns)) => turns,
+        (true, None) => "axis".into(),
+        (true, Some(turns)) => format!("axis, {turns}"),
+    }
 }
 
 /// The closing line of `ppf models`: how many models, and that the list is cut short when the
@@ -186,25 +202,34 @@ pub fn stats(args: StatsArgs) -> Result<(), String> {
         "now               {} running, {} queued",
         s.in_flight, s.queued
     );
-    println!(
-        "latency (ms)      {:>8} {:>8} {:>8} {:>8} {:>8}",
-        "count", "p50", "p90", "p99", "max"
-    );
+    let window = format!("last {:.0} s", s.recent_window_ns as f64 / 1e9);
     // The daemon's side only: from the client's send to the response sent. A client's end to
     // end adds the response's way back (`ppf detect` and `ppf bench` print it).
-    for (name, l) in [
-        ("send → answered", &s.total),
-        ("transport+queue", &s.overhead),
-        ("detection", &s.detection),
+    for (span, [total, overhead, detection]) in [
+        ("since start", [&s.total, &s.overhead, &s.detection]),
+        (
+            window.as_str(),
+            [&s.recent_total, &s.recent_overhead, &s.recent_detection],
+        ),
     ] {
         println!(
-            "  {name:<15} {:>8} {:>8} {:>8} {:>8} {:>8}",
-            l.count,
-            ms(l.p50_ns),
-            ms(l.p90_ns),
-            ms(l.p99_ns),
-            ms(l.max_ns)
+            "latency (ms), {span:<12} {:>8} {:>8} {:>8} {:>8} {:>8}",
+            "count", "p50", "p90", "p99", "max"
         );
+        for (name, l) in [
+            ("send → answered", total),
+            ("transport+queue", overhead),
+            ("detection", detection),
+        ] {
+            println!(
+                "  {name:<24} {:>8} {:>8} {:>8} {:>8} {:>8}",
+                l.count,
+                ms(l.p50_ns),
+                ms(l.p90_ns),
+                ms(l.p99_ns),
+                ms(l.max_ns)
+            );
+        }
     }
     Ok(())
 }
@@ -221,6 +246,8 @@ fn stats_json(s: &DaemonStats) -> serde_json::Value {
         "startup_files_failed": s.startup_files_failed,
         "model_loads_running": s.model_loads_running, "model_loads_waiting": s.model_loads_waiting,
         "total": l(&s.total), "overhead": l(&s.overhead), "detection": l(&s.detection),
+        "recent_window_ns": s.recent_window_ns, "recent_total": l(&s.recent_total),
+        "recent_overhead": l(&s.recent_overhead), "recent_detection": l(&s.recent_detection),
     })
 }
 
@@ -228,6 +255,22 @@ fn stats_json(s: &DaemonStats) -> serde_json::Value {
 mod tests {
     use super::*;
     use ppfd_client::{ModelInfo, ModelListing};
+
+    #[test]
+    fn symmetries_read_in_words() {
+        let with = |discrete_symmetries, continuous_symmetry| {
+            symmetry_text(&ModelInfo {
+                discrete_symmetries,
+                continuous_symmetry,
+                ..ModelInfo::default()
+            })
+        };
+        assert_eq!(with(0, 0), "none");
+        assert_eq!(with(1, 0), "1 turn");
+        assert_eq!(with(3, 0), "3 turns");
+        assert_eq!(with(0, 1), "axis");
+        assert_eq!(with(1, 1), "axis, 1 turn");
+    }
 
     #[test]
     fn a_listing_cut_short_says_how_many_are_loaded() {

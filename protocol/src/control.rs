@@ -78,7 +78,8 @@ impl ControlRequest {
     }
 }
 
-/// Percentiles of one latency measure over the daemon's lifetime, nanoseconds.
+/// Percentiles of one latency measure, nanoseconds: over the daemon's lifetime
+/// ([`DaemonStats::total`] and its kin) or its last minute ([`DaemonStats::recent_total`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
 #[type_name("ppfd::LatencySummary")]
 #[repr(C)]
@@ -95,7 +96,9 @@ pub struct LatencySummary {
     pub max_ns: u64,
 }
 
-/// Daemon statistics since it started.
+/// Daemon statistics: counters and latencies since it started, and the latencies of the last
+/// [`RECENT_WINDOW_NS`] (a daemon that runs for weeks keeps its first days in the lifetime
+/// percentiles; the recent ones show a change within a minute).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, ZeroCopySend)]
 #[type_name("ppfd::DaemonStats")]
 #[repr(C)]
@@ -147,6 +150,44 @@ pub struct DaemonStats {
     pub overhead: LatencySummary,
     /// Detection wall time, over served requests.
     pub detection: LatencySummary,
+    /// The span the `recent_*` summaries cover, ending at this response: [`RECENT_WINDOW_NS`],
+    /// less while the daemon is younger, or when it served more than [`RECENT_SAMPLES`]
+    /// requests in that time (the oldest are let go).
+    pub recent_window_ns: u64,
+    /// `total` over the requests served within `recent_window_ns`.
+    pub recent_total: LatencySummary,
+    /// `overhead` over the requests served within `recent_window_ns`.
+    pub recent_overhead: LatencySummary,
+    /// `detection` over the requests served within `recent_window_ns`.
+    pub recent_detection: LatencySummary,
+}
+
+/// How far back the recent latencies of [`DaemonStats`] look, ns (one minute).
+pub const RECENT_WINDOW_NS: u64 = 60_000_000_000;
+/// The most served requests the recent latencies of [`DaemonStats`] hold.
+pub const RECENT_SAMPLES: usize = 100_000;
+
+impl LatencySummary {
+    /// The summary of samples sorted in ascending order, its percentiles by nearest rank.
+    pub fn of_sorted(sorted: &[u64]) -> LatencySummary {
+        LatencySummary {
+            count: sorted.len() as u64,
+            p50_ns: nearest_rank(sorted, 0.50),
+            p90_ns: nearest_rank(sorted, 0.90),
+            p99_ns: nearest_rank(sorted, 0.99),
+            max_ns: sorted.last().copied().unwrap_or(0),
+        }
+    }
+}
+
+/// The `q`-quantile of samples sorted in ascending order by nearest rank: the smallest sample
+/// with at least a fraction `q` of the samples at or below it (0 without samples).
+pub fn nearest_rank(sorted: &[u64], q: f64) -> u64 {
+    if sorted.is_empty() {
+        return 0;
+    }
+    let rank = (q.clamp(0.0, 1.0) * sorted.len() as f64).ceil() as usize;
+    sorted[rank.clamp(1, sorted.len()) - 1]
 }
 
 /// The user header of a control response.
@@ -201,8 +242,12 @@ pub struct ModelInfo {
     pub byte_size: u64,
     /// Object diameter, millimetres.
     pub diameter_mm: f32,
-    /// Zero.
-    pub reserved: u32,
+    /// Transforms other than the identity that map the object onto itself (its discrete
+    /// symmetries; at most `u16::MAX` counted). Poses are reported as the one of each set of
+    /// equivalent poses nearest the model's frame (METHOD.md §1.8).
+    pub discrete_symmetries: u16,
+    /// 1 if any turn about an axis maps the object onto itself (a continuous symmetry), else 0.
+    pub continuous_symmetry: u16,
     /// Object name, NUL-padded UTF-8.
     pub name: [u8; MODEL_NAME_BYTES],
 }
@@ -215,7 +260,8 @@ impl Default for ModelInfo {
             table_entries: 0,
             byte_size: 0,
             diameter_mm: 0.0,
-            reserved: 0,
+            discrete_symmetries: 0,
+            continuous_symmetry: 0,
             name: [0; MODEL_NAME_BYTES],
         }
     }
@@ -237,8 +283,8 @@ mod tests {
     fn layouts_are_fixed() {
         assert_eq!(size_of::<ControlRequest>(), 288);
         assert_eq!(size_of::<LatencySummary>(), 40);
-        assert_eq!(size_of::<DaemonStats>(), 18 * 8 + 3 * 40);
-        assert_eq!(size_of::<ControlResponseHeader>(), 16 + 264 + 512);
+        assert_eq!(size_of::<DaemonStats>(), 19 * 8 + 6 * 40);
+        assert_eq!(size_of::<ControlResponseHeader>(), 16 + 392 + 512);
         assert_eq!(offset_of!(ControlResponseHeader, protocol_version), 0);
         assert_eq!(size_of::<ModelInfo>(), 80);
     }
@@ -254,5 +300,18 @@ mod tests {
             assert_eq!(ControlCommand::from_code(c as u32), Some(c));
         }
         assert_eq!(ControlCommand::from_code(0), None);
+    }
+
+    #[test]
+    fn summaries_take_the_nearest_rank() {
+        assert_eq!(nearest_rank(&[], 0.5), 0);
+        assert_eq!(nearest_rank(&[7], 0.99), 7);
+        let sorted: Vec<u64> = (1..=200).collect();
+        let s = LatencySummary::of_sorted(&sorted);
+        assert_eq!(
+            (s.count, s.p50_ns, s.p90_ns, s.p99_ns, s.max_ns),
+            (200, 100, 180, 198, 200)
+        );
+        assert_eq!(LatencySummary::of_sorted(&[]), LatencySummary::default());
     }
 }

@@ -327,6 +327,8 @@ fn model_dict<'py>(py: Python<'py>, m: &ModelInfo) -> PyResult<Bound<'py, PyDict
     dict.set_item("point_count", m.point_count)?;
     dict.set_item("table_entries", m.table_entries)?;
     dict.set_item("byte_size", m.byte_size)?;
+    dict.set_item("discrete_symmetries", m.discrete_symmetries)?;
+    dict.set_item("continuous_symmetry", m.continuous_symmetry != 0)?;
     Ok(dict)
 }
 
@@ -365,12 +367,16 @@ fn stats_dict<'py>(
         ("startup_files_failed", s.startup_files_failed),
         ("model_loads_running", s.model_loads_running),
         ("model_loads_waiting", s.model_loads_waiting),
+        ("recent_window_ns", s.recent_window_ns),
     ] {
         dict.set_item(key, value)?;
     }
     dict.set_item("total", summary_dict(py, &s.total)?)?;
     dict.set_item("overhead", summary_dict(py, &s.overhead)?)?;
     dict.set_item("detection", summary_dict(py, &s.detection)?)?;
+    dict.set_item("recent_total", summary_dict(py, &s.recent_total)?)?;
+    dict.set_item("recent_overhead", summary_dict(py, &s.recent_overhead)?)?;
+    dict.set_item("recent_detection", summary_dict(py, &s.recent_detection)?)?;
     dict.set_item("message", message)?;
     Ok(dict)
 }

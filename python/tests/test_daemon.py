@@ -49,6 +49,9 @@ def test_every_part_is_found_at_its_true_pose(client, camera, scene):
     stats = client.stats()
     assert set(stats) == members["Stats"]
     assert set(stats["total"]) == members["LatencySummary"]
+    assert set(stats["recent_total"]) == members["LatencySummary"]
+    assert 1 <= stats["recent_total"]["count"] <= stats["total"]["count"]
+    assert 0 < stats["recent_window_ns"] <= stats["uptime_ns"]
     assert latency["detection_ns"] > 0
     assert latency["end_to_end_ns"] >= latency["detection_ns"]
     assert latency["overhead_ns"] == latency["end_to_end_ns"] - latency["detection_ns"]
@@ -94,6 +97,8 @@ def test_models_and_stats(client, scene):
     models = client.models()
     assert [m["object_id"] for m in models] == sorted(scene.object_ids)
     assert all(m["diameter_mm"] > 0 and m["point_count"] > 0 for m in models)
+    # The generated parts have no symmetry.
+    assert all(m["discrete_symmetries"] == 0 and m["continuous_symmetry"] is False for m in models)
     stats = client.stats()
     assert stats["models_loaded"] == len(scene.object_ids)
     assert stats["uptime_ns"] > 0

@@ -136,14 +136,16 @@ pub fn detector_requirements(wire: &WireRequirements) -> Result<Requirements, En
 }
 
 fn info_of(model: &ObjectModel) -> ModelInfo {
+    let symmetry = model.symmetry();
     ModelInfo {
         object_id: model.object_id(),
         point_count: model.point_count() as u32,
         table_entries: model.table_entry_count() as u64,
         byte_size: model.byte_size() as u64,
         diameter_mm: model.diameter_mm(),
+        discrete_symmetries: symmetry.discrete.len().min(u16::MAX as usize) as u16,
+        continuous_symmetry: symmetry.continuous.is_some() as u16,
         name: text::encode_truncated(model.name()),
-        ..Default::default()
     }
 }
 
@@ -386,6 +388,35 @@ mod tests {
             ppfd_protocol::detect::MAX_INSTANCE_DISTANCE_FRACTION,
             ppfd_models::detect::requirements::MAX_INSTANCE_DISTANCE_FRACTION
         );
+    }
+
+    /// The model list says how symmetric each object is: a client compares poses of a
+    /// symmetric part under its symmetries.
+    #[test]
+    fn the_model_info_counts_the_symmetries() {
+        use ppfd_models::model::ModelParams;
+        use ppfd_models::synthetic::parts::SymmetricPart;
+        let counts = |part: SymmetricPart| {
+            let model = ObjectModel::build(
+                &part.mesh(),
+                part.object_id(),
+                part.name(),
+                &ModelParams::default(),
+            )
+            .unwrap();
+            let plain = info_of(&model);
+            let symmetry = part.symmetry();
+            let info = info_of(&model.with_symmetry(&symmetry).unwrap());
+            assert_eq!(
+                (plain.discrete_symmetries, plain.continuous_symmetry),
+                (0, 0)
+            );
+            assert_eq!(info.discrete_symmetries as usize, symmetry.discrete.len());
+            (info.discrete_symmetries > 0, info.continuous_symmetry)
+        };
+        // The U-channel's half turn; the shaft's axis.
+        assert_eq!(counts(SymmetricPart::UChannel), (true, 0));
+        assert_eq!(counts(SymmetricPart::SteppedShaft), (false, 1));
     }
 
     #[test]

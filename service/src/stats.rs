@@ -1,12 +1,14 @@
 //! Daemon statistics: counters and HDR latency histograms, read by the `Statistics` control
 //! command.
 
-use std::time::Instant;
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
 
 use hdrhistogram::Histogram;
-use ppfd_protocol::control::{DaemonStats, LatencySummary};
+use ppfd_protocol::control::{DaemonStats, LatencySummary, RECENT_SAMPLES, RECENT_WINDOW_NS};
 
-/// Counters and latency histograms since the daemon started.
+/// Counters and latency histograms since the daemon started, and the latencies of the last
+/// minute.
 pub struct Stats {
     started: Instant,
     /// Detect requests taken off the port; these counters are those of [`DaemonStats`].
@@ -24,6 +26,58 @@ pub struct Stats {
     total: Latencies,
     overhead: Latencies,
     detection: Latencies,
+    recent: Recent,
+}
+
+/// The served requests of the last [`RECENT_WINDOW_NS`], at most [`RECENT_SAMPLES`] of them:
+/// their times and latencies exactly (a minute of requests is small; the percentiles need no
+/// buckets).
+struct Recent {
+    /// (served at, total, overhead, detection), oldest first.
+    samples: VecDeque<(Instant, [u64; 3])>,
+    /// When the newest sample let go to stay within [`RECENT_SAMPLES`] was served: the window
+    /// begins after it.
+    cut: Option<Instant>,
+}
+
+impl Recent {
+    fn window() -> Duration {
+        Duration::from_nanos(RECENT_WINDOW_NS)
+    }
+
+    fn record(&mut self, at: Instant, latencies: [u64; 3]) {
+        self.forget_before(at);
+        if self.samples.len() == RECENT_SAMPLES {
+            self.cut = self.samples.pop_front().map(|(t, _)| t);
+        }
+        self.samples.push_back((at, latencies));
+    }
+
+    fn forget_before(&mut self, now: Instant) {
+        let Some(start) = now.checked_sub(Self::window()) else {
+            return;
+        };
+        while self.samples.front().is_some_and(|&(t, _)| t <= start) {
+            self.samples.pop_front();
+        }
+    }
+
+    /// The window's length ending at `now`, and the three summaries over it.
+    fn summaries(&mut self, now: Instant, started: Instant) -> (u64, [LatencySummary; 3]) {
+        self.forget_before(now);
+        let begins = [now.checked_sub(Self::window()), Some(started), self.cut]
+            .into_iter()
+            .flatten()
+            .max()
+            .unwrap_or(started);
+        let window_ns = now.saturating_duration_since(begins).as_nanos() as u64;
+        let summary = |i: usize| {
+            let mut values: Vec<u64> = self.samples.iter().map(|(_, l)| l[i]).collect();
+            values.sort_unstable();
+            LatencySummary::of_sorted(&values)
+        };
+        (window_ns, [summary(0), summary(1), summary(2)])
+    }
 }
 
 /// One latency's samples: their histogram, and the largest exactly. The histogram's own
@@ -79,6 +133,10 @@ impl Default for Stats {
             total: Latencies::new(),
             overhead: Latencies::new(),
             detection: Latencies::new(),
+            recent: Recent {
+                samples: VecDeque::new(),
+                cut: None,
+            },
         }
     }
 }
@@ -86,16 +144,34 @@ impl Default for Stats {
 impl Stats {
     /// Records a served request.
     pub fn record_served(&mut self, total_ns: u64, overhead_ns: u64, detection_ns: u64) {
+        self.record_served_at(Instant::now(), total_ns, overhead_ns, detection_ns);
+    }
+
+    fn record_served_at(
+        &mut self,
+        at: Instant,
+        total_ns: u64,
+        overhead_ns: u64,
+        detection_ns: u64,
+    ) {
         self.requests_served += 1;
         self.total.record(total_ns);
         self.overhead.record(overhead_ns);
         self.detection.record(detection_ns);
+        self.recent
+            .record(at, [total_ns, overhead_ns, detection_ns]);
     }
 
     /// The wire form; the caller fills what the statistics do not know (models, queue).
-    pub fn snapshot(&self) -> DaemonStats {
+    pub fn snapshot(&mut self) -> DaemonStats {
+        self.snapshot_at(Instant::now())
+    }
+
+    fn snapshot_at(&mut self, now: Instant) -> DaemonStats {
+        let (recent_window_ns, [recent_total, recent_overhead, recent_detection]) =
+            self.recent.summaries(now, self.started);
         DaemonStats {
-            uptime_ns: self.started.elapsed().as_nanos() as u64,
+            uptime_ns: now.saturating_duration_since(self.started).as_nanos() as u64,
             requests_received: self.requests_received,
             requests_served: self.requests_served,
             requests_refused: self.requests_refused,
@@ -106,6 +182,10 @@ impl Stats {
             total: self.total.summary(),
             overhead: self.overhead.summary(),
             detection: self.detection.summary(),
+            recent_window_ns,
+            recent_total,
+            recent_overhead,
+            recent_detection,
             ..DaemonStats::default()
         }
     }
@@ -167,5 +247,56 @@ mod tests {
         let t = s.snapshot().total;
         assert_eq!(t.max_ns, 54_166_333);
         assert!(t.p50_ns <= t.max_ns && t.p99_ns <= t.max_ns, "{t:?}");
+    }
+
+    /// A slow minute shows in the recent latencies while the lifetime ones still show the
+    /// fast hours before it; a minute later it is gone from the recent ones.
+    #[test]
+    fn the_recent_latencies_are_those_of_the_last_minute() {
+        let mut s = Stats::default();
+        let t0 = s.started;
+        let minutes = |m: u64| t0 + Duration::from_secs(60 * m);
+        for i in 0..1000u64 {
+            s.record_served_at(minutes(0) + Duration::from_millis(i), 10_000, 1_000, 9_000);
+        }
+        let young = s.snapshot_at(minutes(0) + Duration::from_secs(30));
+        assert_eq!(
+            young.recent_window_ns, 30_000_000_000,
+            "no older than the daemon"
+        );
+        assert_eq!(young.recent_total.count, 1000);
+        for i in 0..10u64 {
+            s.record_served_at(minutes(5) + Duration::from_secs(i), 900_000, 1_000, 899_000);
+        }
+        let slow = s.snapshot_at(minutes(5) + Duration::from_secs(30));
+        assert_eq!(slow.recent_window_ns, RECENT_WINDOW_NS);
+        assert_eq!(slow.recent_total.count, 10);
+        assert_eq!(slow.recent_total.p50_ns, 900_000);
+        assert_eq!(slow.recent_detection.max_ns, 899_000);
+        assert_eq!(slow.total.count, 1010);
+        assert!(slow.total.p90_ns <= 10_010, "{:?}", slow.total);
+        let later = s.snapshot_at(minutes(7));
+        assert_eq!(later.recent_total, LatencySummary::default());
+        assert_eq!(later.total.count, 1010);
+    }
+
+    /// At more than [`RECENT_SAMPLES`] requests a minute the oldest are let go and the window
+    /// says how far back the rest reach.
+    #[test]
+    fn the_recent_window_is_bounded_in_requests() {
+        let mut s = Stats::default();
+        let t0 = s.started + Duration::from_secs(600);
+        let n = RECENT_SAMPLES as u64 + 500;
+        for i in 0..n {
+            s.record_served_at(t0 + Duration::from_micros(100 * i), i + 1, 1, i);
+        }
+        let now = t0 + Duration::from_micros(100 * n);
+        let snap = s.snapshot_at(now);
+        assert_eq!(snap.recent_total.count, RECENT_SAMPLES as u64);
+        assert_eq!(snap.recent_total.max_ns, n);
+        // The newest let go is request 500 (0-based 499), served 49.9 ms after t0.
+        let reach = now - (t0 + Duration::from_micros(100 * 499));
+        assert_eq!(snap.recent_window_ns, reach.as_nanos() as u64);
+        assert_eq!(snap.total.count, n);
     }
 }

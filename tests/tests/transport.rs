@@ -4,6 +4,7 @@
 use std::path::Path;
 use std::time::Duration;
 
+use ppfd_client::protocol::control::RECENT_WINDOW_NS;
 use ppfd_tests::{fake_model_dir, Prefix, Proc};
 
 const DAEMON: &str = env!("CARGO_BIN_EXE_e2e-daemon");
@@ -526,6 +527,14 @@ fn malformed_requests_are_refused_each_with_its_error_and_the_daemon_keeps_servi
     let stats = settled_stats(&client);
     assert!(
         stats.requests_refused >= 11 && stats.requests_served >= 2,
+        "{stats:?}"
+    );
+    // The last minute's latencies hold the detections just served, and no more than all.
+    assert!(
+        stats.recent_total.count >= 1
+            && stats.recent_total.count <= stats.total.count
+            && stats.recent_detection.max_ns <= stats.detection.max_ns
+            && stats.recent_window_ns <= stats.uptime_ns.min(RECENT_WINDOW_NS),
         "{stats:?}"
     );
 }
