@@ -255,6 +255,9 @@ pub fn reply_listener_name(reply_token: u64) -> String {
     format!("ppf-reply-{reply_token:016x}")
 }
 
+/// Where iceoryx2 keeps its shared memory segments (POSIX shared memory on Linux).
+pub const SHARED_MEMORY_DIR: &str = "/dev/shm";
+
 /// Removes the files iceoryx2 leaves behind under `prefix` once every process using it has
 /// ended: its global management segment (16 bytes in `/dev/shm`) outlives every node, and a
 /// process killed without cleanup leaves its node and service entries. For a prefix of one's
@@ -275,7 +278,7 @@ pub fn remove_prefix_leftovers(prefix: &str) -> Result<usize, ProtocolError> {
     }
     let nodes = std::path::PathBuf::from(config.global.node_dir().to_string());
     let folders = [
-        std::path::PathBuf::from("/dev/shm"),
+        std::path::PathBuf::from(SHARED_MEMORY_DIR),
         std::path::PathBuf::from(config.global.service_dir().to_string()),
         nodes.clone(),
         std::path::PathBuf::from(config.global.root_path().to_string()),

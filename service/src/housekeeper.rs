@@ -48,6 +48,8 @@ pub struct Sweep {
     pub failed: u64,
     /// Nodes cleaned up before that were still listed: what was left of them is removed.
     pub leftovers: u64,
+    /// Listener sockets of no port: a process killed while it made a listener.
+    pub listeners: u64,
 }
 
 impl DeadNodes {
@@ -89,6 +91,7 @@ impl DeadNodes {
         }
         if listing.is_ok() {
             sweep.leftovers += remove_orphan_nodes(config, &all, &mut self.foreign);
+            sweep.listeners += remove_orphan_listeners(config);
         }
         self.cleaned.retain(|id| listed.contains(id));
         sweep
@@ -98,6 +101,15 @@ impl DeadNodes {
 /// A monitor file this old whose node iceoryx2 does not list is an orphan, not a node being
 /// made (that takes milliseconds).
 const ORPHAN_AGE: Duration = Duration::from_secs(10);
+
+/// Whether an entry was last changed [`ORPHAN_AGE`] or longer ago.
+fn orphan_old(metadata: std::io::Result<std::fs::Metadata>) -> bool {
+    metadata
+        .and_then(|m| m.modified())
+        .ok()
+        .and_then(|t| t.elapsed().ok())
+        .is_some_and(|age| age >= ORPHAN_AGE)
+}
 
 /// Removes what is left of nodes that iceoryx2 does not list at all (`listed`), older than
 /// [`ORPHAN_AGE`]: a process killed while it made its node leaves some of its monitor files
@@ -115,13 +127,7 @@ fn remove_orphan_nodes(
     let Ok(entries) = std::fs::read_dir(&nodes) else {
         return 0;
     };
-    let old = |metadata: std::io::Result<std::fs::Metadata>| {
-        metadata
-            .and_then(|m| m.modified())
-            .ok()
-            .and_then(|t| t.elapsed().ok())
-            .is_some_and(|age| age >= ORPHAN_AGE)
-    };
+    let old = orphan_old;
     let mut orphans = std::collections::HashSet::new();
     let mut with_monitor = std::collections::HashSet::new();
     let mut folders = Vec::new();
@@ -176,6 +182,88 @@ fn remove_orphan_nodes(
         .into_iter()
         .filter(|&id| remove_node_leftovers(config, id) > 0)
         .count() as u64
+}
+
+/// Removes the listeners' files of the prefix that no node's port tag (`<prefix><port id>.port_tag`
+/// in its folder) accounts for, older than [`ORPHAN_AGE`]: a listener's socket
+/// (`<prefix><port id>.event` in iceoryx2's root folder) and its segment
+/// (`<prefix><hash>_<port id>.event_mgmt` in `/dev/shm`). A listener's port tag is made before
+/// them and kept until they are gone, and iceoryx2's cleanup of a dead node removes its
+/// listeners by their tags; yet a client killed while it makes its reply listener leaves one
+/// or both behind, about once in a few hundred kills. A client that crashes in a loop for weeks
+/// would otherwise fill both folders. Returns how many listeners' files went.
+fn remove_orphan_listeners(config: &iceoryx2::config::Config) -> u64 {
+    use std::collections::HashMap;
+    use std::path::PathBuf;
+    let prefix = config.global.prefix.to_string();
+    // The entries of `dir` that `port_id` names, by port id, and whether each is old.
+    let listed = |dir: PathBuf, port_id: &dyn Fn(&str) -> Option<u128>| {
+        let mut found: HashMap<u128, (Vec<PathBuf>, bool)> = HashMap::new();
+        for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if let Some(id) = port_id(&name) {
+                let entry = found.entry(id).or_insert((Vec::new(), true));
+                entry.0.push(e.path());
+                entry.1 &= orphan_old(e.metadata());
+            }
+        }
+        found
+    };
+    let sockets = listed(
+        PathBuf::from(config.global.root_path().to_string()),
+        &|name| {
+            name.strip_prefix(&prefix)?
+                .strip_suffix(".event")?
+                .parse()
+                .ok()
+        },
+    );
+    let segments = listed(PathBuf::from(services::SHARED_MEMORY_DIR), &|name| {
+        if !services::is_entry_of_prefix(name, &prefix) {
+            return None;
+        }
+        name.strip_suffix(".event_mgmt")?
+            .rsplit_once('_')?
+            .1
+            .parse()
+            .ok()
+    });
+    let mut old: HashMap<u128, Vec<PathBuf>> = HashMap::new();
+    for (id, (paths, is_old)) in sockets.into_iter().chain(segments) {
+        if is_old {
+            old.entry(id).or_default().extend(paths);
+        }
+    }
+    // A live listener's files have its tag; those of a listener being made are young.
+    if old.is_empty() {
+        return 0;
+    }
+    let nodes = PathBuf::from(config.global.node_dir().to_string());
+    let folders: Vec<PathBuf> = std::fs::read_dir(&nodes)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter(|e| {
+            e.file_name()
+                .to_string_lossy()
+                .bytes()
+                .all(|b| b.is_ascii_digit())
+        })
+        .map(|e| e.path())
+        .collect();
+    let mut removed = 0;
+    for (id, paths) in old {
+        let tag = format!("{prefix}{id}.port_tag");
+        if folders.iter().any(|folder| folder.join(&tag).exists()) {
+            continue;
+        }
+        let gone = paths
+            .iter()
+            .filter(|path| std::fs::remove_file(path).is_ok())
+            .count();
+        removed += u64::from(gone > 0);
+    }
+    removed
 }
 
 /// Removes the entries a dead node `id` left under `config`'s node directory: its monitor files
@@ -365,10 +453,11 @@ fn serve(
             }
             if !scan_only {
                 let sweep = dead.sweep(node.config());
-                if sweep.cleaned + sweep.leftovers > 0 {
+                if sweep.cleaned + sweep.leftovers + sweep.listeners > 0 {
                     tracing::info!(
                         removed = sweep.cleaned,
                         leftovers = sweep.leftovers,
+                        listeners = sweep.listeners,
                         "removed resources of dead processes"
                     );
                 }
@@ -528,6 +617,87 @@ mod tests {
         let _ = remove_node_leftovers(&config, 444);
         std::fs::remove_dir_all(&other_folder).unwrap();
         drop(live);
+        services::remove_prefix_leftovers(&prefix).unwrap();
+    }
+
+    /// A listener socket that no port tag accounts for, old enough, goes with its segment in
+    /// `/dev/shm`; one with a tag, a fresh one and another prefix's stay. The names are
+    /// iceoryx2's: a real listener's socket, tag and segment carry its port id.
+    #[test]
+    fn orphaned_listener_sockets_are_removed_and_others_kept() {
+        let prefix = format!("ppfdls_{}_", std::process::id());
+        let config = config(&prefix);
+        let node = NodeBuilder::new()
+            .config(&config)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<Ipc>()
+            .unwrap();
+        let event = services::responses_builder(&node).open_or_create().unwrap();
+        let listener = event.listener_builder().create().unwrap();
+        let root = std::path::PathBuf::from(config.global.root_path().to_string());
+        let nodes = std::path::PathBuf::from(config.global.node_dir().to_string());
+        let shm = std::path::PathBuf::from(services::SHARED_MEMORY_DIR);
+        let names = |dir: &std::path::Path| -> Vec<String> {
+            std::fs::read_dir(dir)
+                .unwrap()
+                .flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| n.starts_with(&prefix))
+                .collect()
+        };
+        // The real listener's names.
+        let sockets = names(&root);
+        assert_eq!(sockets.len(), 1, "{sockets:?}");
+        let id = sockets[0]
+            .strip_prefix(&prefix)
+            .and_then(|n| n.strip_suffix(".event"))
+            .unwrap()
+            .to_owned();
+        let node_folder = nodes.join(node.id().value().to_string());
+        assert!(names(&node_folder).contains(&format!("{prefix}{id}.port_tag")));
+        assert!(names(&shm)
+            .iter()
+            .any(|n| n.ends_with(&format!("_{id}.event_mgmt"))));
+
+        let aged = |path: std::path::PathBuf, age: Duration| {
+            std::fs::File::create(&path)
+                .unwrap()
+                .set_modified(std::time::SystemTime::now() - age)
+                .unwrap();
+            path
+        };
+        let old = Duration::from_secs(60);
+        let hash = "33c1ac61b54bf6edd0a0a8390f0c2fd7cf74d745";
+        // An orphan, with its segment.
+        let orphan = aged(root.join(format!("{prefix}111.event")), old);
+        let segment = aged(shm.join(format!("{prefix}{hash}_111.event_mgmt")), old);
+        // A segment without its socket.
+        let lone_segment = aged(shm.join(format!("{prefix}{hash}_555.event_mgmt")), old);
+        // A socket whose port tag is in a node's folder (a dead node iceoryx2 has yet to clean).
+        let tagged = aged(root.join(format!("{prefix}222.event")), old);
+        let dead_folder = nodes.join(format!("{}", 777_u128 + u128::from(std::process::id())));
+        std::fs::create_dir_all(&dead_folder).unwrap();
+        aged(dead_folder.join(format!("{prefix}222.port_tag")), old);
+        // A listener being made, and another prefix's orphan.
+        let fresh = aged(root.join(format!("{prefix}333.event")), Duration::ZERO);
+        let other = aged(root.join(format!("other{prefix}444.event")), old);
+
+        assert_eq!(remove_orphan_listeners(&config), 2);
+        assert!(!orphan.exists() && !segment.exists() && !lone_segment.exists());
+        assert!(tagged.exists() && fresh.exists() && other.exists());
+        assert!(
+            root.join(&sockets[0]).exists(),
+            "the live listener lost its socket"
+        );
+        assert_eq!(remove_orphan_listeners(&config), 0);
+
+        for path in [tagged, fresh, other] {
+            std::fs::remove_file(path).unwrap();
+        }
+        std::fs::remove_dir_all(&dead_folder).unwrap();
+        drop(listener);
+        drop(event);
+        drop(node);
         services::remove_prefix_leftovers(&prefix).unwrap();
     }
 
