@@ -120,7 +120,9 @@ class Stats(TypedDict):
     recent_total: LatencySummary
     """`total` over the requests served within `recent_window_ns`."""
     recent_overhead: LatencySummary
+    """`overhead` over the requests served within `recent_window_ns`."""
     recent_detection: LatencySummary
+    """`detection` over the requests served within `recent_window_ns`."""
     message: str
     """The detector parameters the daemon runs with (`detector: defaults`, or
     `detector: voting.reference_step=2 …`)."""

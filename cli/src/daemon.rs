@@ -81,18 +81,16 @@ pub fn models(args: ModelsArgs) -> Result<(), String> {
     Ok(())
 }
 
-/// A model's symmetry in a few words: "none", "axis", "3 turns", "axis, 1 turn".
+/// A model's symmetry in a few words: "none"; "2-fold" for two poses that look alike (its
+/// discrete symmetries and the identity); "axis" for any turn about one; "axis, 2-fold".
 fn symmetry_text(m: &ppfd_client::ModelInfo) -> String {
-    let turns = match m.discrete_symmetries {
-        0 => None,
-        1 => Some("1 turn".to_string()),
-        n => Some(format!("{n} turns")),
-    };
-    match (m.continuous_symmetry != 0, turns) {
+    let fold = (m.discrete_symmetries > 0)
+        .then(|| format!("{}-fold", u32::from(m.discrete_symmetries) + 1));
+    match (m.continuous_symmetry != 0, fold) {
         (false, None) => "none".into(),
-        (false, Some(turns)) => turns,
+        (false, Some(fold)) => fold,
         (true, None) => "axis".into(),
-        (true, Some(turns)) => format!("axis, {turns}"),
+        (true, Some(fold)) => format!("axis, {fold}"),
     }
 }
 
@@ -266,10 +264,11 @@ mod tests {
             })
         };
         assert_eq!(with(0, 0), "none");
-        assert_eq!(with(1, 0), "1 turn");
-        assert_eq!(with(3, 0), "3 turns");
+        assert_eq!(with(1, 0), "2-fold");
+        assert_eq!(with(3, 0), "4-fold");
         assert_eq!(with(0, 1), "axis");
-        assert_eq!(with(1, 1), "axis, 1 turn");
+        assert_eq!(with(1, 1), "axis, 2-fold");
+        assert_eq!(with(u16::MAX, 0), "65536-fold");
     }
 
     #[test]

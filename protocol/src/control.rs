@@ -152,7 +152,8 @@ pub struct DaemonStats {
     pub detection: LatencySummary,
     /// The span the `recent_*` summaries cover, ending at this response: [`RECENT_WINDOW_NS`],
     /// less while the daemon is younger, or when it served more than [`RECENT_SAMPLES`]
-    /// requests in that time (the oldest are let go).
+    /// requests in that time (the oldest are let go). Zero, as the summaries, in the answers to
+    /// other commands than `Statistics`.
     pub recent_window_ns: u64,
     /// `total` over the requests served within `recent_window_ns`.
     pub recent_total: LatencySummary,
@@ -168,14 +169,25 @@ pub const RECENT_WINDOW_NS: u64 = 60_000_000_000;
 pub const RECENT_SAMPLES: usize = 100_000;
 
 impl LatencySummary {
-    /// The summary of samples sorted in ascending order, its percentiles by nearest rank.
-    pub fn of_sorted(sorted: &[u64]) -> LatencySummary {
+    /// The summary of `samples`, in any order (they are reordered), its percentiles by nearest
+    /// rank ([`nearest_rank`]). Selection, not a sort: linear in the samples.
+    pub fn of(samples: &mut [u64]) -> LatencySummary {
+        let n = samples.len();
+        if n == 0 {
+            return LatencySummary::default();
+        }
+        let index = |q: f64| ((q * n as f64).ceil() as usize).clamp(1, n) - 1;
+        let (i50, i90, i99) = (index(0.50), index(0.90), index(0.99));
+        // Each selection leaves the smaller samples before its index: the next looks only there.
+        let p99_ns = *samples.select_nth_unstable(i99).1;
+        let p90_ns = *samples[..=i99].select_nth_unstable(i90).1;
+        let p50_ns = *samples[..=i90].select_nth_unstable(i50).1;
         LatencySummary {
-            count: sorted.len() as u64,
-            p50_ns: nearest_rank(sorted, 0.50),
-            p90_ns: nearest_rank(sorted, 0.90),
-            p99_ns: nearest_rank(sorted, 0.99),
-            max_ns: sorted.last().copied().unwrap_or(0),
+            count: n as u64,
+            p50_ns,
+            p90_ns,
+            p99_ns,
+            max_ns: samples.iter().copied().max().unwrap_or(0),
         }
     }
 }
@@ -201,7 +213,8 @@ pub struct ControlResponseHeader {
     pub status: u32,
     /// The request's id.
     pub request_id: u64,
-    /// Statistics (filled for every command: they are cheap).
+    /// Statistics: every answer carries the counters and lifetime latencies; the last minute's
+    /// (`recent_*`) are worked out for `Statistics` only, and zero in other answers.
     pub stats: DaemonStats,
     /// Human-readable detail of a refusal, or for `Statistics` the detector parameters the
     /// daemon runs with; NUL-padded UTF-8.
@@ -306,12 +319,32 @@ mod tests {
     fn summaries_take_the_nearest_rank() {
         assert_eq!(nearest_rank(&[], 0.5), 0);
         assert_eq!(nearest_rank(&[7], 0.99), 7);
-        let sorted: Vec<u64> = (1..=200).collect();
-        let s = LatencySummary::of_sorted(&sorted);
+        let mut shuffled: Vec<u64> = (1..=200).map(|i| (i * 73) % 200 + 1).collect();
+        let s = LatencySummary::of(&mut shuffled);
         assert_eq!(
             (s.count, s.p50_ns, s.p90_ns, s.p99_ns, s.max_ns),
             (200, 100, 180, 198, 200)
         );
-        assert_eq!(LatencySummary::of_sorted(&[]), LatencySummary::default());
+        assert_eq!(LatencySummary::of(&mut []), LatencySummary::default());
+        // Selection agrees with the sorted samples' ranks, duplicates and all.
+        let mut x = 12345u64;
+        for n in [1usize, 2, 3, 10, 99, 100, 101, 1000] {
+            let mut samples: Vec<u64> = (0..n)
+                .map(|_| {
+                    x = x
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    (x >> 40) % 50
+                })
+                .collect();
+            let mut sorted = samples.clone();
+            sorted.sort_unstable();
+            let s = LatencySummary::of(&mut samples);
+            assert_eq!(
+                [s.p50_ns, s.p90_ns, s.p99_ns, s.max_ns],
+                [0.5, 0.9, 0.99, 1.0].map(|q| nearest_rank(&sorted, q)),
+                "{n} samples"
+            );
+        }
     }
 }

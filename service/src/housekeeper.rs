@@ -37,6 +37,9 @@ pub struct DeadNodes {
     /// Node folders holding another prefix's entries, still present at the last round: a node
     /// belongs to one prefix, so they are not read again.
     foreign: std::collections::HashSet<u128>,
+    /// Listeners of the prefix, older than [`ORPHAN_AGE`], by port id, and the port tag found
+    /// for each: checked alone at later rounds, not looked for in every node's folder.
+    tagged: std::collections::HashMap<u128, std::path::PathBuf>,
 }
 
 /// What one round of [`DeadNodes::sweep`] did.
@@ -48,7 +51,8 @@ pub struct Sweep {
     pub failed: u64,
     /// Nodes cleaned up before that were still listed: what was left of them is removed.
     pub leftovers: u64,
-    /// Listener sockets of no port: a process killed while it made a listener.
+    /// Listeners of no port whose socket or segment went: a process killed while it made a
+    /// listener.
     pub listeners: u64,
 }
 
@@ -91,7 +95,7 @@ impl DeadNodes {
         }
         if listing.is_ok() {
             sweep.leftovers += remove_orphan_nodes(config, &all, &mut self.foreign);
-            sweep.listeners += remove_orphan_listeners(config);
+            sweep.listeners += remove_orphan_listeners(config, &mut self.tagged);
         }
         self.cleaned.retain(|id| listed.contains(id));
         sweep
@@ -127,7 +131,6 @@ fn remove_orphan_nodes(
     let Ok(entries) = std::fs::read_dir(&nodes) else {
         return 0;
     };
-    let old = orphan_old;
     let mut orphans = std::collections::HashSet::new();
     let mut with_monitor = std::collections::HashSet::new();
     let mut folders = Vec::new();
@@ -151,7 +154,7 @@ fn remove_orphan_nodes(
         let Ok(id) = id.parse::<u128>() else { continue };
         if kind.starts_with("node_monitor") {
             with_monitor.insert(id);
-            if !listed.contains(&id) && old(e.metadata()) {
+            if !listed.contains(&id) && orphan_old(e.metadata()) {
                 orphans.insert(id);
             }
         }
@@ -174,7 +177,7 @@ fn remove_orphan_nodes(
             if !theirs.is_empty() {
                 foreign.insert(id);
             }
-        } else if ours.iter().all(|e| old(e.metadata())) {
+        } else if ours.iter().all(|e| orphan_old(e.metadata())) {
             orphans.insert(id);
         }
     }
@@ -188,11 +191,15 @@ fn remove_orphan_nodes(
 /// in its folder) accounts for, older than [`ORPHAN_AGE`]: a listener's socket
 /// (`<prefix><port id>.event` in iceoryx2's root folder) and its segment
 /// (`<prefix><hash>_<port id>.event_mgmt` in `/dev/shm`). A listener's port tag is made before
-/// them and kept until they are gone, and iceoryx2's cleanup of a dead node removes its
-/// listeners by their tags; yet a client killed while it makes its reply listener leaves one
-/// or both behind, about once in a few hundred kills. A client that crashes in a loop for weeks
-/// would otherwise fill both folders. Returns how many listeners' files went.
-fn remove_orphan_listeners(config: &iceoryx2::config::Config) -> u64 {
+/// them and removed after them. iceoryx2's cleanup of a dead node removes the listeners its
+/// services list, then the node's port tags; a client killed after it made its reply
+/// listener's files but before the service listed the listener leaves them behind, about once
+/// in a few hundred kills. A client that crashes in a loop for weeks would otherwise fill both
+/// folders. The tags found are remembered in `tagged`. Returns how many listeners' files went.
+fn remove_orphan_listeners(
+    config: &iceoryx2::config::Config,
+    tagged: &mut std::collections::HashMap<u128, std::path::PathBuf>,
+) -> u64 {
     use std::collections::HashMap;
     use std::path::PathBuf;
     let prefix = config.global.prefix.to_string();
@@ -235,6 +242,8 @@ fn remove_orphan_listeners(config: &iceoryx2::config::Config) -> u64 {
         }
     }
     // A live listener's files have its tag; those of a listener being made are young.
+    tagged.retain(|id, tag| old.contains_key(id) && tag.exists());
+    old.retain(|id, _| !tagged.contains_key(id));
     if old.is_empty() {
         return 0;
     }
@@ -253,8 +262,9 @@ fn remove_orphan_listeners(config: &iceoryx2::config::Config) -> u64 {
         .collect();
     let mut removed = 0;
     for (id, paths) in old {
-        let tag = format!("{prefix}{id}.port_tag");
-        if folders.iter().any(|folder| folder.join(&tag).exists()) {
+        let name = format!("{prefix}{id}.port_tag");
+        if let Some(tag) = folders.iter().map(|f| f.join(&name)).find(|t| t.exists()) {
+            tagged.insert(id, tag);
             continue;
         }
         let gone = paths
@@ -674,7 +684,7 @@ mod tests {
         // A segment without its socket.
         let lone_segment = aged(shm.join(format!("{prefix}{hash}_555.event_mgmt")), old);
         // A socket whose port tag is in a node's folder (a dead node iceoryx2 has yet to clean).
-        let tagged = aged(root.join(format!("{prefix}222.event")), old);
+        let tagged_socket = aged(root.join(format!("{prefix}222.event")), old);
         let dead_folder = nodes.join(format!("{}", 777_u128 + u128::from(std::process::id())));
         std::fs::create_dir_all(&dead_folder).unwrap();
         aged(dead_folder.join(format!("{prefix}222.port_tag")), old);
@@ -682,16 +692,22 @@ mod tests {
         let fresh = aged(root.join(format!("{prefix}333.event")), Duration::ZERO);
         let other = aged(root.join(format!("other{prefix}444.event")), old);
 
-        assert_eq!(remove_orphan_listeners(&config), 2);
+        let mut tagged = std::collections::HashMap::new();
+        assert_eq!(remove_orphan_listeners(&config, &mut tagged), 2);
         assert!(!orphan.exists() && !segment.exists() && !lone_segment.exists());
-        assert!(tagged.exists() && fresh.exists() && other.exists());
+        assert!(tagged_socket.exists() && fresh.exists() && other.exists());
         assert!(
             root.join(&sockets[0]).exists(),
             "the live listener lost its socket"
         );
-        assert_eq!(remove_orphan_listeners(&config), 0);
+        // The tag found is remembered; once it is gone, the socket goes at the next round.
+        assert_eq!(tagged.len(), 1, "{tagged:?}");
+        assert_eq!(remove_orphan_listeners(&config, &mut tagged), 0);
+        std::fs::remove_file(dead_folder.join(format!("{prefix}222.port_tag"))).unwrap();
+        assert_eq!(remove_orphan_listeners(&config, &mut tagged), 1);
+        assert!(!tagged_socket.exists());
 
-        for path in [tagged, fresh, other] {
+        for path in [fresh, other] {
             std::fs::remove_file(path).unwrap();
         }
         std::fs::remove_dir_all(&dead_folder).unwrap();

@@ -73,8 +73,7 @@ impl Recent {
         let window_ns = now.saturating_duration_since(begins).as_nanos() as u64;
         let summary = |i: usize| {
             let mut values: Vec<u64> = self.samples.iter().map(|(_, l)| l[i]).collect();
-            values.sort_unstable();
-            LatencySummary::of_sorted(&values)
+            LatencySummary::of(&mut values)
         };
         (window_ns, [summary(0), summary(1), summary(2)])
     }
@@ -162,14 +161,19 @@ impl Stats {
             .record(at, [total_ns, overhead_ns, detection_ns]);
     }
 
-    /// The wire form; the caller fills what the statistics do not know (models, queue).
-    pub fn snapshot(&mut self) -> DaemonStats {
+    /// The wire form without the last minute's latencies ([`Stats::add_recent`]); the caller
+    /// fills what the statistics do not know (models, queue).
+    pub fn snapshot(&self) -> DaemonStats {
         self.snapshot_at(Instant::now())
     }
 
-    fn snapshot_at(&mut self, now: Instant) -> DaemonStats {
-        let (recent_window_ns, [recent_total, recent_overhead, recent_detection]) =
-            self.recent.summaries(now, self.started);
+    /// Adds the last minute's latencies to `stats`, a [`Stats::snapshot`]: linear in the
+    /// requests served in that minute, so only for the statistics' own answer.
+    pub fn add_recent(&mut self, stats: &mut DaemonStats) {
+        self.add_recent_at(Instant::now(), stats);
+    }
+
+    fn snapshot_at(&self, now: Instant) -> DaemonStats {
         DaemonStats {
             uptime_ns: now.saturating_duration_since(self.started).as_nanos() as u64,
             requests_received: self.requests_received,
@@ -182,12 +186,18 @@ impl Stats {
             total: self.total.summary(),
             overhead: self.overhead.summary(),
             detection: self.detection.summary(),
-            recent_window_ns,
-            recent_total,
-            recent_overhead,
-            recent_detection,
             ..DaemonStats::default()
         }
+    }
+
+    fn add_recent_at(&mut self, now: Instant, stats: &mut DaemonStats) {
+        let (window_ns, [total, overhead, detection]) = self.recent.summaries(now, self.started);
+        // The window ends when the uptime does.
+        stats.uptime_ns = now.saturating_duration_since(self.started).as_nanos() as u64;
+        stats.recent_window_ns = window_ns;
+        stats.recent_total = total;
+        stats.recent_overhead = overhead;
+        stats.recent_detection = detection;
     }
 }
 
@@ -249,17 +259,29 @@ mod tests {
         assert!(t.p50_ns <= t.max_ns && t.p99_ns <= t.max_ns, "{t:?}");
     }
 
+    /// The statistics' answer at `now`, its counters read a moment before, as the daemon does.
+    fn full(s: &mut Stats, now: Instant) -> DaemonStats {
+        let mut stats = s.snapshot_at(now - Duration::from_millis(1));
+        s.add_recent_at(now, &mut stats);
+        stats
+    }
+
     /// A slow minute shows in the recent latencies while the lifetime ones still show the
     /// fast hours before it; a minute later it is gone from the recent ones.
     #[test]
     fn the_recent_latencies_are_those_of_the_last_minute() {
         let mut s = Stats::default();
+        assert_eq!(
+            s.snapshot().recent_window_ns,
+            0,
+            "only the statistics' answer has them"
+        );
         let t0 = s.started;
         let minutes = |m: u64| t0 + Duration::from_secs(60 * m);
         for i in 0..1000u64 {
             s.record_served_at(minutes(0) + Duration::from_millis(i), 10_000, 1_000, 9_000);
         }
-        let young = s.snapshot_at(minutes(0) + Duration::from_secs(30));
+        let young = full(&mut s, minutes(0) + Duration::from_secs(30));
         assert_eq!(
             young.recent_window_ns, 30_000_000_000,
             "no older than the daemon"
@@ -268,14 +290,14 @@ mod tests {
         for i in 0..10u64 {
             s.record_served_at(minutes(5) + Duration::from_secs(i), 900_000, 1_000, 899_000);
         }
-        let slow = s.snapshot_at(minutes(5) + Duration::from_secs(30));
+        let slow = full(&mut s, minutes(5) + Duration::from_secs(30));
         assert_eq!(slow.recent_window_ns, RECENT_WINDOW_NS);
         assert_eq!(slow.recent_total.count, 10);
         assert_eq!(slow.recent_total.p50_ns, 900_000);
         assert_eq!(slow.recent_detection.max_ns, 899_000);
         assert_eq!(slow.total.count, 1010);
         assert!(slow.total.p90_ns <= 10_010, "{:?}", slow.total);
-        let later = s.snapshot_at(minutes(7));
+        let later = full(&mut s, minutes(7));
         assert_eq!(later.recent_total, LatencySummary::default());
         assert_eq!(later.total.count, 1010);
     }
@@ -291,7 +313,7 @@ mod tests {
             s.record_served_at(t0 + Duration::from_micros(100 * i), i + 1, 1, i);
         }
         let now = t0 + Duration::from_micros(100 * n);
-        let snap = s.snapshot_at(now);
+        let snap = full(&mut s, now);
         assert_eq!(snap.recent_total.count, RECENT_SAMPLES as u64);
         assert_eq!(snap.recent_total.max_ns, n);
         // The newest let go is request 500 (0-based 499), served 49.9 ms after t0.

@@ -104,6 +104,9 @@ impl Daemon {
             return;
         }
         let mut stats = self.stats.snapshot();
+        if active.payload().command == ControlCommand::Statistics as u32 {
+            self.stats.add_recent(&mut stats);
+        }
         stats.cameras = self.cameras.len() as u64;
         stats.models_loaded = self.registry.len() as u64;
         stats.model_bytes = self.registry.bytes();
