@@ -75,6 +75,7 @@ impl DeadNodes {
                 if self.cleaned.contains(&id) {
                     again.push(id);
                 } else {
+                    remove_unfinished_segments(config, id);
                     match view.try_remove_stale_resources() {
                         Ok(()) => {
                             sweep.cleaned += 1;
@@ -185,6 +186,59 @@ fn remove_orphan_nodes(
         .into_iter()
         .filter(|&id| remove_node_leftovers(config, id) > 0)
         .count() as u64
+}
+
+/// Removes the empty shared memory segments (`/dev/shm`) of the prefix that name a port of the
+/// dead node `node`, by the port tags in its folder (`<prefix><port id>.port_tag`): a process
+/// killed between creating a segment and giving it its size leaves it empty, and iceoryx2's
+/// cleanup of the node (`try_remove_stale_resources`) then waits for it to get one, without
+/// end: the housekeeping thread stopped for good, and the daemon could not stop (it joins the
+/// thread). A segment of a live process gets its size within microseconds of being made, and
+/// one naming a dead node's port serves nobody. Returns how many segments went.
+fn remove_unfinished_segments(config: &iceoryx2::config::Config, node: u128) -> usize {
+    let prefix = config.global.prefix.to_string();
+    let folder =
+        std::path::PathBuf::from(config.global.node_dir().to_string()).join(node.to_string());
+    let ports: Vec<String> = std::fs::read_dir(folder)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let port = name.strip_prefix(&prefix)?.strip_suffix(".port_tag")?;
+            port.bytes()
+                .all(|b| b.is_ascii_digit())
+                .then(|| port.to_owned())
+        })
+        .collect();
+    if ports.is_empty() {
+        return 0;
+    }
+    let mut removed = 0;
+    for e in std::fs::read_dir(services::SHARED_MEMORY_DIR)
+        .into_iter()
+        .flatten()
+        .flatten()
+    {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if !services::is_entry_of_prefix(&name, &prefix)
+            || !e.metadata().is_ok_and(|m| m.is_file() && m.len() == 0)
+        {
+            continue;
+        }
+        // The ports a segment is of follow the service's hash: `_<port>` before `_` or `.`.
+        let names_port = ports.iter().any(|port| {
+            name.match_indices(port.as_str()).any(|(at, _)| {
+                name[..at].ends_with('_')
+                    && matches!(name.as_bytes().get(at + port.len()), Some(b'_' | b'.'))
+            })
+        });
+        if names_port && std::fs::remove_file(e.path()).is_ok() {
+            tracing::info!(segment = name, "removed an empty segment of a dead process");
+            removed += 1;
+        }
+    }
+    removed
 }
 
 /// Removes the listeners' files of the prefix that no node's port tag (`<prefix><port id>.port_tag`
@@ -715,6 +769,40 @@ mod tests {
         drop(event);
         drop(node);
         services::remove_prefix_leftovers(&prefix).unwrap();
+    }
+
+    /// Only the empty segments that name a port of the dead node go: not one of another port
+    /// whose id ends in the same digits, not one with a size, not another prefix's.
+    #[test]
+    fn empty_segments_of_a_dead_nodes_ports_are_removed() {
+        let prefix = format!("ppfdes_{}_", std::process::id());
+        let config = config(&prefix);
+        let node = 888_u128 + u128::from(std::process::id());
+        let folder =
+            std::path::PathBuf::from(config.global.node_dir().to_string()).join(node.to_string());
+        std::fs::create_dir_all(&folder).unwrap();
+        std::fs::File::create(folder.join(format!("{prefix}1234.port_tag"))).unwrap();
+        let shm = std::path::PathBuf::from(services::SHARED_MEMORY_DIR);
+        let hash = "b9fc73e5c1f646968758453273c6c65cb372831b";
+        let file = |name: String, bytes: &[u8]| {
+            let path = shm.join(name);
+            std::fs::write(&path, bytes).unwrap();
+            path
+        };
+        let as_sender = file(format!("{prefix}{hash}_1234_77.connection"), b"");
+        let as_receiver = file(format!("{prefix}{hash}_77_1234.connection"), b"");
+        let other_port = file(format!("{prefix}{hash}_991234.data"), b"");
+        let sized = file(format!("{prefix}{hash}_1234.data"), b"x");
+        let other_prefix = file(format!("other{prefix}{hash}_1234_77.connection"), b"");
+
+        assert_eq!(remove_unfinished_segments(&config, node), 2);
+        assert!(!as_sender.exists() && !as_receiver.exists());
+        assert!(other_port.exists() && sized.exists() && other_prefix.exists());
+
+        for path in [other_port, sized, other_prefix] {
+            std::fs::remove_file(path).unwrap();
+        }
+        std::fs::remove_dir_all(&folder).unwrap();
     }
 
     /// Waits up to 5 s for the housekeeper to report something.

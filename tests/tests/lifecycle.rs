@@ -348,3 +348,92 @@ fn a_daemon_meeting_another_protocol_version_says_so() {
         "{stderr}"
     );
 }
+
+/// The names of `dir`'s entries that start with `prefix`.
+fn entries_of(dir: &Path, prefix: &str) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(prefix))
+        .collect()
+}
+
+/// A process killed between creating a shared memory segment and giving it its size leaves it
+/// empty. iceoryx2's cleanup of the dead process waited for it to get a size without end: the
+/// housekeeping thread stopped for good (no more cleanup, no camera discovery), and the daemon
+/// could not stop, since it joins the thread. Here the killed camera's empty segment goes, the
+/// camera is cleaned up, and the daemon stops on SIGTERM.
+#[test]
+fn an_empty_segment_of_a_killed_process_does_not_stall_the_cleanup() {
+    use std::os::unix::fs::PermissionsExt;
+    let prefix = Prefix::new("emptyseg");
+    let models = fake_model_dir("emptyseg", &[1]);
+    let mut d = spawn_daemon(&prefix, &models, &[]);
+    d.wait_line("ppfd ready", STARTUP);
+    let config = iceoryx2::config::Config::default();
+    let nodes = std::path::PathBuf::from(config.global.node_dir().to_string());
+    let shm = Path::new(ppfd_client::protocol::services::SHARED_MEMORY_DIR);
+    let folders_of_prefix = || -> Vec<std::path::PathBuf> {
+        std::fs::read_dir(&nodes)
+            .unwrap()
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| !entries_of(p, &prefix.0).is_empty())
+            .collect()
+    };
+    let before = folders_of_prefix();
+    let mut cam = Proc::spawn(
+        Path::new(CAMERA),
+        &["--prefix", &prefix.0, "--camera", "cam0", "--fps", "20"],
+        &[],
+    );
+    cam.wait_line("camera ready", STARTUP);
+    // The camera's node once its ports are made (a node a process makes for a moment is gone
+    // by then), and one of its ports.
+    std::thread::sleep(Duration::from_millis(300));
+    let camera_folder = folders_of_prefix()
+        .into_iter()
+        .find(|f| !before.contains(f))
+        .expect("the camera's node folder");
+    let ports: Vec<String> = entries_of(&camera_folder, &prefix.0)
+        .iter()
+        .filter_map(|n| {
+            n.strip_prefix(&prefix.0)?
+                .strip_suffix(".port_tag")
+                .map(str::to_owned)
+        })
+        .collect();
+    assert!(!ports.is_empty(), "no port tag of the camera");
+    // A connection of each of its ports left empty (the publisher's is the one iceoryx2's
+    // cleanup opens), named as iceoryx2 0.10 names connections.
+    let hash = "b9fc73e5c1f646968758453273c6c65cb372831b";
+    let empty: Vec<std::path::PathBuf> = ports
+        .iter()
+        .map(|port| {
+            let path = shm.join(format!("{}{hash}_{port}_4242.connection", prefix.0));
+            std::fs::File::create(&path).unwrap();
+            std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o200)).unwrap();
+            path
+        })
+        .collect();
+
+    cam.signal(libc::SIGKILL);
+    cam.wait_exit(Duration::from_secs(5))
+        .expect("the camera ends");
+    let until = Instant::now() + Duration::from_secs(10);
+    while camera_folder.exists() && Instant::now() < until {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(
+        !camera_folder.exists(),
+        "the killed camera is not cleaned up"
+    );
+    assert!(empty.iter().all(|p| !p.exists()), "an empty segment stays");
+    d.signal(libc::SIGTERM);
+    assert!(
+        d.wait_exit(Duration::from_secs(10)).is_some(),
+        "the daemon does not stop"
+    );
+}
