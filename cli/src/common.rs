@@ -12,8 +12,14 @@ use ppfd_client::{Client, ClientOptions, Detections, LatencyBreakdown};
 pub struct Connect {
     /// iceoryx2 prefix of the daemon, ending with '_' (as `ppfd --prefix`; default from
     /// PPFD_PREFIX).
-    #[arg(long)]
+    #[arg(long, value_parser = parse_prefix)]
     pub prefix: Option<String>,
+}
+
+/// A prefix `ppfd` would take, refused as a usage error otherwise.
+fn parse_prefix(s: &str) -> Result<String, String> {
+    ppfd_client::protocol::services::check_prefix(s).map_err(|e| e.to_string())?;
+    Ok(s.to_owned())
 }
 
 impl Connect {
@@ -68,7 +74,7 @@ pub fn ms(ns: u64) -> String {
 
 /// Prints one request's latency breakdown.
 pub fn print_latency(d: &Detections) {
-    println!("latency (ms; the stages are summed over the objects, which run side by side, so they can add up to more than the detection):");
+    println!("latency (ms; the scene and kd-trees once per frame, the later stages summed over the objects, which run side by side, so they can add up to more than the detection):");
     for Stage { label, ns, .. } in stages(&d.latency.daemon) {
         println!("  {label:<18} {:>10}", ms(ns));
     }

@@ -163,7 +163,8 @@ pub fn stats(args: StatsArgs) -> Result<(), String> {
     // The daemon takes a camera's frames when it needs one (a request, or its housekeeping
     // round) and keeps the newest; frames published in between are skipped, not lost work.
     println!(
-        "frames received   {} (the newest used when needed; the rest skipped)",
+        "frames received   {} (taken when needed; frames a newer one replaced before then are \
+         not counted)",
         s.frames_received
     );
     println!(
@@ -219,13 +220,21 @@ pub fn stats(args: StatsArgs) -> Result<(), String> {
             ("transport+queue", overhead),
             ("detection", detection),
         ] {
+            // Without samples there are no percentiles: a dash, not a latency of 0.
+            let at = |ns: u64| {
+                if l.count == 0 {
+                    "–".to_owned()
+                } else {
+                    ms(ns)
+                }
+            };
             println!(
                 "  {name:<24} {:>8} {:>8} {:>8} {:>8} {:>8}",
                 l.count,
-                ms(l.p50_ns),
-                ms(l.p90_ns),
-                ms(l.p99_ns),
-                ms(l.max_ns)
+                at(l.p50_ns),
+                at(l.p90_ns),
+                at(l.p99_ns),
+                at(l.max_ns)
             );
         }
     }

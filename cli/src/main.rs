@@ -129,7 +129,10 @@ fn main() {
             Ok(detect_offline::DetectTarget::Dataset(a)) => detect_offline::run(a),
             Err(e) => usage_error(&e),
         },
-        Command::Bench(args) => bench::run(args).map_err(Into::into),
+        Command::Bench(args) => match args.check() {
+            Ok(()) => bench::run(args).map_err(Into::into),
+            Err(e) => usage_error(&e),
+        },
         Command::Models(args) => daemon::models(args).map_err(Into::into),
         Command::Stats(args) => daemon::stats(args).map_err(Into::into),
         // The request options are checked before the scene is drawn and the daemon started.
@@ -387,7 +390,7 @@ mod tests {
             "3",
         ];
         assert!(target(&dataset).is_ok());
-        let args: Vec<&str> = dataset.iter().copied().chain(["--prefix", "p"]).collect();
+        let args: Vec<&str> = dataset.iter().copied().chain(["--prefix", "p_"]).collect();
         assert!(target(&args).unwrap_err().contains("without a daemon"));
         for extra in [&["--json"][..], &["--timeout-ms", "100"]] {
             let args: Vec<&str> = dataset.iter().chain(extra).copied().collect();
@@ -489,6 +492,42 @@ mod tests {
         }
         let ok = ["ppf", "replay", "/d", "--camera", "k", "--fps", "0.5"];
         Cli::try_parse_from(ok).unwrap();
+    }
+
+    /// Bench counts of zero and a prefix the daemon would not take are usage errors (exit code
+    /// 2), named before any connection is tried; so are fewer requests than clients.
+    #[test]
+    fn bench_counts_and_prefixes_that_cannot_work_are_usage_errors() {
+        let bench = |extra: &[&str]| {
+            let mut args = vec!["ppf", "bench", "--camera", "k", "--objects", "1"];
+            args.extend_from_slice(extra);
+            parse_cli(args)
+        };
+        for (extra, said) in [
+            (&["--requests", "0"][..], "must be at least 1"),
+            (&["--clients", "0"], "must be at least 1"),
+            (&["--prefix", "cell1"], "must end with '_'"),
+        ] {
+            let e = bench(extra).unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{extra:?}");
+            assert!(e.to_string().contains(said), "{extra:?}: {e}");
+        }
+        let e = parse_cli(["ppf", "stats", "--prefix", "a b_"]).unwrap_err();
+        assert_eq!(e.exit_code(), 2);
+        let Command::Bench(args) = bench(&["--requests", "1", "--clients", "3"])
+            .unwrap()
+            .command
+        else {
+            panic!("not bench");
+        };
+        assert!(args.check().unwrap_err().contains("fewer than --clients 3"));
+        let Command::Bench(args) = bench(&["--requests", "3", "--clients", "3", "--prefix", "c_"])
+            .unwrap()
+            .command
+        else {
+            panic!("not bench");
+        };
+        assert!(args.check().is_ok());
     }
 
     #[test]

@@ -360,7 +360,7 @@ fn eval_refuses_json_without_a_score() {
     assert!(e.contains("--json") && e.contains("--no-score"), "{e}");
 }
 
-/// `--requests` counts the requests of all clients: fewer than one each is refused (it
+/// `--requests` counts the requests of all clients: fewer than one each is a usage error (it
 /// reported "1 requests from 4 clients", three of which sent none), before any daemon is asked.
 #[test]
 fn bench_refuses_fewer_requests_than_clients() {
@@ -378,7 +378,7 @@ fn bench_refuses_fewer_requests_than_clients() {
         "--prefix",
         &prefix,
     ]));
-    assert_eq!(out.status.code(), Some(1));
+    assert_eq!(out.status.code(), Some(2));
     let e = stderr(&out);
     assert!(
         e.contains("--requests 1 is fewer than --clients 4") && e.contains("--requests 4"),
