@@ -54,12 +54,18 @@ pub struct Sweep {
     /// Listeners of no port whose socket or segment went: a process killed while it made a
     /// listener.
     pub listeners: u64,
+    /// Empty segments met: with young ones left, iceoryx2's cleanup waits for the next round.
+    pub unfinished: Unfinished,
 }
 
 impl DeadNodes {
     /// Cleans up the dead nodes under `config`'s prefix.
     pub fn sweep(&mut self, config: &iceoryx2::config::Config) -> Sweep {
-        let mut sweep = Sweep::default();
+        let mut sweep = Sweep {
+            unfinished: remove_unfinished_segments(config),
+            ..Sweep::default()
+        };
+        let wait = sweep.unfinished.young > 0;
         let mut listed = std::collections::HashSet::new();
         let mut again = Vec::new();
         let mut all = std::collections::HashSet::new();
@@ -74,8 +80,7 @@ impl DeadNodes {
                 listed.insert(id);
                 if self.cleaned.contains(&id) {
                     again.push(id);
-                } else {
-                    remove_unfinished_segments(config, id);
+                } else if !wait {
                     match view.try_remove_stale_resources() {
                         Ok(()) => {
                             sweep.cleaned += 1;
@@ -188,57 +193,57 @@ fn remove_orphan_nodes(
         .count() as u64
 }
 
-/// Removes the empty shared memory segments (`/dev/shm`) of the prefix that name a port of the
-/// dead node `node`, by the port tags in its folder (`<prefix><port id>.port_tag`): a process
-/// killed between creating a segment and giving it its size leaves it empty, and iceoryx2's
-/// cleanup of the node (`try_remove_stale_resources`) then waits for it to get one, without
-/// end: the housekeeping thread stopped for good, and the daemon could not stop (it joins the
-/// thread). A segment of a live process gets its size within microseconds of being made, and
-/// one naming a dead node's port serves nobody. Returns how many segments went.
-fn remove_unfinished_segments(config: &iceoryx2::config::Config, node: u128) -> usize {
+/// Empty shared memory segments of the prefix that a round met ([`remove_unfinished_segments`]).
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct Unfinished {
+    /// Removed: empty for [`UNFINISHED_AGE`] or longer.
+    pub removed: u64,
+    /// Left for a later round: younger, perhaps being made.
+    pub young: u64,
+}
+
+/// How long a shared memory segment may stay empty before it counts as abandoned: iceoryx2 sizes
+/// a segment within microseconds of making it.
+const UNFINISHED_AGE: Duration = Duration::from_secs(1);
+
+/// Removes the empty shared memory segments (`/dev/shm`) of the prefix that have been empty for
+/// [`UNFINISHED_AGE`]: a process killed between creating a segment and giving it its size leaves
+/// it so, and iceoryx2 0.10, opening it (to clean up the dead process, to list or open a
+/// service), waits for it to get a size without end. In the housekeeper that wait would stop
+/// cleanup and camera discovery for good and keep the daemon from stopping (it joins the
+/// thread); so a round with younger empty segments left leaves iceoryx2's cleanup and the
+/// camera listing to the next round, when those are either sized or old enough to go. Only
+/// root meets such segments: made with mode 0200, they are refused to other users, and
+/// iceoryx2 then removes them itself.
+fn remove_unfinished_segments(config: &iceoryx2::config::Config) -> Unfinished {
     let prefix = config.global.prefix.to_string();
-    let folder =
-        std::path::PathBuf::from(config.global.node_dir().to_string()).join(node.to_string());
-    let ports: Vec<String> = std::fs::read_dir(folder)
-        .into_iter()
-        .flatten()
-        .flatten()
-        .filter_map(|e| {
-            let name = e.file_name().to_string_lossy().into_owned();
-            let port = name.strip_prefix(&prefix)?.strip_suffix(".port_tag")?;
-            port.bytes()
-                .all(|b| b.is_ascii_digit())
-                .then(|| port.to_owned())
-        })
-        .collect();
-    if ports.is_empty() {
-        return 0;
-    }
-    let mut removed = 0;
+    let mut unfinished = Unfinished::default();
     for e in std::fs::read_dir(services::SHARED_MEMORY_DIR)
         .into_iter()
         .flatten()
         .flatten()
     {
         let name = e.file_name().to_string_lossy().into_owned();
-        if !services::is_entry_of_prefix(&name, &prefix)
-            || !e.metadata().is_ok_and(|m| m.is_file() && m.len() == 0)
-        {
+        if !services::is_entry_of_prefix(&name, &prefix) {
             continue;
         }
-        // The ports a segment is of follow the service's hash: `_<port>` before `_` or `.`.
-        let names_port = ports.iter().any(|port| {
-            name.match_indices(port.as_str()).any(|(at, _)| {
-                name[..at].ends_with('_')
-                    && matches!(name.as_bytes().get(at + port.len()), Some(b'_' | b'.'))
-            })
-        });
-        if names_port && std::fs::remove_file(e.path()).is_ok() {
+        let Ok(metadata) = e.metadata() else { continue };
+        if !metadata.is_file() || metadata.len() > 0 {
+            continue;
+        }
+        let old = metadata
+            .modified()
+            .ok()
+            .and_then(|t| t.elapsed().ok())
+            .is_some_and(|age| age >= UNFINISHED_AGE);
+        if !old {
+            unfinished.young += 1;
+        } else if std::fs::remove_file(e.path()).is_ok() {
             tracing::info!(segment = name, "removed an empty segment of a dead process");
-            removed += 1;
+            unfinished.removed += 1;
         }
     }
-    removed
+    unfinished
 }
 
 /// Removes the listeners' files of the prefix that no node's port tag (`<prefix><port id>.port_tag`
@@ -515,7 +520,9 @@ fn serve(
             if tests::take_panic(&node.config().global.prefix.to_string()) {
                 panic!("a round made to panic by a test");
             }
-            if !scan_only {
+            let unfinished = if scan_only {
+                remove_unfinished_segments(node.config())
+            } else {
                 let sweep = dead.sweep(node.config());
                 if sweep.cleaned + sweep.leftovers + sweep.listeners > 0 {
                     tracing::info!(
@@ -528,8 +535,14 @@ fn serve(
                 if sweep.failed > 0 {
                     tracing::debug!(failed = sweep.failed, "dead processes not cleaned up");
                 }
+                sweep.unfinished
+            };
+            // Listing the services opens them, which would wait on an empty segment.
+            if unfinished.young > 0 {
+                Vec::new()
+            } else {
+                list_cameras(node.config())
             }
-            list_cameras(node.config())
         }));
         let mut cameras = match round {
             Ok(cameras) => cameras,
@@ -771,38 +784,55 @@ mod tests {
         services::remove_prefix_leftovers(&prefix).unwrap();
     }
 
-    /// Only the empty segments that name a port of the dead node go: not one of another port
-    /// whose id ends in the same digits, not one with a size, not another prefix's.
+    /// Segments empty for a second go; younger ones are counted and left, as are segments with
+    /// a size and another prefix's.
     #[test]
-    fn empty_segments_of_a_dead_nodes_ports_are_removed() {
+    fn segments_left_empty_are_removed_once_old() {
         let prefix = format!("ppfdes_{}_", std::process::id());
         let config = config(&prefix);
-        let node = 888_u128 + u128::from(std::process::id());
-        let folder =
-            std::path::PathBuf::from(config.global.node_dir().to_string()).join(node.to_string());
-        std::fs::create_dir_all(&folder).unwrap();
-        std::fs::File::create(folder.join(format!("{prefix}1234.port_tag"))).unwrap();
         let shm = std::path::PathBuf::from(services::SHARED_MEMORY_DIR);
         let hash = "b9fc73e5c1f646968758453273c6c65cb372831b";
-        let file = |name: String, bytes: &[u8]| {
+        let file = |name: String, bytes: &[u8], age: Duration| {
             let path = shm.join(name);
             std::fs::write(&path, bytes).unwrap();
+            std::fs::File::options()
+                .write(true)
+                .open(&path)
+                .unwrap()
+                .set_modified(std::time::SystemTime::now() - age)
+                .unwrap();
             path
         };
-        let as_sender = file(format!("{prefix}{hash}_1234_77.connection"), b"");
-        let as_receiver = file(format!("{prefix}{hash}_77_1234.connection"), b"");
-        let other_port = file(format!("{prefix}{hash}_991234.data"), b"");
-        let sized = file(format!("{prefix}{hash}_1234.data"), b"x");
-        let other_prefix = file(format!("other{prefix}{hash}_1234_77.connection"), b"");
+        let old = Duration::from_secs(5);
+        let connection = file(format!("{prefix}{hash}_1234_77.connection"), b"", old);
+        let dynamic = file(format!("{prefix}{hash}_99.dynamic"), b"", old);
+        let young = file(format!("{prefix}{hash}_55.data"), b"", Duration::ZERO);
+        let sized = file(format!("{prefix}{hash}_1234.data"), b"x", old);
+        let other = file(format!("other{prefix}{hash}_1234_77.connection"), b"", old);
 
-        assert_eq!(remove_unfinished_segments(&config, node), 2);
-        assert!(!as_sender.exists() && !as_receiver.exists());
-        assert!(other_port.exists() && sized.exists() && other_prefix.exists());
+        let unfinished = remove_unfinished_segments(&config);
+        assert_eq!(
+            unfinished,
+            Unfinished {
+                removed: 2,
+                young: 1
+            }
+        );
+        assert!(!connection.exists() && !dynamic.exists());
+        assert!(young.exists() && sized.exists() && other.exists());
+        // The round that meets a young one leaves iceoryx2's cleanup to the next.
+        let sweep = DeadNodes::default().sweep(&config);
+        assert_eq!(
+            sweep.unfinished,
+            Unfinished {
+                removed: 0,
+                young: 1
+            }
+        );
 
-        for path in [other_port, sized, other_prefix] {
+        for path in [young, sized, other] {
             std::fs::remove_file(path).unwrap();
         }
-        std::fs::remove_dir_all(&folder).unwrap();
     }
 
     /// Waits up to 5 s for the housekeeper to report something.

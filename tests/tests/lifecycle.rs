@@ -361,10 +361,12 @@ fn entries_of(dir: &Path, prefix: &str) -> Vec<String> {
 }
 
 /// A process killed between creating a shared memory segment and giving it its size leaves it
-/// empty. iceoryx2's cleanup of the dead process waited for it to get a size without end: the
-/// housekeeping thread stopped for good (no more cleanup, no camera discovery), and the daemon
-/// could not stop, since it joins the thread. Here the killed camera's empty segment goes, the
-/// camera is cleaned up, and the daemon stops on SIGTERM.
+/// empty, and iceoryx2's cleanup of the dead process waits for it to get a size without end:
+/// the housekeeping would stop for good (no cleanup, no camera discovery), and the daemon could
+/// not stop, since it joins the thread. The killed camera's empty segments go once a second
+/// old, the camera is cleaned up, and the daemon stops on SIGTERM. (Only root meets such
+/// segments: their mode, 0200 while they are made, refuses other users, and iceoryx2 removes
+/// them itself.)
 #[test]
 fn an_empty_segment_of_a_killed_process_does_not_stall_the_cleanup() {
     use std::os::unix::fs::PermissionsExt;
@@ -406,8 +408,8 @@ fn an_empty_segment_of_a_killed_process_does_not_stall_the_cleanup() {
         })
         .collect();
     assert!(!ports.is_empty(), "no port tag of the camera");
-    // A connection of each of its ports left empty (the publisher's is the one iceoryx2's
-    // cleanup opens), named as iceoryx2 0.10 names connections.
+    // A connection of each of its ports left empty, named as iceoryx2 0.10 names connections:
+    // the cleanup of the camera opens every connection that names one of its ports.
     let hash = "b9fc73e5c1f646968758453273c6c65cb372831b";
     let empty: Vec<std::path::PathBuf> = ports
         .iter()

@@ -80,6 +80,13 @@ type FrameSubscriber = Subscriber<Ipc, [u16], FrameHeader>;
 /// configured prefix.
 fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::Config> {
     let mut config = iceoryx2::config::Config::default();
+    // The housekeeper cleans up dead processes, after removing the empty segments iceoryx2
+    // would wait on without end (`housekeeper::remove_unfinished_segments`); iceoryx2's own
+    // cleanup, on a node's creation and end and on opening a service (a camera's, on the I/O
+    // thread), would not.
+    config.global.node.cleanup_dead_nodes_on_creation = false;
+    config.global.node.cleanup_dead_nodes_on_destruction = false;
+    config.global.service.cleanup_dead_nodes_on_open = false;
     if let Some(prefix) = prefix {
         config.global.prefix = FileName::new(prefix.as_bytes())
             .map_err(resource(&format!("iceoryx2 prefix {prefix:?}")))?;
