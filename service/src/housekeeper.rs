@@ -58,11 +58,30 @@ pub struct Sweep {
     pub unfinished: Unfinished,
 }
 
+impl Sweep {
+    /// Logs what the round removed (`info`) and what it could not clean up (`debug`);
+    /// `message` says when it ran.
+    pub fn log(&self, message: &str) {
+        if self.cleaned + self.leftovers + self.listeners > 0 {
+            tracing::info!(
+                removed = self.cleaned,
+                leftovers = self.leftovers,
+                listeners = self.listeners,
+                "{message}"
+            );
+        }
+        if self.failed > 0 {
+            tracing::debug!(failed = self.failed, "dead processes not cleaned up");
+        }
+    }
+}
+
 impl DeadNodes {
     /// Cleans up the dead nodes under `config`'s prefix.
     pub fn sweep(&mut self, config: &iceoryx2::config::Config) -> Sweep {
+        let mut segments = segments_of(config);
         let mut sweep = Sweep {
-            unfinished: remove_unfinished_segments(config),
+            unfinished: remove_unfinished_segments(&mut segments),
             ..Sweep::default()
         };
         let wait = sweep.unfinished.young > 0;
@@ -101,7 +120,7 @@ impl DeadNodes {
         }
         if listing.is_ok() {
             sweep.leftovers += remove_orphan_nodes(config, &all, &mut self.foreign);
-            sweep.listeners += remove_orphan_listeners(config, &mut self.tagged);
+            sweep.listeners += remove_orphan_listeners(config, &segments, &mut self.tagged);
         }
         self.cleaned.retain(|id| listed.contains(id));
         sweep
@@ -112,13 +131,14 @@ impl DeadNodes {
 /// made (that takes milliseconds).
 const ORPHAN_AGE: Duration = Duration::from_secs(10);
 
-/// Whether an entry was last changed [`ORPHAN_AGE`] or longer ago.
-fn orphan_old(metadata: std::io::Result<std::fs::Metadata>) -> bool {
+/// Whether an entry was last changed `age` or longer ago.
+fn older_than(metadata: &std::io::Result<std::fs::Metadata>, age: Duration) -> bool {
     metadata
-        .and_then(|m| m.modified())
+        .as_ref()
         .ok()
+        .and_then(|m| m.modified().ok())
         .and_then(|t| t.elapsed().ok())
-        .is_some_and(|age| age >= ORPHAN_AGE)
+        .is_some_and(|elapsed| elapsed >= age)
 }
 
 /// Removes what is left of nodes that iceoryx2 does not list at all (`listed`), older than
@@ -160,7 +180,7 @@ fn remove_orphan_nodes(
         let Ok(id) = id.parse::<u128>() else { continue };
         if kind.starts_with("node_monitor") {
             with_monitor.insert(id);
-            if !listed.contains(&id) && orphan_old(e.metadata()) {
+            if !listed.contains(&id) && older_than(&e.metadata(), ORPHAN_AGE) {
                 orphans.insert(id);
             }
         }
@@ -183,7 +203,7 @@ fn remove_orphan_nodes(
             if !theirs.is_empty() {
                 foreign.insert(id);
             }
-        } else if ours.iter().all(|e| orphan_old(e.metadata())) {
+        } else if ours.iter().all(|e| older_than(&e.metadata(), ORPHAN_AGE)) {
             orphans.insert(id);
         }
     }
@@ -191,6 +211,31 @@ fn remove_orphan_nodes(
         .into_iter()
         .filter(|&id| remove_node_leftovers(config, id) > 0)
         .count() as u64
+}
+
+/// An entry of the prefix in `/dev/shm`, as a round read it.
+struct Segment {
+    name: String,
+    path: std::path::PathBuf,
+    metadata: std::io::Result<std::fs::Metadata>,
+}
+
+/// The prefix's entries in `/dev/shm`, read once a round for the functions that look there.
+fn segments_of(config: &iceoryx2::config::Config) -> Vec<Segment> {
+    let prefix = config.global.prefix.to_string();
+    std::fs::read_dir(services::SHARED_MEMORY_DIR)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            services::is_entry_of_prefix(&name, &prefix).then(|| Segment {
+                name,
+                path: e.path(),
+                metadata: e.metadata(),
+            })
+        })
+        .collect()
 }
 
 /// Empty shared memory segments of the prefix that a round met ([`remove_unfinished_segments`]).
@@ -215,34 +260,30 @@ const UNFINISHED_AGE: Duration = Duration::from_secs(1);
 /// camera listing to the next round, when those are either sized or old enough to go. Only
 /// root meets such segments: made with mode 0200, they are refused to other users, and
 /// iceoryx2 then removes them itself.
-fn remove_unfinished_segments(config: &iceoryx2::config::Config) -> Unfinished {
-    let prefix = config.global.prefix.to_string();
+fn remove_unfinished_segments(segments: &mut Vec<Segment>) -> Unfinished {
     let mut unfinished = Unfinished::default();
-    for e in std::fs::read_dir(services::SHARED_MEMORY_DIR)
-        .into_iter()
-        .flatten()
-        .flatten()
-    {
-        let name = e.file_name().to_string_lossy().into_owned();
-        if !services::is_entry_of_prefix(&name, &prefix) {
-            continue;
+    segments.retain(|segment| {
+        let empty = segment
+            .metadata
+            .as_ref()
+            .is_ok_and(|m| m.is_file() && m.len() == 0);
+        if !empty {
+            return true;
         }
-        let Ok(metadata) = e.metadata() else { continue };
-        if !metadata.is_file() || metadata.len() > 0 {
-            continue;
-        }
-        let old = metadata
-            .modified()
-            .ok()
-            .and_then(|t| t.elapsed().ok())
-            .is_some_and(|age| age >= UNFINISHED_AGE);
-        if !old {
+        if !older_than(&segment.metadata, UNFINISHED_AGE) {
             unfinished.young += 1;
-        } else if std::fs::remove_file(e.path()).is_ok() {
-            tracing::info!(segment = name, "removed an empty segment of a dead process");
-            unfinished.removed += 1;
+            return true;
         }
-    }
+        if std::fs::remove_file(&segment.path).is_err() {
+            return true;
+        }
+        tracing::info!(
+            segment = segment.name,
+            "removed an empty segment of a dead process"
+        );
+        unfinished.removed += 1;
+        false
+    });
     unfinished
 }
 
@@ -257,49 +298,48 @@ fn remove_unfinished_segments(config: &iceoryx2::config::Config) -> Unfinished {
 /// folders. The tags found are remembered in `tagged`. Returns how many listeners' files went.
 fn remove_orphan_listeners(
     config: &iceoryx2::config::Config,
+    segments: &[Segment],
     tagged: &mut std::collections::HashMap<u128, std::path::PathBuf>,
 ) -> u64 {
     use std::collections::HashMap;
     use std::path::PathBuf;
     let prefix = config.global.prefix.to_string();
-    // The entries of `dir` that `port_id` names, by port id, and whether each is old.
-    let listed = |dir: PathBuf, port_id: &dyn Fn(&str) -> Option<u128>| {
-        let mut found: HashMap<u128, (Vec<PathBuf>, bool)> = HashMap::new();
-        for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
-            let name = e.file_name().to_string_lossy().into_owned();
-            if let Some(id) = port_id(&name) {
-                let entry = found.entry(id).or_insert((Vec::new(), true));
-                entry.0.push(e.path());
-                entry.1 &= orphan_old(e.metadata());
-            }
-        }
-        found
-    };
-    let sockets = listed(
-        PathBuf::from(config.global.root_path().to_string()),
-        &|name| {
-            name.strip_prefix(&prefix)?
-                .strip_suffix(".event")?
-                .parse()
-                .ok()
-        },
-    );
-    let segments = listed(PathBuf::from(services::SHARED_MEMORY_DIR), &|name| {
-        if !services::is_entry_of_prefix(name, &prefix) {
-            return None;
-        }
-        name.strip_suffix(".event_mgmt")?
-            .rsplit_once('_')?
-            .1
-            .parse()
-            .ok()
+    let sockets: Vec<(u128, PathBuf, bool)> =
+        std::fs::read_dir(config.global.root_path().to_string())
+            .into_iter()
+            .flatten()
+            .flatten()
+            .filter_map(|e| {
+                let name = e.file_name().to_string_lossy().into_owned();
+                let id = name
+                    .strip_prefix(&prefix)?
+                    .strip_suffix(".event")?
+                    .parse()
+                    .ok()?;
+                Some((id, e.path(), older_than(&e.metadata(), ORPHAN_AGE)))
+            })
+            .collect();
+    let listener_segments = segments.iter().filter_map(|segment| {
+        let (_, id) = segment.name.strip_suffix(".event_mgmt")?.rsplit_once('_')?;
+        let id = id.parse().ok()?;
+        Some((
+            id,
+            segment.path.clone(),
+            older_than(&segment.metadata, ORPHAN_AGE),
+        ))
     });
-    let mut old: HashMap<u128, Vec<PathBuf>> = HashMap::new();
-    for (id, (paths, is_old)) in sockets.into_iter().chain(segments) {
-        if is_old {
-            old.entry(id).or_default().extend(paths);
-        }
+    // Each listener's files by port id, and whether all of them are old.
+    let mut found: HashMap<u128, (Vec<PathBuf>, bool)> = HashMap::new();
+    for (id, path, is_old) in sockets.into_iter().chain(listener_segments) {
+        let entry = found.entry(id).or_insert((Vec::new(), true));
+        entry.0.push(path);
+        entry.1 &= is_old;
     }
+    let mut old: HashMap<u128, Vec<PathBuf>> = found
+        .into_iter()
+        .filter(|(_, (_, is_old))| *is_old)
+        .map(|(id, (paths, _))| (id, paths))
+        .collect();
     // A live listener's files have its tag; those of a listener being made are young.
     tagged.retain(|id, tag| old.contains_key(id) && tag.exists());
     old.retain(|id, _| !tagged.contains_key(id));
@@ -521,20 +561,10 @@ fn serve(
                 panic!("a round made to panic by a test");
             }
             let unfinished = if scan_only {
-                remove_unfinished_segments(node.config())
+                remove_unfinished_segments(&mut segments_of(node.config()))
             } else {
                 let sweep = dead.sweep(node.config());
-                if sweep.cleaned + sweep.leftovers + sweep.listeners > 0 {
-                    tracing::info!(
-                        removed = sweep.cleaned,
-                        leftovers = sweep.leftovers,
-                        listeners = sweep.listeners,
-                        "removed resources of dead processes"
-                    );
-                }
-                if sweep.failed > 0 {
-                    tracing::debug!(failed = sweep.failed, "dead processes not cleaned up");
-                }
+                sweep.log("removed resources of dead processes");
                 sweep.unfinished
             };
             // Listing the services opens them, which would wait on an empty segment.
@@ -596,6 +626,15 @@ mod tests {
         take
     }
 
+    /// A node of this test process under `config`.
+    fn test_node(config: &iceoryx2::config::Config) -> Node<Ipc> {
+        NodeBuilder::new()
+            .config(config)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<Ipc>()
+            .unwrap()
+    }
+
     fn config(prefix: &str) -> iceoryx2::config::Config {
         let mut config = iceoryx2::config::Config::default();
         config.global.prefix = FileName::new(prefix.as_bytes()).unwrap();
@@ -610,11 +649,7 @@ mod tests {
     fn orphaned_node_files_are_removed_once_and_live_nodes_kept() {
         let prefix = format!("ppfdhk_{}_", std::process::id());
         let config = config(&prefix);
-        let live = NodeBuilder::new()
-            .config(&config)
-            .signal_handling_mode(SignalHandlingMode::Disabled)
-            .create::<Ipc>()
-            .unwrap();
+        let live = test_node(&config);
         let nodes = std::path::PathBuf::from(config.global.node_dir().to_string());
         let ours = || -> Vec<String> {
             let mut v: Vec<String> = std::fs::read_dir(&nodes)
@@ -704,11 +739,7 @@ mod tests {
     fn orphaned_listener_sockets_are_removed_and_others_kept() {
         let prefix = format!("ppfdls_{}_", std::process::id());
         let config = config(&prefix);
-        let node = NodeBuilder::new()
-            .config(&config)
-            .signal_handling_mode(SignalHandlingMode::Disabled)
-            .create::<Ipc>()
-            .unwrap();
+        let node = test_node(&config);
         let event = services::responses_builder(&node).open_or_create().unwrap();
         let listener = event.listener_builder().create().unwrap();
         let root = std::path::PathBuf::from(config.global.root_path().to_string());
@@ -760,7 +791,10 @@ mod tests {
         let other = aged(root.join(format!("other{prefix}444.event")), old);
 
         let mut tagged = std::collections::HashMap::new();
-        assert_eq!(remove_orphan_listeners(&config, &mut tagged), 2);
+        assert_eq!(
+            remove_orphan_listeners(&config, &segments_of(&config), &mut tagged),
+            2
+        );
         assert!(!orphan.exists() && !segment.exists() && !lone_segment.exists());
         assert!(tagged_socket.exists() && fresh.exists() && other.exists());
         assert!(
@@ -769,9 +803,15 @@ mod tests {
         );
         // The tag found is remembered; once it is gone, the socket goes at the next round.
         assert_eq!(tagged.len(), 1, "{tagged:?}");
-        assert_eq!(remove_orphan_listeners(&config, &mut tagged), 0);
+        assert_eq!(
+            remove_orphan_listeners(&config, &segments_of(&config), &mut tagged),
+            0
+        );
         std::fs::remove_file(dead_folder.join(format!("{prefix}222.port_tag"))).unwrap();
-        assert_eq!(remove_orphan_listeners(&config, &mut tagged), 1);
+        assert_eq!(
+            remove_orphan_listeners(&config, &segments_of(&config), &mut tagged),
+            1
+        );
         assert!(!tagged_socket.exists());
 
         for path in [fresh, other] {
@@ -810,7 +850,7 @@ mod tests {
         let sized = file(format!("{prefix}{hash}_1234.data"), b"x", old);
         let other = file(format!("other{prefix}{hash}_1234_77.connection"), b"", old);
 
-        let unfinished = remove_unfinished_segments(&config);
+        let unfinished = remove_unfinished_segments(&mut segments_of(&config));
         assert_eq!(
             unfinished,
             Unfinished {

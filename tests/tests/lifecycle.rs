@@ -26,6 +26,15 @@ fn spawn_daemon(prefix: &Prefix, models: &Path, env: &[(&str, &str)]) -> Proc {
     Proc::spawn(Path::new(DAEMON), &args, &envs)
 }
 
+/// A camera `cam0` publishing at 20 fps under `prefix`.
+fn spawn_camera(prefix: &Prefix) -> Proc {
+    Proc::spawn(
+        Path::new(CAMERA),
+        &["--prefix", &prefix.0, "--camera", "cam0", "--fps", "20"],
+        &[],
+    )
+}
+
 fn connect(prefix: &Prefix) -> Client {
     let options = ClientOptions {
         prefix: Some(prefix.0.clone()),
@@ -242,11 +251,7 @@ fn requests_that_come_while_the_daemon_stops_are_answered() {
     let models = fake_model_dir("stopping", &[1]);
     let mut d = spawn_daemon(&prefix, &models, &[("PPFD_FAKE_DELAY_MS", "3000")]);
     d.wait_line("ppfd ready", STARTUP);
-    let mut cam = Proc::spawn(
-        Path::new(CAMERA),
-        &["--prefix", &prefix.0, "--camera", "cam0", "--fps", "20"],
-        &[],
-    );
+    let mut cam = spawn_camera(&prefix);
     cam.wait_line("camera ready", STARTUP);
     std::thread::sleep(Duration::from_millis(300));
 
@@ -386,11 +391,7 @@ fn an_empty_segment_of_a_killed_process_does_not_stall_the_cleanup() {
             .collect()
     };
     let before = folders_of_prefix();
-    let mut cam = Proc::spawn(
-        Path::new(CAMERA),
-        &["--prefix", &prefix.0, "--camera", "cam0", "--fps", "20"],
-        &[],
-    );
+    let mut cam = spawn_camera(&prefix);
     cam.wait_line("camera ready", STARTUP);
     // The camera's node once its ports are made (a node a process makes for a moment is gone
     // by then), and one of its ports.

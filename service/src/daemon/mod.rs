@@ -191,15 +191,9 @@ pub fn run(
         .request_response
         .server_expired_connection_buffer = expired_connection_buffer(&config);
     let node = create_node(&iox)?;
-    let sweep = crate::housekeeper::DeadNodes::default().sweep(node.config());
-    if sweep.cleaned + sweep.failed + sweep.leftovers > 0 {
-        tracing::info!(
-            removed = sweep.cleaned,
-            leftovers = sweep.leftovers,
-            failed = sweep.failed,
-            "removed resources of crashed processes"
-        );
-    }
+    crate::housekeeper::DeadNodes::default()
+        .sweep(node.config())
+        .log("removed resources of crashed processes");
 
     let wake_service = services::daemon_wake_builder(&node)
         .open_or_create()
