@@ -168,16 +168,7 @@ fn u_channel() -> Mesh {
         (WALL, HEIGHT),
         (0.0, HEIGHT),
     ];
-    let front: Vec<u32> = profile
-        .iter()
-        .map(|&(x, z)| b.vertex(Point3::new(x, 0.0, z)))
-        .collect();
-    let back: Vec<u32> = profile
-        .iter()
-        .map(|&(x, z)| b.vertex(Point3::new(x, LENGTH, z)))
-        .collect();
-    b.planar(&front, &[]);
-    b.planar(&back, &[]);
+    let (front, back) = b.prism_ends(&profile, LENGTH);
     // Diagonally opposite about the centre of the floor: the half turn maps one onto the other.
     let (cx, cy) = (WIDTH / 2.0, LENGTH / 2.0);
     let holes = [(cx - 22.0, cy - 30.0), (cx + 22.0, cy + 30.0)];
@@ -189,15 +180,11 @@ fn u_channel() -> Mesh {
     };
     let bottom_rings = ring_at(&mut b, 0.0);
     let floor_rings = ring_at(&mut b, WALL);
-    for i in 0..profile.len() {
-        let j = (i + 1) % profile.len();
-        let quad = [front[i], front[j], back[j], back[i]];
-        match i {
-            0 => b.planar(&quad, &bottom_rings),
-            4 => b.planar(&quad, &floor_rings),
-            _ => b.planar(&quad, &[]),
-        }
-    }
+    b.prism_sides(&front, &back, |side| match side {
+        0 => &bottom_rings,
+        4 => &floor_rings,
+        _ => &[],
+    });
     for (bottom, floor) in bottom_rings.iter().zip(&floor_rings) {
         b.strip(bottom, floor);
     }
@@ -292,16 +279,7 @@ fn l_bracket() -> Mesh {
         (PLATE, HEIGHT),
         (0.0, HEIGHT),
     ];
-    let front: Vec<u32> = profile
-        .iter()
-        .map(|&(x, z)| b.vertex(Point3::new(x, 0.0, z)))
-        .collect();
-    let back: Vec<u32> = profile
-        .iter()
-        .map(|&(x, z)| b.vertex(Point3::new(x, DEPTH, z)))
-        .collect();
-    b.planar(&front, &[]);
-    b.planar(&back, &[]);
+    let (front, back) = b.prism_ends(&profile, DEPTH);
 
     // Holes through the base (axis z) and through the upright (axis x), placed off-centre.
     let base_holes = [(48.0, 18.0, 6.0), (96.0, 42.0, 6.0)];
@@ -323,17 +301,13 @@ fn l_bracket() -> Mesh {
         28,
     );
 
-    for i in 0..profile.len() {
-        let j = (i + 1) % profile.len();
-        let quad = [front[i], front[j], back[j], back[i]];
-        match i {
-            0 => b.planar(&quad, &bottom_rings),
-            2 => b.planar(&quad, &top_rings),
-            3 => b.planar(&quad, std::slice::from_ref(&inner_ring)),
-            5 => b.planar(&quad, std::slice::from_ref(&outer_ring)),
-            _ => b.planar(&quad, &[]),
-        }
-    }
+    b.prism_sides(&front, &back, |side| match side {
+        0 => &bottom_rings,
+        2 => &top_rings,
+        3 => std::slice::from_ref(&inner_ring),
+        5 => std::slice::from_ref(&outer_ring),
+        _ => &[],
+    });
     for (bottom, top) in bottom_rings.iter().zip(&top_rings) {
         b.strip(bottom, top);
     }
@@ -628,6 +602,36 @@ impl SolidBuilder {
                 self.vertex(centre + (u * a.cos() + v * a.sin()) * radius)
             })
             .collect()
+    }
+
+    /// The two ends of a prism: the `profile`'s (x, z) points at y = 0 and at y = `length`,
+    /// each end a planar face. [`Self::prism_sides`] closes it.
+    fn prism_ends(&mut self, profile: &[(f64, f64)], length: f64) -> (Vec<u32>, Vec<u32>) {
+        let mut end = |y: f64| -> Vec<u32> {
+            profile
+                .iter()
+                .map(|&(x, z)| self.vertex(Point3::new(x, y, z)))
+                .collect()
+        };
+        let (front, back) = (end(0.0), end(length));
+        self.planar(&front, &[]);
+        self.planar(&back, &[]);
+        (front, back)
+    }
+
+    /// The side faces of a prism between its two ends, side `i` joining the profile's points
+    /// `i` and `i + 1`, with the holes `holes(i)`.
+    fn prism_sides<'h>(
+        &mut self,
+        front: &[u32],
+        back: &[u32],
+        holes: impl Fn(usize) -> &'h [Vec<u32>],
+    ) {
+        let n = front.len();
+        for i in 0..n {
+            let j = (i + 1) % n;
+            self.planar(&[front[i], front[j], back[j], back[i]], holes(i));
+        }
     }
 
     /// A closed loop of points given in the plane `z = const`.
