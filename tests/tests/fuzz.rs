@@ -23,7 +23,10 @@ use ppfd_models::geometry::mesh::Mesh;
 use ppfd_models::model::{store, ObjectModel};
 use ppfd_models::synthetic::parts::Part;
 use ppfd_tests::fuzz::{cases, edits, mutate, run, Edit, LONG_CASES, SHORT_CASES};
-use ppfd_tests::{fake_model_dir, part_model, parts_scene, Prefix, Proc, WorkDir};
+use ppfd_tests::{fake_model_dir, part_model, parts_scene, Prefix, WorkDir};
+
+mod common;
+use common::{camera, fake_daemon};
 
 /// Fails the case unless `cond`, with `msg`.
 fn ensure(cond: bool, msg: impl FnOnce() -> String) -> Result<(), TestCaseError> {
@@ -314,10 +317,6 @@ fn the_configuration_parser_refuses_mutated_files_or_gives_a_usable_one_long() {
 // ---------------------------------------------------------------------------------------------
 // The daemon's requests
 
-const DAEMON: &str = env!("CARGO_BIN_EXE_e2e-daemon");
-const CAMERA: &str = env!("CARGO_BIN_EXE_e2e-camera");
-const STARTUP: Duration = Duration::from_secs(20);
-
 /// A detect request's fields, each either valid or hostile, and a payload whose length may
 /// disagree with the inline frame's header.
 #[derive(Clone, Debug)]
@@ -456,25 +455,8 @@ fn fuzz_requests(n: u32) {
 
     let prefix = Prefix::new("fuzz");
     let models = fake_model_dir("fuzz-requests", &[1, 2]);
-    let mut daemon = Proc::spawn(
-        Path::new(DAEMON),
-        &[
-            "--prefix",
-            &prefix.0,
-            "--models",
-            models.to_str().unwrap(),
-            "--housekeeping-ms",
-            "100",
-        ],
-        &[("PPFD_TEST_ENGINE", "fake")],
-    );
-    daemon.wait_line("ppfd ready", STARTUP);
-    let mut cam = Proc::spawn(
-        Path::new(CAMERA),
-        &["--prefix", &prefix.0, "--camera", "cam0", "--fps", "50"],
-        &[],
-    );
-    cam.wait_line("camera ready", STARTUP);
+    let mut daemon = fake_daemon(&prefix, &models, &[], &[]);
+    let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
     std::thread::sleep(Duration::from_millis(300));
     let client = ppfd_client::Client::connect_with(&ppfd_client::ClientOptions {
         prefix: Some(prefix.0.clone()),

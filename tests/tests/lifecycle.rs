@@ -6,34 +6,10 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use ppfd_client::{Client, ClientOptions, DetectOptions, Error, Status};
-use ppfd_tests::{fake_model_dir, Prefix, Proc};
+use ppfd_tests::{fake_model_dir, Prefix};
 
-const DAEMON: &str = env!("CARGO_BIN_EXE_e2e-daemon");
-const CAMERA: &str = env!("CARGO_BIN_EXE_e2e-camera");
-const STARTUP: Duration = Duration::from_secs(20);
-
-fn spawn_daemon(prefix: &Prefix, models: &Path, env: &[(&str, &str)]) -> Proc {
-    let args = [
-        "--prefix",
-        &prefix.0,
-        "--models",
-        models.to_str().unwrap(),
-        "--housekeeping-ms",
-        "100",
-    ];
-    let mut envs = vec![("PPFD_TEST_ENGINE", "fake")];
-    envs.extend_from_slice(env);
-    Proc::spawn(Path::new(DAEMON), &args, &envs)
-}
-
-/// A camera `cam0` publishing at 20 fps under `prefix`.
-fn spawn_camera(prefix: &Prefix) -> Proc {
-    Proc::spawn(
-        Path::new(CAMERA),
-        &["--prefix", &prefix.0, "--camera", "cam0", "--fps", "20"],
-        &[],
-    )
-}
+mod common;
+use common::{camera, fake_daemon, spawn_fake_daemon, DAEMON, STARTUP};
 
 fn connect(prefix: &Prefix) -> Client {
     let options = ClientOptions {
@@ -52,7 +28,12 @@ fn connect(prefix: &Prefix) -> Client {
 fn a_stop_while_the_models_load_ends_the_daemon_before_it_serves() {
     let prefix = Prefix::new("stopload");
     let models = fake_model_dir("stopload", &[1, 2, 3, 4, 5]);
-    let mut d = spawn_daemon(&prefix, &models, &[("PPFD_FAKE_LOAD_DELAY_MS", "1000")]);
+    let mut d = spawn_fake_daemon(
+        &prefix,
+        &models,
+        &[],
+        &[("PPFD_FAKE_LOAD_DELAY_MS", "1000")],
+    );
     // Let the node come up and the first model start loading.
     std::thread::sleep(Duration::from_millis(1500));
     let asked = Instant::now();
@@ -80,7 +61,12 @@ fn a_stop_while_the_models_load_ends_the_daemon_before_it_serves() {
 fn statistics_are_answered_while_the_models_load() {
     let prefix = Prefix::new("loadstats");
     let models = fake_model_dir("loadstats", &[1, 2, 3, 4, 5]);
-    let mut d = spawn_daemon(&prefix, &models, &[("PPFD_FAKE_LOAD_DELAY_MS", "1000")]);
+    let mut d = spawn_fake_daemon(
+        &prefix,
+        &models,
+        &[],
+        &[("PPFD_FAKE_LOAD_DELAY_MS", "1000")],
+    );
     // The node comes up at once; the first model takes a second.
     std::thread::sleep(Duration::from_millis(300));
     let client = connect(&prefix);
@@ -136,7 +122,12 @@ fn clients_that_leave_while_the_models_load_are_let_go_of() {
     let prefix = Prefix::new("loadleave");
     let models = fake_model_dir("loadleave", &[1]);
     // Far longer than the clients take, on however loaded a machine.
-    let mut d = spawn_daemon(&prefix, &models, &[("PPFD_FAKE_LOAD_DELAY_MS", "60000")]);
+    let mut d = spawn_fake_daemon(
+        &prefix,
+        &models,
+        &[],
+        &[("PPFD_FAKE_LOAD_DELAY_MS", "60000")],
+    );
     std::thread::sleep(Duration::from_millis(300));
     let hasty = ClientOptions {
         prefix: Some(prefix.0.clone()),
@@ -167,8 +158,7 @@ fn clients_that_leave_while_the_models_load_are_let_go_of() {
 fn statistics_show_the_model_loads_running_and_waiting() {
     let prefix = Prefix::new("loadqueue");
     let models = fake_model_dir("loadqueue", &[1, 2, 3, 4]);
-    let mut d = spawn_daemon(&prefix, &models, &[("PPFD_FAKE_LOAD_DELAY_MS", "400")]);
-    d.wait_line("ppfd ready", STARTUP);
+    let _d = fake_daemon(&prefix, &models, &[], &[("PPFD_FAKE_LOAD_DELAY_MS", "400")]);
     let options = ClientOptions {
         prefix: Some(prefix.0.clone()),
         control_timeout: Duration::from_secs(20),
@@ -218,8 +208,7 @@ fn statistics_show_the_model_loads_running_and_waiting() {
 fn a_model_load_takes_a_timeout_of_its_own() {
     let prefix = Prefix::new("loadtimeout");
     let models = fake_model_dir("loadtimeout", &[1, 2, 3]);
-    let mut d = spawn_daemon(&prefix, &models, &[("PPFD_FAKE_LOAD_DELAY_MS", "800")]);
-    d.wait_line("ppfd ready", STARTUP);
+    let _d = fake_daemon(&prefix, &models, &[], &[("PPFD_FAKE_LOAD_DELAY_MS", "800")]);
     let client = Client::connect_with(&ClientOptions {
         prefix: Some(prefix.0.clone()),
         control_timeout: Duration::from_millis(300),
@@ -249,10 +238,8 @@ fn a_model_load_takes_a_timeout_of_its_own() {
 fn requests_that_come_while_the_daemon_stops_are_answered() {
     let prefix = Prefix::new("stopping");
     let models = fake_model_dir("stopping", &[1]);
-    let mut d = spawn_daemon(&prefix, &models, &[("PPFD_FAKE_DELAY_MS", "3000")]);
-    d.wait_line("ppfd ready", STARTUP);
-    let mut cam = spawn_camera(&prefix);
-    cam.wait_line("camera ready", STARTUP);
+    let mut d = fake_daemon(&prefix, &models, &[], &[("PPFD_FAKE_DELAY_MS", "3000")]);
+    let _cam = camera(&prefix, "cam0", &["--fps", "20"]);
     std::thread::sleep(Duration::from_millis(300));
 
     let running = {
@@ -377,8 +364,7 @@ fn an_empty_segment_of_a_killed_process_does_not_stall_the_cleanup() {
     use std::os::unix::fs::PermissionsExt;
     let prefix = Prefix::new("emptyseg");
     let models = fake_model_dir("emptyseg", &[1]);
-    let mut d = spawn_daemon(&prefix, &models, &[]);
-    d.wait_line("ppfd ready", STARTUP);
+    let mut d = fake_daemon(&prefix, &models, &[], &[]);
     let config = iceoryx2::config::Config::default();
     let nodes = std::path::PathBuf::from(config.global.node_dir().to_string());
     let shm = Path::new(ppfd_client::protocol::services::SHARED_MEMORY_DIR);
@@ -391,8 +377,7 @@ fn an_empty_segment_of_a_killed_process_does_not_stall_the_cleanup() {
             .collect()
     };
     let before = folders_of_prefix();
-    let mut cam = spawn_camera(&prefix);
-    cam.wait_line("camera ready", STARTUP);
+    let mut cam = camera(&prefix, "cam0", &["--fps", "20"]);
     // The camera's node once its ports are made (a node a process makes for a moment is gone
     // by then), and one of its ports.
     std::thread::sleep(Duration::from_millis(300));

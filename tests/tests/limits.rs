@@ -9,7 +9,10 @@ use nalgebra::Point3;
 use ppfd_models::geometry::mesh::Mesh;
 use ppfd_tests::{Prefix, Proc, WorkDir};
 
-const DAEMON: &str = env!("CARGO_BIN_EXE_e2e-daemon");
+mod common;
+use common::DAEMON;
+
+/// The daemon builds no model at start here, but a loaded CI machine starts slowly.
 const STARTUP: Duration = Duration::from_secs(60);
 
 /// Latitude and longitude steps of the generated sphere: 2 × 500 × 500 = 500 000 faces, a

@@ -2,16 +2,15 @@
 //! objects are served in turn, neither waiting behind a run of the other's requests, with one
 //! detection at a time and with two.
 
-use std::path::Path;
 use std::sync::{Arc, Barrier};
 use std::time::{Duration, Instant};
 
 use ppfd_client::{Client, ClientOptions, DetectOptions};
 use ppfd_tests::{fake_model_dir, Prefix, Proc};
 
-const DAEMON: &str = env!("CARGO_BIN_EXE_e2e-daemon");
-const CAMERA: &str = env!("CARGO_BIN_EXE_e2e-camera");
-const STARTUP: Duration = Duration::from_secs(20);
+mod common;
+use common::{camera, fake_daemon};
+
 /// How long the stand-in engine takes per detection.
 /// Long beside the scheduler's noise on a busy host, which the queue waits are compared with.
 const DETECTION: Duration = Duration::from_millis(100);
@@ -26,20 +25,8 @@ type Served = Vec<(Duration, Duration)>;
 fn fake_cell(prefix: &Prefix, name: &str, detection: Duration, args: &[&str]) -> (Proc, Proc) {
     let models = fake_model_dir(name, &[1, 2]);
     let delay = detection.as_millis().to_string();
-    let mut daemon_args = vec!["--prefix", &prefix.0, "--models", models.to_str().unwrap()];
-    daemon_args.extend_from_slice(args);
-    let mut daemon = Proc::spawn(
-        Path::new(DAEMON),
-        &daemon_args,
-        &[("PPFD_TEST_ENGINE", "fake"), ("PPFD_FAKE_DELAY_MS", &delay)],
-    );
-    daemon.wait_line("ppfd ready", STARTUP);
-    let mut cam = Proc::spawn(
-        Path::new(CAMERA),
-        &["--prefix", &prefix.0, "--camera", "cam0", "--fps", "50"],
-        &[],
-    );
-    cam.wait_line("camera ready", STARTUP);
+    let daemon = fake_daemon(prefix, &models, args, &[("PPFD_FAKE_DELAY_MS", &delay)]);
+    let cam = camera(prefix, "cam0", &["--fps", "50"]);
     std::thread::sleep(Duration::from_millis(300));
     (daemon, cam)
 }

@@ -20,10 +20,9 @@ use ppfd_tests::{
     depth_checksum, part_model, parts_scene, write_part_models, Prefix, Proc, WorkDir,
 };
 
-const DAEMON: &str = env!("CARGO_BIN_EXE_e2e-daemon");
-const CAMERA: &str = env!("CARGO_BIN_EXE_e2e-camera");
-const CLIENT: &str = env!("CARGO_BIN_EXE_e2e-client");
-const STARTUP: Duration = Duration::from_secs(20);
+mod common;
+use common::{spawn_camera, CLIENT, DAEMON, STARTUP};
+
 /// Detections are slow next to transport; a loaded CI machine gets plenty.
 const DETECTION: Duration = Duration::from_secs(600);
 
@@ -114,20 +113,11 @@ fn client_answers(c: &mut Proc, name: &'static str) -> Vec<Answer> {
 /// with Kinect-like noise when `noisy`.
 fn parts_camera(prefix: &Prefix, seed: u64, noisy: bool) -> Proc {
     let seed = seed.to_string();
-    let mut args = vec![
-        "--prefix",
-        &prefix.0,
-        "--camera",
-        "parts",
-        "--fps",
-        "5",
-        "--parts-seed",
-        &seed,
-    ];
+    let mut args = vec!["--fps", "5", "--parts-seed", &seed];
     if !noisy {
         args.extend(["--noise", "none"]);
     }
-    Proc::spawn(Path::new(CAMERA), &args, &[])
+    spawn_camera(prefix, "parts", &args)
 }
 
 /// A client process asking camera `parts` for `objects` (`a,b`), with `extra` flags.
@@ -466,13 +456,10 @@ fn lmo_object_built_from_its_mesh_by_the_daemon_is_found_through_the_whole_path(
     }
     let _daemon = start_daemon(&prefix, &models, &work.join("cache"), &[]);
     let (scene_s, image_s) = (scene.to_string(), image.to_string());
-    let mut cam = Proc::spawn(
-        Path::new(CAMERA),
+    let mut cam = spawn_camera(
+        &prefix,
+        "synth",
         &[
-            "--prefix",
-            &prefix.0,
-            "--camera",
-            "synth",
             "--fps",
             "5",
             "--bop",
@@ -482,7 +469,6 @@ fn lmo_object_built_from_its_mesh_by_the_daemon_is_found_through_the_whole_path(
             "--image",
             &image_s,
         ],
-        &[],
     );
     cam.wait_line("camera ready", STARTUP);
     cam.wait_line("frame 2", STARTUP);

@@ -2,16 +2,14 @@
 //! timer, only wakes the wait: the answer still comes. A test binary of its own, since the
 //! handler it installs is the whole process's.
 
-use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
 use ppfd_client::{Client, ClientOptions, DetectOptions};
-use ppfd_tests::{fake_model_dir, Prefix, Proc};
+use ppfd_tests::{fake_model_dir, Prefix};
 
-const DAEMON: &str = env!("CARGO_BIN_EXE_e2e-daemon");
-const CAMERA: &str = env!("CARGO_BIN_EXE_e2e-camera");
-const STARTUP: Duration = Duration::from_secs(20);
+mod common;
+use common::{camera, fake_daemon};
 
 static RANG: AtomicUsize = AtomicUsize::new(0);
 
@@ -55,18 +53,8 @@ fn watchdog(
 fn a_signal_during_a_request_only_wakes_the_wait() {
     let prefix = Prefix::new("signals");
     let models = fake_model_dir("signals", &[1]);
-    let mut daemon = Proc::spawn(
-        Path::new(DAEMON),
-        &["--prefix", &prefix.0, "--models", models.to_str().unwrap()],
-        &[("PPFD_TEST_ENGINE", "fake"), ("PPFD_FAKE_DELAY_MS", "500")],
-    );
-    daemon.wait_line("ppfd ready", STARTUP);
-    let mut camera = Proc::spawn(
-        Path::new(CAMERA),
-        &["--prefix", &prefix.0, "--camera", "cam0", "--fps", "50"],
-        &[],
-    );
-    camera.wait_line("camera ready", STARTUP);
+    let _daemon = fake_daemon(&prefix, &models, &[], &[("PPFD_FAKE_DELAY_MS", "500")]);
+    let _camera = camera(&prefix, "cam0", &["--fps", "50"]);
     let client = Client::connect_with(&ClientOptions {
         prefix: Some(prefix.0.clone()),
         ..Default::default()

@@ -7,38 +7,11 @@ use std::time::Duration;
 use ppfd_client::protocol::control::RECENT_WINDOW_NS;
 use ppfd_tests::{fake_model_dir, Prefix, Proc};
 
-const DAEMON: &str = env!("CARGO_BIN_EXE_e2e-daemon");
-const CAMERA: &str = env!("CARGO_BIN_EXE_e2e-camera");
-const CLIENT: &str = env!("CARGO_BIN_EXE_e2e-client");
-const STARTUP: Duration = Duration::from_secs(20);
+mod common;
+use common::{camera, fake_daemon, CAMERA, CLIENT, DAEMON, STARTUP};
 
 fn daemon(prefix: &Prefix, models: &Path, extra: &[&str], delay_ms: &str) -> Proc {
-    daemon_with(prefix, models, extra, &[("PPFD_FAKE_DELAY_MS", delay_ms)])
-}
-
-fn daemon_with(prefix: &Prefix, models: &Path, extra: &[&str], env: &[(&str, &str)]) -> Proc {
-    let mut args = vec![
-        "--prefix",
-        &prefix.0,
-        "--models",
-        models.to_str().unwrap(),
-        "--housekeeping-ms",
-        "100",
-    ];
-    args.extend_from_slice(extra);
-    let mut envs = vec![("PPFD_TEST_ENGINE", "fake")];
-    envs.extend_from_slice(env);
-    let mut d = Proc::spawn(Path::new(DAEMON), &args, &envs);
-    d.wait_line("ppfd ready", STARTUP);
-    d
-}
-
-fn camera(prefix: &Prefix, name: &str, extra: &[&str]) -> Proc {
-    let mut args = vec!["--prefix", &prefix.0, "--camera", name];
-    args.extend_from_slice(extra);
-    let mut c = Proc::spawn(Path::new(CAMERA), &args, &[]);
-    c.wait_line("camera ready", STARTUP);
-    c
+    fake_daemon(prefix, models, extra, &[("PPFD_FAKE_DELAY_MS", delay_ms)])
 }
 
 /// How many files the process `pid` (a daemon) has open.
@@ -777,7 +750,7 @@ fn the_engine_reads_depth_in_place_in_shared_memory() {
     // would put them on the heap.
     let prefix = Prefix::new("inplace");
     let models = fake_model_dir("inplace", &[1]);
-    let _d = daemon_with(&prefix, &models, &[], &[("PPFD_FAKE_CHECK_SHM", "1")]);
+    let _d = fake_daemon(&prefix, &models, &[], &[("PPFD_FAKE_CHECK_SHM", "1")]);
     let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
     std::thread::sleep(Duration::from_millis(300));
     let client = connect(&prefix);
