@@ -130,6 +130,7 @@ fn at_least_one(s: &str) -> Result<usize, String> {
 impl BenchArgs {
     /// Refuses flags that do not go together (a usage error).
     pub fn check(&self) -> Result<(), String> {
+        self.connect.prefix()?;
         if self.requests < self.clients {
             return Err(format!(
                 "--requests {} is fewer than --clients {}: --requests counts the requests of \

@@ -23,9 +23,11 @@ fn parse_prefix(s: &str) -> Result<String, String> {
 }
 
 impl Connect {
-    /// The prefix given, else the one of PPFD_PREFIX.
-    pub fn prefix(&self) -> Option<String> {
-        self.prefix.clone().or_else(ppfd_client::prefix_from_env)
+    /// The prefix given, else the one of PPFD_PREFIX; a value of the variable that `ppfd` would
+    /// refuse is refused with the variable's name, as `ppfd` refuses it.
+    pub fn prefix(&self) -> Result<Option<String>, String> {
+        ppfd_client::protocol::services::prefix_or_env(self.prefix.as_deref())
+            .map_err(|e| e.to_string())
     }
 
     pub fn client(&self) -> Result<Client, String> {
@@ -35,7 +37,7 @@ impl Connect {
     /// A client whose control requests wait up to `control_timeout` for their answers.
     pub fn client_with(&self, control_timeout: Duration) -> Result<Client, String> {
         let options = ClientOptions {
-            prefix: self.prefix(),
+            prefix: self.prefix()?,
             control_timeout,
             ..Default::default()
         };

@@ -32,23 +32,23 @@ pub struct DetectArgs {
     pub connect: Connect,
 }
 
-/// The poses of a hints file: the `hypotheses` of `ppf detect --json` output, or a list of
-/// objects with `object_id`, `rotation` (9 numbers, row-major) and `translation_mm` (3).
-pub fn read_hints(path: &Path) -> Result<Vec<PoseHint>, String> {
+/// The poses of a hints file: the `hypotheses` of `ppf detect --json` output, of which those
+/// of `objects` are kept (a whole earlier answer serves any of its objects, as Python's
+/// `hints=previous` does), or a list of objects with `object_id`, `rotation` (9 numbers,
+/// row-major) and `translation_mm` (3), all kept (a pose of an object not asked for is the
+/// daemon's to refuse).
+pub fn read_hints(path: &Path, objects: &[u32]) -> Result<Vec<PoseHint>, String> {
     let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let value: serde_json::Value =
         serde_json::from_str(&text).map_err(|e| format!("{}: not JSON: {e}", path.display()))?;
-    let list = value
-        .get("hypotheses")
-        .unwrap_or(&value)
-        .as_array()
-        .ok_or_else(|| {
-            format!(
-                "{}: expected a list of poses, or an object with a \"hypotheses\" list (ppf \
+    let answer = value.get("hypotheses");
+    let list = answer.unwrap_or(&value).as_array().ok_or_else(|| {
+        format!(
+            "{}: expected a list of poses, or an object with a \"hypotheses\" list (ppf \
                  detect --json)",
-                path.display()
-            )
-        })?;
+            path.display()
+        )
+    })?;
     list.iter()
         .enumerate()
         .map(|(i, entry)| {
@@ -90,18 +90,24 @@ pub fn read_hints(path: &Path) -> Result<Vec<PoseHint>, String> {
                 .copy_from_slice(&numbers("translation_mm", 3)?);
             Ok(hint)
         })
+        .filter(|hint| {
+            answer.is_none()
+                || hint
+                    .as_ref()
+                    .map_or(true, |h| objects.contains(&h.object_id))
+        })
         .collect()
 }
 
 pub fn run(args: DetectArgs) -> Result<(), String> {
     let hints = match &args.hints {
-        Some(path) => read_hints(path)?,
+        Some(path) => read_hints(path, &args.objects)?,
         None => Vec::new(),
     };
     // A file of a whole scene's poses serves any subset of its objects.
     let diagnose: Vec<PoseHint> = match &args.diagnose_against {
         Some(path) => {
-            let poses: Vec<PoseHint> = read_hints(path)?
+            let poses: Vec<PoseHint> = read_hints(path, &args.objects)?
                 .into_iter()
                 .filter(|p| args.objects.contains(&p.object_id))
                 .collect();
@@ -119,7 +125,7 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
     let client = args.connect.client()?;
     // Subscribed before the request, so that the frame the daemon uses arrives here too.
     let recorder = match &args.overlay {
-        Some(_) => Some(FrameRecorder::start(args.connect.prefix(), &args.camera)?),
+        Some(_) => Some(FrameRecorder::start(args.connect.prefix()?, &args.camera)?),
         None => None,
     };
     let options = DetectOptions {
@@ -352,6 +358,35 @@ impl FrameRecorder {
 #[cfg(test)]
 mod tests {
     use ppfd_models::synthetic::parts::Part;
+
+    /// A whole earlier answer (`--json`) serves any of its objects: the poses of objects not
+    /// asked for are left out. A list written by hand is taken whole, for the daemon to judge.
+    #[test]
+    fn an_answer_gives_the_hints_of_the_objects_asked_for() {
+        let dir = std::env::temp_dir().join(format!("ppf-hints-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let pose = |id: u32| {
+            serde_json::json!({"object_id": id, "rank": 1, "score": 0.5,
+                "rotation": [1, 0, 0, 0, 1, 0, 0, 0, 1], "translation_mm": [0, 0, 800]})
+        };
+        let answer = dir.join("answer.json");
+        let list = serde_json::json!([pose(1), pose(2), pose(1)]);
+        std::fs::write(&answer, serde_json::json!({"hypotheses": list}).to_string()).unwrap();
+        let hand = dir.join("hand.json");
+        std::fs::write(&hand, list.to_string()).unwrap();
+        let ids = |path, objects: &[u32]| -> Vec<u32> {
+            let hints = super::read_hints(path, objects).unwrap();
+            hints.iter().map(|h| h.object_id).collect()
+        };
+        assert_eq!(ids(&answer, &[1]), [1, 1]);
+        assert_eq!(ids(&answer, &[2, 5]), [2]);
+        assert_eq!(ids(&hand, &[1]), [1, 2, 1]);
+        assert_eq!(
+            super::read_hints(&answer, &[1]).unwrap()[0].translation_mm,
+            [0.0, 0.0, 800.0]
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     /// A model file is drawn as the object it holds, whatever its name says.
     #[test]

@@ -123,9 +123,15 @@ fn main() {
     let result = match cli.command {
         Command::Model(cmd) => model::run(cmd),
         Command::Profile(args) => profile::run(args),
-        Command::Replay(args) => replay::run(args).map_err(Into::into),
+        Command::Replay(args) => {
+            connect_or_exit(&args.connect);
+            replay::run(args).map_err(Into::into)
+        }
         Command::Detect(args) => match args.into_target() {
-            Ok(detect_offline::DetectTarget::Camera(a)) => detect::run(a).map_err(Into::into),
+            Ok(detect_offline::DetectTarget::Camera(a)) => {
+                connect_or_exit(&a.connect);
+                detect::run(a).map_err(Into::into)
+            }
             Ok(detect_offline::DetectTarget::Dataset(a)) => detect_offline::run(a),
             Err(e) => usage_error(&e),
         },
@@ -133,8 +139,14 @@ fn main() {
             Ok(()) => bench::run(args).map_err(Into::into),
             Err(e) => usage_error(&e),
         },
-        Command::Models(args) => daemon::models(args).map_err(Into::into),
-        Command::Stats(args) => daemon::stats(args).map_err(Into::into),
+        Command::Models(args) => {
+            connect_or_exit(&args.connect);
+            daemon::models(args).map_err(Into::into)
+        }
+        Command::Stats(args) => {
+            connect_or_exit(&args.connect);
+            daemon::stats(args).map_err(Into::into)
+        }
         // The request options are checked before the scene is drawn and the daemon started.
         Command::Demo(args) => match args.requirements.wire() {
             Ok(_) => demo::run(args).map_err(Into::into),
@@ -153,6 +165,14 @@ fn main() {
     if let Err(e) = result {
         eprintln!("error: {e}");
         std::process::exit(1);
+    }
+}
+
+/// Ends with a usage error when the daemon's prefix is one it would refuse: `--prefix` is
+/// checked by clap, `PPFD_PREFIX` here (a command that reaches no daemon does not read it).
+fn connect_or_exit(connect: &common::Connect) {
+    if let Err(e) = connect.prefix() {
+        usage_error(&e);
     }
 }
 
@@ -271,11 +291,14 @@ mod tests {
         assert_eq!(r.pose_restriction.model_axis, [-1.0, 0.0, 0.0]);
         assert_eq!(r.pose_restriction.camera_direction, [0.0, 0.0, -1.0]);
         assert_eq!(r.order, order::DISTANCE);
+        // 0 is the daemon's distance, as the protocol's range message and Python offer it.
+        let r = target(&["--instance-distance", "0"]).unwrap();
+        assert_eq!(r.instance_distance_fraction, 0.0);
         for (extra, expected) in [
             (&["--min-score", "2"][..], "minimum score 2 is out of range"),
             (
-                &["--instance-distance", "0"],
-                "--instance-distance must be above 0",
+                &["--instance-distance", "3"],
+                "or 0 for the daemon's setting",
             ),
             (&["--max-tilt", "200"], "200 degrees is out of range"),
             (&["--roi", "5,5,0,10"], "region of interest 0x10"),

@@ -98,11 +98,7 @@ pub fn run(args: ReplayArgs) -> Result<(), String> {
         .depth_frame(first_scene, first_im)
         .map_err(|e| e.to_string())?;
     let k = first.intrinsics;
-    let prefix = args
-        .connect
-        .prefix
-        .clone()
-        .or_else(ppfd_client::prefix_from_env);
+    let prefix = args.connect.prefix()?;
     let mut camera = CameraPublisher::new(
         prefix.as_deref(),
         &args.camera,

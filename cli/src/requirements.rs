@@ -22,7 +22,8 @@ pub struct RequirementArgs {
     #[arg(long, default_value_t = 0.0)]
     pub min_score: f32,
     /// Two poses whose model centres lie closer than this many diameters are one instance,
-    /// above 0 to 2 (default: the detector's, 0.25; HALCON's max_overlap_dist_rel).
+    /// above 0 to 2, or 0 for the detector's (the default: 0.25; HALCON's
+    /// max_overlap_dist_rel), as the protocol and Python take it.
     #[arg(long, value_name = "DIAMETERS")]
     pub instance_distance: Option<f32>,
     /// Take reference points only in this pixel rectangle: X,Y,WIDTH,HEIGHT.
@@ -101,11 +102,6 @@ impl RequirementArgs {
                 None => PoseRestriction::default(),
             },
         };
-        if self.instance_distance == Some(0.0) {
-            return Err(
-                "--instance-distance must be above 0 (leave it out for the detector's)".into(),
-            );
-        }
         requirements.validate().map_err(|e| e.to_string())?;
         Ok(requirements)
     }

@@ -33,6 +33,31 @@ fn write_part_mesh(path: &Path) {
     std::fs::write(path, Part::ALL[0].mesh().to_ply_ascii()).unwrap();
 }
 
+/// A `PPFD_PREFIX` the daemon would refuse is a usage error that names the variable, for every
+/// command that reaches the daemon, as `ppfd` refuses it; a command that reaches none does not
+/// read it.
+#[test]
+fn a_bad_prefix_variable_is_a_usage_error_that_names_it() {
+    for args in [
+        &["stats"][..],
+        &["models"],
+        &["detect", "--camera", "k", "--objects", "1"],
+        &["bench", "--camera", "k", "--objects", "1"],
+        &["replay", "/nonexistent", "--camera", "k"],
+    ] {
+        let out = run(ppf(args).env("PPFD_PREFIX", "cell1"));
+        assert_eq!(out.status.code(), Some(2), "{args:?}: a usage error");
+        let text = stderr(&out);
+        assert!(
+            text.contains("PPFD_PREFIX: prefix name \"cell1\" must end with '_'"),
+            "{args:?}: {text}"
+        );
+    }
+    let out = run(ppf(&["score", "/nonexistent", "x.csv"]).env("PPFD_PREFIX", "cell1"));
+    assert_eq!(out.status.code(), Some(1));
+    assert!(!stderr(&out).contains("PPFD_PREFIX"), "{}", stderr(&out));
+}
+
 #[test]
 fn detect_without_a_mode_names_both_modes() {
     for args in [&["detect"][..], &["detect", "--objects", "1"]] {

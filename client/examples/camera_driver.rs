@@ -27,16 +27,9 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let camera = args.next().unwrap_or_else(|| "kinect".into());
     let fps: f64 = args.next().and_then(|v| v.parse().ok()).unwrap_or(30.0);
     let (width, height) = (640u32, 480u32);
-    let prefix = ppfd_client::prefix_from_env();
-    let mut publisher = CameraPublisher::new(
-        prefix.as_deref(),
-        &camera,
-        0,
-        width,
-        height,
-        Intrinsics::LMO,
-        1.0,
-    )?;
+    // No prefix: PPFD_PREFIX's, as the daemon started in the same environment takes it.
+    let mut publisher =
+        CameraPublisher::new(None, &camera, 0, width, height, Intrinsics::LMO, 1.0)?;
     println!("publishing {width}x{height} depth as camera {camera:?} at {fps} fps (Ctrl-C stops)");
 
     let period = Duration::from_secs_f64(1.0 / fps);

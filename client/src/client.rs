@@ -82,8 +82,9 @@ type ControlPort = IoxClient<Ipc, ControlRequest, (), [ModelInfo], ControlRespon
 /// How a [`Client`] connects.
 #[derive(Debug, Clone)]
 pub struct ClientOptions {
-    /// iceoryx2 prefix of the daemon (see `ppfd --prefix`); `None`: `PPFD_PREFIX`, else
-    /// iceoryx2's default, as the daemon takes its own. The default options read it too.
+    /// iceoryx2 prefix of the daemon (see `ppfd --prefix`); `None` (the default): `PPFD_PREFIX`
+    /// at connect, else iceoryx2's default, as the daemon takes its own. A value of the variable
+    /// the daemon would refuse is refused with the variable's name.
     pub prefix: Option<String>,
     /// Depth values of the largest inline frame this client will send (0 if it only names
     /// cameras). Preallocated in shared memory; larger frames grow it.
@@ -96,7 +97,7 @@ pub struct ClientOptions {
 impl Default for ClientOptions {
     fn default() -> Self {
         ClientOptions {
-            prefix: crate::prefix_from_env(),
+            prefix: None,
             inline_frame_capacity: 0,
             control_timeout: Duration::from_secs(5),
         }

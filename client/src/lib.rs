@@ -124,8 +124,7 @@ pub(crate) fn transport<E: std::fmt::Debug>(what: &'static str) -> impl FnOnce(E
 /// the daemon started in the same environment.
 pub(crate) fn iceoryx_config(prefix: Option<&str>) -> Result<iceoryx2::config::Config> {
     let mut config = iceoryx2::config::Config::default();
-    let from_env = prefix_from_env();
-    if let Some(prefix) = prefix.or(from_env.as_deref()) {
+    if let Some(prefix) = ppfd_protocol::services::prefix_or_env(prefix)?.as_deref() {
         use iceoryx2::prelude::SemanticString;
         ppfd_protocol::services::check_prefix(prefix)?;
         config.global.prefix = iceoryx2::prelude::FileName::new(prefix.as_bytes())

@@ -18,6 +18,24 @@ fn no_prefix_is_the_one_in_ppfd_prefix() {
     // And a viewer given no prefix finds it too.
     assert!(CameraViewer::open(None, "envcam").is_ok());
     drop((publisher, viewer));
+    // A value the daemon would refuse is refused by name, by a driver and a client alike.
+    std::env::set_var("PPFD_PREFIX", "cell1");
+    let refused = CameraPublisher::new(None, "envcam", 1, 640, 480, Intrinsics::LMO, 1.0)
+        .err()
+        .expect("refused");
+    let text = refused.to_string();
+    assert!(
+        text.contains("PPFD_PREFIX: prefix name \"cell1\" must end with '_'"),
+        "{text}"
+    );
+    let refused = ppfd_client::Client::connect_with(&Default::default())
+        .err()
+        .expect("refused");
+    let text = refused.to_string();
+    assert!(
+        text.contains("PPFD_PREFIX: prefix name \"cell1\""),
+        "{text}"
+    );
     std::env::remove_var("PPFD_PREFIX");
     ppfd_client::remove_prefix_leftovers(&prefix).unwrap();
     ppfd_client::remove_prefix_leftovers(&elsewhere).unwrap();

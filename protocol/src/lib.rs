@@ -93,6 +93,12 @@ pub enum ProtocolError {
         name: String,
         reason: &'static str,
     },
+    /// An environment variable holds a value refused as `error` says: named, since a user who
+    /// gave no value may not know where it came from.
+    Variable {
+        variable: &'static str,
+        error: Box<ProtocolError>,
+    },
     /// The frame's payload does not hold `width × height` values (or the size is zero).
     FrameSize {
         width: u32,
@@ -196,6 +202,7 @@ impl std::fmt::Display for ProtocolError {
             } => {
                 write!(f, "{field} name {name:?} {reason}")
             }
+            ProtocolError::Variable { variable, error } => write!(f, "{variable}: {error}"),
             ProtocolError::FrameSize { width, height, .. } if *width == 0 || *height == 0 => {
                 write!(
                     f,

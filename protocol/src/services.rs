@@ -373,10 +373,40 @@ pub fn is_other_protocol_version(e: &request_response::RequestResponseOpenOrCrea
     )
 }
 
-/// The iceoryx2 prefix from the environment: `PPFD_PREFIX`, if set and not empty. The daemon
-/// and its clients both read it, so that one variable brings them together.
+/// The variable that holds the iceoryx2 prefix when none is given.
+pub const PREFIX_VARIABLE: &str = "PPFD_PREFIX";
+
+/// The iceoryx2 prefix from the environment: [`PREFIX_VARIABLE`], if set and not empty. The
+/// daemon and its clients both read it, so that one variable brings them together.
 pub fn prefix_from_env() -> Option<String> {
-    std::env::var("PPFD_PREFIX").ok().filter(|p| !p.is_empty())
+    std::env::var(PREFIX_VARIABLE)
+        .ok()
+        .filter(|p| !p.is_empty())
+}
+
+/// `prefix` if given, else [`prefix_from_env`] checked by [`check_prefix`]: a variable's value
+/// that would be refused is refused as the variable's ([`ProtocolError::Variable`]). The
+/// daemon, its clients and `ppf` all take their prefix through it.
+pub fn prefix_or_env(prefix: Option<&str>) -> Result<Option<String>, ProtocolError> {
+    prefix_or(prefix, prefix_from_env)
+}
+
+/// [`prefix_or_env`] with `from_env` reading the variable.
+pub fn prefix_or(
+    prefix: Option<&str>,
+    from_env: impl FnOnce() -> Option<String>,
+) -> Result<Option<String>, ProtocolError> {
+    if let Some(prefix) = prefix {
+        return Ok(Some(prefix.to_owned()));
+    }
+    let Some(from_env) = from_env() else {
+        return Ok(None);
+    };
+    check_prefix(&from_env).map_err(|e| ProtocolError::Variable {
+        variable: PREFIX_VARIABLE,
+        error: Box::new(e),
+    })?;
+    Ok(Some(from_env))
 }
 
 /// The longest prefix taken. iceoryx2 begins every file name it makes with it, and one is the
@@ -439,6 +469,35 @@ pub fn is_entry_of_prefix(name: &str, prefix: &str) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A prefix given wins over the variable, unchecked here (its flag checks it); the
+    /// variable's value is checked, and a refusal names the variable.
+    #[test]
+    fn the_variables_prefix_is_checked_and_named() {
+        fn set(v: &'static str) -> impl FnOnce() -> Option<String> {
+            move || Some(v.to_owned())
+        }
+        assert_eq!(
+            prefix_or(Some("a_"), set("bad")).unwrap().as_deref(),
+            Some("a_")
+        );
+        assert_eq!(
+            prefix_or(None, set("cell1_")).unwrap().as_deref(),
+            Some("cell1_")
+        );
+        assert_eq!(prefix_or(None, || None).unwrap(), None);
+        let refused = prefix_or(None, set("cell1")).unwrap_err();
+        assert!(
+            matches!(&refused, ProtocolError::Variable { variable: "PPFD_PREFIX", error }
+                if matches!(**error, ProtocolError::InvalidName { field: "prefix", .. })),
+            "{refused:?}"
+        );
+        let text = refused.to_string();
+        assert!(
+            text.starts_with("PPFD_PREFIX: prefix name \"cell1\" must end with '_'"),
+            "{text}"
+        );
+    }
 
     #[test]
     fn fixed_names_are_valid_service_names() {

@@ -42,7 +42,6 @@ impl CameraPublisher {
         let width = unsigned(py, "width", width)?;
         let height = unsigned(py, "height", height)?;
         let camera_id = unsigned(py, "camera_id", camera_id)?;
-        let prefix = prefix.or_else(ppfd_client::prefix_from_env);
         let intrinsics = Intrinsics { fx, fy, cx, cy };
         let publisher = ppfd_client::CameraPublisher::new(
             prefix.as_deref(),

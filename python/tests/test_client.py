@@ -273,3 +273,27 @@ def test_a_bad_value_is_shown_on_one_short_line(prefix):
     assert message.startswith("hints[0] must be a Detection or (object_id, 4×4 pose)"), message
     assert "\n" not in message and message.endswith("…"), message
     del client
+
+
+def test_a_bad_prefix_variable_is_refused_by_name():
+    """A `PPFD_PREFIX` the daemon would refuse, read by a client and a camera given no prefix,
+    is a ValueError that names the variable (in a process of its own: the variable is the
+    whole process's)."""
+    script = """
+import ppfd
+for make in (lambda: ppfd.Client(), lambda: ppfd.CameraPublisher("cam", 64, 48, 60.0, 60.0, 32.0, 24.0)):
+    try:
+        make()
+    except ppfd.ProtocolError as e:
+        assert isinstance(e, ValueError), type(e)
+        print(e)
+    else:
+        raise SystemExit("accepted")
+"""
+    env = {"PPFD_PREFIX": "cell1", "PATH": "/usr/bin:/bin"}
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    lines = out.stdout.splitlines()
+    assert len(lines) == 2 and all(
+        line.startswith("PPFD_PREFIX: prefix name \"cell1\" must end with '_'") for line in lines
+    ), out.stdout

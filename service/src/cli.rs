@@ -82,12 +82,10 @@ impl Args {
         }
         // The clients' variable too: `PPFD_PREFIX=cell2_ ppfd` and `PPFD_PREFIX=cell2_ ppf
         // detect` meet. The flag wins over the variable, the variable over the file.
-        if let (None, Some(p)) = (&self.prefix, &env_prefix) {
-            ppfd_protocol::services::check_prefix(p)
-                .map_err(|e| Error::PrefixVariable(e.to_string()))?;
-        }
-        if let Some(prefix) = self.prefix.clone().or(env_prefix) {
-            c.prefix = Some(prefix);
+        let prefix = ppfd_protocol::services::prefix_or(self.prefix.as_deref(), || env_prefix)
+            .map_err(|e| Error::Prefix(e.to_string()))?;
+        if prefix.is_some() {
+            c.prefix = prefix;
         }
         c.workers = self.workers.unwrap_or(c.workers);
         c.parallel_detections = self.parallel_detections.unwrap_or(c.parallel_detections);

@@ -81,12 +81,10 @@ pub enum Error {
          a detection starts"
     )]
     NoFrameAge,
-    /// A prefix iceoryx2 cannot take, with `ppfd_protocol::services::check_prefix`'s message.
+    /// A prefix iceoryx2 cannot take, with `ppfd_protocol::services::check_prefix`'s message
+    /// (which names `PPFD_PREFIX` when the prefix came from it).
     #[error("{0}")]
     Prefix(String),
-    /// `PPFD_PREFIX` holds a prefix iceoryx2 cannot take.
-    #[error("PPFD_PREFIX: {0}")]
-    PrefixVariable(String),
     /// The models folder cannot be listed.
     #[error("model directory {}: {source}", path.display())]
     ModelDirectory {
