@@ -123,6 +123,14 @@ pub trait DetectionEngine: Send + Sync + 'static {
         cache_dir: Option<&Path>,
     ) -> Result<LoadedModel, EngineError>;
 
+    /// Checks that `path` (absolute) names a file `load` may open: it exists and is a regular
+    /// file, not a folder, a FIFO or a device, whose reading could block the loading thread for
+    /// ever. Run on a thread of its own for each `LoadModel`, since on a hung network mount
+    /// even a `stat` waits without end.
+    fn check_load_path(&self, path: &Path) -> Result<(), EngineError> {
+        check_load_file(path)
+    }
+
     /// Files of a model directory to load, in order: by default every accepted file.
     fn select(&self, files: Vec<PathBuf>) -> Vec<PathBuf> {
         files.into_iter().filter(|p| self.accepts(p)).collect()
@@ -135,4 +143,30 @@ pub trait DetectionEngine: Send + Sync + 'static {
         models: &[Arc<LoadedModel>],
         options: &EngineOptions,
     ) -> Result<EngineOutput, EngineError>;
+}
+
+/// What [`DetectionEngine::check_load_path`] checks by default: the file exists and is a
+/// regular file.
+pub fn check_load_file(path: &Path) -> Result<(), EngineError> {
+    let refused = |m: String| Err(EngineError::new(Status::ModelError, m));
+    match path.try_exists() {
+        Ok(true) => {}
+        Ok(false) => return refused(format!("{}: no such file", path.display())),
+        // Permission denied on a folder above it, say: the daemon runs as its own user.
+        Err(e) => return refused(format!("{}: {e}", path.display())),
+    }
+    if path.is_dir() {
+        return refused(format!(
+            "{} is a folder: give one model file (.ppfm) or mesh (.ply); a folder of \
+             models is loaded at start (ppfd --models)",
+            path.display()
+        ));
+    }
+    if !path.is_file() {
+        return refused(format!(
+            "{} is not a regular file: give one model file (.ppfm) or mesh (.ply)",
+            path.display()
+        ));
+    }
+    Ok(())
 }

@@ -32,11 +32,14 @@ pub struct FakeEngine {
     pub require_shared_memory: bool,
     /// Time loading one model takes (as building a model from a large mesh does).
     pub load_delay: Duration,
+    /// Time checking a model file's path takes (as a `stat` on a hung network mount does).
+    pub check_delay: Duration,
 }
 
 impl FakeEngine {
     /// The delay from `PPFD_FAKE_DELAY_MS` (default 0); the shared-memory check when
-    /// `PPFD_FAKE_CHECK_SHM=1`; the load delay from `PPFD_FAKE_LOAD_DELAY_MS` (default 0).
+    /// `PPFD_FAKE_CHECK_SHM=1`; the load delay from `PPFD_FAKE_LOAD_DELAY_MS` and the path
+    /// check's from `PPFD_FAKE_PATH_CHECK_DELAY_MS` (default 0).
     pub fn from_env() -> FakeEngine {
         let ms = |name: &str| {
             Duration::from_millis(
@@ -51,6 +54,7 @@ impl FakeEngine {
             delay: ms("PPFD_FAKE_DELAY_MS"),
             require_shared_memory,
             load_delay: ms("PPFD_FAKE_LOAD_DELAY_MS"),
+            check_delay: ms("PPFD_FAKE_PATH_CHECK_DELAY_MS"),
         }
     }
 }
@@ -78,6 +82,11 @@ impl DetectionEngine for FakeEngine {
 
     fn accepts(&self, path: &Path) -> bool {
         path.extension().is_some_and(|e| e == "fake")
+    }
+
+    fn check_load_path(&self, path: &Path) -> Result<(), EngineError> {
+        std::thread::sleep(self.check_delay);
+        ppfd::engine::check_load_file(path)
     }
 
     fn load(

@@ -201,6 +201,65 @@ fn statistics_show_the_model_loads_running_and_waiting() {
     );
 }
 
+/// A model file whose check does not end (a `stat` on a hung network mount) holds neither the
+/// daemon's other requests nor its stop: the check runs on a thread of its own, the load
+/// waits as a load waiting its turn, and the daemon stops on SIGTERM, answering it "shutting
+/// down". With the check on the I/O thread, the statistics below would wait 60 s.
+#[test]
+fn a_model_file_whose_check_hangs_holds_nothing_else() {
+    let prefix = Prefix::new("hungcheck");
+    let models = fake_model_dir("hungcheck", &[1, 2]);
+    let mut d = fake_daemon(
+        &prefix,
+        &models,
+        &[],
+        &[("PPFD_FAKE_PATH_CHECK_DELAY_MS", "60000")],
+    );
+    let options = ClientOptions {
+        prefix: Some(prefix.0.clone()),
+        control_timeout: Duration::from_secs(2),
+        ..Default::default()
+    };
+    let path = models.join("obj_000002.fake");
+    let hung = {
+        let options = options.clone();
+        std::thread::spawn(move || {
+            let client = Client::connect_with(&options).expect("client connects");
+            client.load_model_within(path.to_str().unwrap(), 0, Duration::from_secs(30))
+        })
+    };
+    let client = connect(&prefix);
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        let stats = client
+            .stats()
+            .expect("statistics answered beside the hung check");
+        if stats.model_loads_waiting == 1 {
+            assert_eq!(stats.model_loads_running, 0, "{stats:?}");
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the load never counted: {stats:?}"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert_eq!(client.models().expect("the model list").len(), 2);
+    let asked = Instant::now();
+    d.signal(libc::SIGTERM);
+    let status = d.wait_exit(Duration::from_secs(10));
+    assert!(status.is_some_and(|s| s.success()), "{status:?}");
+    assert!(
+        asked.elapsed() < Duration::from_secs(5),
+        "{:?}",
+        asked.elapsed()
+    );
+    match hung.join().unwrap() {
+        Err(Error::Refused { status, .. }) => assert_eq!(status, Status::ShuttingDown),
+        other => panic!("the hung load answered {other:?}"),
+    }
+}
+
 /// A model load bounded by its own timeout: one longer than the client's control timeout waits
 /// for a slow build, where the plain load times out (and is still carried out: its model is
 /// served after).

@@ -127,7 +127,7 @@ impl Daemon {
             None => self.startup_files,
         };
         stats.model_loads_running = u64::from(self.loading.is_some());
-        stats.model_loads_waiting = self.waiting_loads.len() as u64;
+        stats.model_loads_waiting = self.loads_waiting() as u64;
         let header = ControlResponseHeader {
             status: status.code(),
             request_id: active.payload().request_id,

@@ -1,8 +1,9 @@
-//! A model loaded or built at run time (`LoadModel`): the path checked on the I/O thread, the
-//! loading on a thread of its own (building from a large mesh takes seconds), the model put in
-//! the registry when it reports. One model loads at a time and the rest wait their turn, up to
-//! [`MAX_WAITING_LOADS`]: a build takes memory in proportion to its mesh, and builds at once
-//! would add up.
+//! A model loaded or built at run time (`LoadModel`): the path's form checked on the I/O
+//! thread, the file itself on a thread of its own (on a hung network mount a `stat` waits
+//! without end), the loading on a thread of its own (building from a large mesh takes
+//! seconds), the model put in the registry when it reports. One model loads at a time and the
+//! rest wait their turn, up to [`MAX_WAITING_LOADS`] with those being checked: a build takes
+//! memory in proportion to its mesh, and builds at once would add up.
 
 use std::path::PathBuf;
 
@@ -16,7 +17,8 @@ use crate::termination::block_termination_signals;
 
 use super::Daemon;
 
-/// Loads waiting for the one that runs; one more is refused "busy".
+/// Loads waiting for the one that runs, their files being checked or checked; one more is
+/// refused "busy".
 pub const MAX_WAITING_LOADS: usize = 16;
 
 /// A load waiting for its turn: its job (its control request is in `control_pending`), the
@@ -27,10 +29,18 @@ pub(super) struct WaitingLoad {
     object_id: Option<u32>,
 }
 
-/// A loading thread's report.
-pub(super) struct ModelLoaded {
-    job: u64,
-    result: Result<LoadedModel, EngineError>,
+/// What a checking or loading thread reports.
+pub(super) enum LoadReport {
+    /// The file of a load was checked ([`crate::engine::DetectionEngine::check_load_path`]).
+    Checked {
+        job: u64,
+        result: Result<(), EngineError>,
+    },
+    /// A model was loaded, or failed to.
+    Loaded {
+        job: u64,
+        result: Result<LoadedModel, EngineError>,
+    },
 }
 
 impl Daemon {
@@ -54,52 +64,82 @@ impl Daemon {
             );
             return self.control_answer(active, Status::InvalidRequest, &m, &[]);
         }
-        match path.try_exists() {
-            Ok(true) => {}
-            Ok(false) => {
-                let m = format!("{}: no such file", path.display());
-                return self.control_answer(active, Status::ModelError, &m, &[]);
-            }
-            // Permission denied on a folder above it, say: the daemon runs as its own user.
-            Err(e) => {
-                let m = format!("{}: {e}", path.display());
-                return self.control_answer(active, Status::ModelError, &m, &[]);
-            }
-        }
-        if !path.is_dir() && !path.is_file() {
-            // A FIFO or a device: reading it could block the loading thread forever.
+        let waiting = self.loads_waiting();
+        if waiting >= MAX_WAITING_LOADS {
             let m = format!(
-                "{} is not a regular file: give one model file (.ppfm) or mesh (.ply)",
-                path.display()
-            );
-            return self.control_answer(active, Status::ModelError, &m, &[]);
-        }
-        if path.is_dir() {
-            let m = format!(
-                "{} is a folder: give one model file (.ppfm) or mesh (.ply); a folder \
-                 of models is loaded at start (ppfd --models)",
-                path.display()
-            );
-            return self.control_answer(active, Status::ModelError, &m, &[]);
-        }
-        if self.waiting_loads.len() >= MAX_WAITING_LOADS {
-            let m = format!(
-                "{} model loads are already waiting (one loads at a time, at most \
-                 {MAX_WAITING_LOADS} wait); retry later",
-                self.waiting_loads.len()
+                "{waiting} model loads are already waiting (one loads at a time, at most \
+                 {MAX_WAITING_LOADS} wait); retry later"
             );
             return self.control_answer(active, Status::Busy, &m, &[]);
         }
         let object_id = (request.object_id != 0).then_some(request.object_id);
         let job = self.next_job;
         self.next_job += 1;
+        let engine = self.engine.clone();
+        let check_path = path.clone();
+        let tx = self.loaded_tx.clone();
+        let signaller = self.signaller;
+        let spawned = std::thread::Builder::new()
+            .name("ppfd-check".into())
+            .spawn(move || {
+                block_termination_signals();
+                let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                    engine.check_load_path(&check_path)
+                }))
+                .unwrap_or_else(|_| {
+                    Err(EngineError::new(
+                        Status::Internal,
+                        "checking the file failed unexpectedly (panic)",
+                    ))
+                });
+                let _ = tx.send(LoadReport::Checked { job, result });
+                signaller.signal();
+            });
+        if let Err(e) = spawned {
+            let m = format!("cannot start checking the file: {e}");
+            return self.control_answer(active, Status::Internal, &m, &[]);
+        }
         self.control_pending.insert(job, active);
-        self.waiting_loads.push_back(WaitingLoad {
+        self.checking_loads.insert(
             job,
-            path,
-            object_id,
-        });
-        self.start_next_load();
+            WaitingLoad {
+                job,
+                path,
+                object_id,
+            },
+        );
+    }
+
+    /// Loads not running yet: their files being checked, or waiting for their turn.
+    pub(super) fn loads_waiting(&self) -> usize {
+        self.checking_loads.len() + self.waiting_loads.len()
+    }
+
+    /// What a checking or loading thread reported.
+    pub(super) fn load_report(&mut self, report: LoadReport) {
+        match report {
+            LoadReport::Checked { job, result } => self.finish_check(job, result),
+            LoadReport::Loaded { job, result } => self.finish_load(job, result),
+        }
+    }
+
+    /// A load whose file passed waits for its turn; one whose file did not is answered.
+    fn finish_check(&mut self, job: u64, result: Result<(), EngineError>) {
+        let Some(load) = self.checking_loads.remove(&job) else {
+            return;
+        };
+        match result {
+            Ok(()) if !self.shutting_down => {
+                self.waiting_loads.push_back(load);
+                self.start_next_load();
+            }
+            Ok(()) => {}
+            Err(e) => {
+                if let Some(active) = self.control_pending.remove(&job) {
+                    self.control_answer(active, e.status, &e.message, &[]);
+                }
+            }
+        }
     }
 
     /// Starts the next waiting load on a thread of its own, unless one is running.
@@ -135,7 +175,7 @@ impl Daemon {
                     ))
                 });
                 release_freed_memory();
-                let _ = tx.send(ModelLoaded { job, result });
+                let _ = tx.send(LoadReport::Loaded { job, result });
                 signaller.signal();
             });
         match spawned {
@@ -154,17 +194,17 @@ impl Daemon {
         }
     }
 
-    pub(super) fn finish_load(&mut self, m: ModelLoaded) {
-        if self.loading == Some(m.job) {
+    fn finish_load(&mut self, job: u64, result: Result<LoadedModel, EngineError>) {
+        if self.loading == Some(job) {
             self.loading = None;
             if !self.shutting_down {
                 self.start_next_load();
             }
         }
-        let Some(active) = self.control_pending.remove(&m.job) else {
+        let Some(active) = self.control_pending.remove(&job) else {
             return;
         };
-        match m.result.and_then(Registry::with_valid_id) {
+        match result.and_then(Registry::with_valid_id) {
             Ok(model) => {
                 let info = model.info;
                 // Named: a model file asked for by name may come from the mesh beside it.

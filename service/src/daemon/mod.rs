@@ -67,7 +67,7 @@ mod startup;
 
 use cameras::Camera;
 use job::{Completion, InFlight};
-use load::{ModelLoaded, WaitingLoad};
+use load::{LoadReport, WaitingLoad};
 use queue::Queued;
 use startup::StartupLoad;
 
@@ -143,8 +143,10 @@ pub(crate) struct Daemon {
     in_flight: HashMap<u64, InFlight>,
     queue: VecDeque<Queued>,
     control_pending: HashMap<u64, ControlActive>,
-    /// Model loads waiting for their turn, and the job of the one running (one at a time).
+    /// Model loads waiting for their turn, those whose files are being checked (by job), and
+    /// the job of the one running (one at a time).
     waiting_loads: VecDeque<WaitingLoad>,
+    checking_loads: HashMap<u64, WaitingLoad>,
     loading: Option<u64>,
     cameras: HashMap<String, Camera>,
     detect_server: DetectServer,
@@ -156,8 +158,8 @@ pub(crate) struct Daemon {
     pool: rayon::ThreadPool,
     done_tx: Sender<Completion>,
     done_rx: Receiver<Completion>,
-    loaded_tx: Sender<ModelLoaded>,
-    loaded_rx: Receiver<ModelLoaded>,
+    loaded_tx: Sender<LoadReport>,
+    loaded_rx: Receiver<LoadReport>,
     signaller: Signaller,
     next_job: u64,
     stats: Stats,
@@ -391,6 +393,7 @@ impl Daemon {
             queue: VecDeque::new(),
             control_pending: HashMap::new(),
             waiting_loads: VecDeque::new(),
+            checking_loads: HashMap::new(),
             loading: None,
             cameras: HashMap::new(),
             detect_server,
@@ -424,8 +427,8 @@ impl Daemon {
         while let Ok(c) = self.done_rx.try_recv() {
             self.finish(c);
         }
-        while let Ok(m) = self.loaded_rx.try_recv() {
-            self.finish_load(m);
+        while let Ok(report) = self.loaded_rx.try_recv() {
+            self.load_report(report);
         }
         self.take_control_requests();
         self.take_detect_requests();

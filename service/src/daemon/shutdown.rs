@@ -24,6 +24,7 @@ impl Daemon {
         }
         // Loads not started are answered below with the other pending control requests.
         self.waiting_loads.clear();
+        self.checking_loads.clear();
         self.join_in_flight();
         let pending: Vec<ControlActive> = self.control_pending.drain().map(|(_, a)| a).collect();
         for active in pending {
