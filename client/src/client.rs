@@ -229,12 +229,14 @@ pub struct Client {
     _wake_service: EventService<Ipc>,
     _replies_service: EventService<Ipc>,
     _node: Node<Ipc>,
-    /// Asked when a signal interrupts a wait for an answer: `true` ends the wait with
-    /// [`Error::Interrupted`]; without one, the wait goes on.
+    /// Asked while waiting for an answer (after each wait, at most [`HELD_CHECK_PERIOD`] apart,
+    /// and when a signal interrupts one): `true` ends the wait with [`Error::Interrupted`];
+    /// without one, the wait goes on.
     interrupt_check: Option<InterruptCheck>,
 }
 
-/// A caller's check, run when a signal interrupts the wait for an answer: `true` stops waiting.
+/// A caller's check, run while a request waits for its answer (after each slice of the wait,
+/// at most 50 ms apart, and when a signal interrupts one): `true` stops waiting.
 pub type InterruptCheck = Box<dyn Fn() -> bool>;
 
 /// Whether the daemon's process still lives, checked every [`ALIVE_CHECK_PERIOD`] while a
@@ -527,8 +529,10 @@ impl Client {
         }
     }
 
-    /// Sets what decides, when a signal interrupts the wait for an answer, whether to stop
-    /// waiting. Without a check a signal only wakes the wait, which goes on: a program's own
+    /// Sets what decides, while a request waits for its answer, whether to stop waiting: it is
+    /// asked after each slice of the wait (at most 50 ms apart) and when a signal interrupts
+    /// one, so a signal that lands between waits or on another thread is seen as well. Without
+    /// a check a signal only wakes the wait, which goes on: a program's own
     /// handlers (a watchdog timer, a SIGTERM handler that sets a flag) would otherwise cost it
     /// the request. A binding for a language that runs its handlers between calls (Python)
     /// runs them here, and stops when one raises.
@@ -536,16 +540,20 @@ impl Client {
         self.interrupt_check = Some(check);
     }
 
+    /// Waits up to `left` for a reply's wake-up, then asks the interrupt check. It is asked after
+    /// every wait, not only one a signal cut short: a signal that came while this thread was
+    /// not waiting (listing the daemon's node, say), or that another thread of the process
+    /// took, interrupts no wait, and would otherwise go unseen until the request ends.
     fn wait_reply(&self, left: Duration) -> Result<()> {
         use iceoryx2::port::listener::ListenerWaitError;
         match self.replies.timed_wait(|_| {}, left) {
-            Ok(_) => Ok(()),
             // The caller's loop looks for the answer again.
-            Err(ListenerWaitError::InterruptSignal) => match &self.interrupt_check {
-                Some(check) if check() => Err(Error::Interrupted),
-                _ => Ok(()),
-            },
-            Err(e) => Err(transport("waiting for the response failed")(e)),
+            Ok(_) | Err(ListenerWaitError::InterruptSignal) => {}
+            Err(e) => return Err(transport("waiting for the response failed")(e)),
+        }
+        match &self.interrupt_check {
+            Some(check) if check() => Err(Error::Interrupted),
+            _ => Ok(()),
         }
     }
 

@@ -2,6 +2,7 @@
 against the truth, control requests, refusals as exceptions, the GIL released while waiting."""
 
 import math
+import os
 import signal
 import threading
 import time
@@ -211,6 +212,36 @@ def test_a_signal_handler_that_raises_ends_the_request_with_its_exception(client
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
+    # The same client serves the next request.
+    found = client.detect("parts", scene.object_ids, timeout=DETECTION_S)
+    assert len(found) == len(scene.truth)
+
+
+def test_a_signal_that_another_thread_takes_still_ends_the_request(daemon, client, camera, scene):
+    # A signal taken by another thread of the process, or while the waiting thread was busy
+    # between waits, interrupts no wait: the handler must still run within the wait. Here the
+    # waiting thread blocks the signal, so that the timer's thread takes it; the daemon is
+    # paused, so that the request would wait to its timeout.
+    def ring(*_):
+        raise Alarm("rang from another thread")
+
+    detect_when_subscribed(client, camera, scene.depth, [1])
+    previous = signal.signal(signal.SIGALRM, ring)
+    timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGALRM))
+    timer.start()  # before the mask: the thread keeps the signal unblocked
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGALRM})
+    daemon.process.send_signal(signal.SIGSTOP)
+    started = time.monotonic()
+    try:
+        with pytest.raises(Alarm):
+            client.detect("parts", [1], timeout=20.0)
+        waited = time.monotonic() - started
+    finally:
+        daemon.process.send_signal(signal.SIGCONT)
+        timer.join()
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGALRM})
+        signal.signal(signal.SIGALRM, previous)
+    assert waited < 5.0, waited
     # The same client serves the next request.
     found = client.detect("parts", scene.object_ids, timeout=DETECTION_S)
     assert len(found) == len(scene.truth)
