@@ -4,7 +4,7 @@ use numpy::{PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
 use ppfd_client::{monotonic_now_ns, Intrinsics};
 use pyo3::prelude::*;
 
-use crate::client::unsigned;
+use crate::client::{unsigned, unsigned_64, Whole};
 use crate::errors::{protocol_error, to_py};
 use crate::thread::ThreadBound;
 
@@ -24,24 +24,27 @@ impl CameraPublisher {
     /// `height` pixels with pinhole intrinsics in pixels; `depth_scale` is millimetres per raw
     /// depth unit (1.0 for a sensor that reports mm). `prefix` as `ppfd.Client`'s.
     #[new]
-    #[pyo3(signature = (name, width, height, fx, fy, cx, cy, depth_scale=1.0, *, prefix=None, camera_id=0))]
+    #[pyo3(
+        signature = (name, width, height, fx, fy, cx, cy, depth_scale=1.0, *, prefix=None, camera_id=Whole::of(0)),
+        text_signature = "(name, width, height, fx, fy, cx, cy, depth_scale=1.0, *, prefix=None, camera_id=0)"
+    )]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
         name: &str,
-        width: i64,
-        height: i64,
+        width: Whole,
+        height: Whole,
         fx: f32,
         fy: f32,
         cx: f32,
         cy: f32,
         depth_scale: f32,
         prefix: Option<String>,
-        camera_id: i64,
+        camera_id: Whole,
     ) -> PyResult<Self> {
-        let width = unsigned(py, "width", width)?;
-        let height = unsigned(py, "height", height)?;
-        let camera_id = unsigned(py, "camera_id", camera_id)?;
+        let width = unsigned(py, "width", &width)?;
+        let height = unsigned(py, "height", &height)?;
+        let camera_id = unsigned(py, "camera_id", &camera_id)?;
         let intrinsics = Intrinsics { fx, fy, cx, cy };
         let publisher = ppfd_client::CameraPublisher::new(
             prefix.as_deref(),
@@ -91,8 +94,11 @@ impl CameraPublisher {
         &mut self,
         py: Python<'_>,
         depth: &Bound<'_, PyAny>,
-        capture_time_ns: Option<u64>,
+        capture_time_ns: Option<Whole>,
     ) -> PyResult<u64> {
+        let capture_time_ns = capture_time_ns
+            .map(|t| unsigned_64(py, "capture_time_ns", &t))
+            .transpose()?;
         let expected = format!("uint16 array of shape ({}, {})", self.height, self.width);
         let array = depth.cast::<PyArrayDyn<u16>>().map_err(|_| {
             protocol_error(

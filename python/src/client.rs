@@ -12,9 +12,11 @@ use crate::errors::{protocol_error, shown, to_py};
 use crate::requirements::{poses as pose_list, RequirementArgs};
 use crate::thread::ThreadBound;
 
-/// A duration from seconds given in Python; `what` names the argument in the error.
+/// A duration from seconds given in Python; `what` names the argument in the error. A value
+/// above 0 stays above 0 (1e-10 s is 1 ns, not a zero the library would refuse as given 0).
+/// The library refuses a zero where it needs more, with its own message.
 pub fn seconds(py: Python<'_>, what: &str, value: f64) -> PyResult<Duration> {
-    Duration::try_from_secs_f64(value).map_err(|_| {
+    let duration = Duration::try_from_secs_f64(value).map_err(|_| {
         // `{:e}` keeps a huge value short (1e300 written out is 301 digits).
         let got = if value.is_finite() && value.abs() >= 1e9 {
             format!("{value:e}")
@@ -23,23 +25,105 @@ pub fn seconds(py: Python<'_>, what: &str, value: f64) -> PyResult<Duration> {
         };
         protocol_error(
             py,
-            format!("{what} must be a finite, non-negative number of seconds; got {got}"),
+            format!(
+                "{what} must be a number of seconds from 0 to {:.1e}; got {got}",
+                Duration::MAX.as_secs_f64()
+            ),
         )
+    })?;
+    Ok(if value > 0.0 {
+        duration.max(Duration::from_nanos(1))
+    } else {
+        duration
     })
 }
 
-/// A whole number from 0 to 2³²−1 given in Python; `what` names the argument in the error
-/// (pyo3's own conversion to `u32` raises an `OverflowError` that names none).
-pub fn unsigned(py: Python<'_>, what: &str, value: i64) -> PyResult<u32> {
-    u32::try_from(value).map_err(|_| {
-        protocol_error(
-            py,
-            format!(
-                "{what} must be a whole number from 0 to {}; got {value}",
-                u32::MAX
+/// A whole number as Python gives it (an `int`, or anything with `__index__`: numpy's
+/// integers, `bool`), however large: its value when it fits 64 bits unsigned, else its digits.
+/// Checked against its range by [`unsigned`] or [`unsigned_64`], which name the argument;
+/// pyo3's own conversions raise an `OverflowError` that names none.
+pub struct Whole {
+    value: Option<u64>,
+    digits: String,
+}
+
+impl Whole {
+    /// `n`, an argument's default.
+    pub const fn of(n: u64) -> Whole {
+        Whole {
+            value: Some(n),
+            digits: String::new(),
+        }
+    }
+
+    fn in_range(&self, py: Python<'_>, what: &str, max: u64) -> PyResult<u64> {
+        match self.value {
+            Some(n) if n <= max => Ok(n),
+            Some(n) => Err(out_of_range(py, what, max, &n.to_string())),
+            None => Err(out_of_range(py, what, max, &self.digits)),
+        }
+    }
+}
+
+fn out_of_range(py: Python<'_>, what: &str, max: u64, got: &str) -> PyErr {
+    // A number of many digits is shown by its length.
+    let got = if got.len() > 40 && got.bytes().all(|b| b.is_ascii_digit() || b == b'-') {
+        format!("a number of {} digits", got.trim_start_matches('-').len())
+    } else {
+        got.to_owned()
+    };
+    protocol_error(
+        py,
+        format!("{what} must be a whole number from 0 to {max}; got {got}"),
+    )
+}
+
+impl<'a, 'py> FromPyObject<'a, 'py> for Whole {
+    type Error = PyErr;
+
+    fn extract(obj: pyo3::Borrowed<'a, 'py, PyAny>) -> PyResult<Self> {
+        if let Ok(n) = obj.extract::<u64>() {
+            return Ok(Whole {
+                value: Some(n),
+                digits: String::new(),
+            });
+        }
+        // Not a whole number at all: the TypeError of Python's own conversion, which pyo3
+        // names the argument in.
+        let index = obj.call_method0("__index__").map_err(|_| {
+            pyo3::exceptions::PyTypeError::new_err(format!(
+                "'{}' object cannot be interpreted as an integer",
+                obj.get_type()
+                    .name()
+                    .map_or_else(|_| "?".into(), |n| n.to_string())
+            ))
+        })?;
+        // Python refuses to write out more than 4 300 digits: such a number is shown by its size.
+        let digits = match index.str() {
+            Ok(text) => text.to_string(),
+            Err(_) => format!(
+                "a number of {} bits",
+                index
+                    .call_method0("bit_length")
+                    .and_then(|b| b.extract::<u64>())
+                    .unwrap_or(0)
             ),
-        )
-    })
+        };
+        Ok(Whole {
+            value: None,
+            digits,
+        })
+    }
+}
+
+/// A whole number from 0 to 2³²−1 given in Python; `what` names the argument in the error.
+pub fn unsigned(py: Python<'_>, what: &str, value: &Whole) -> PyResult<u32> {
+    value.in_range(py, what, u32::MAX.into()).map(|n| n as u32)
+}
+
+/// A whole number from 0 to 2⁶⁴−1 given in Python; `what` names the argument in the error.
+pub fn unsigned_64(py: Python<'_>, what: &str, value: &Whole) -> PyResult<u64> {
+    value.in_range(py, what, u64::MAX)
 }
 
 /// The object ids of a request: each as [`unsigned`], named by its place in the list.
@@ -62,13 +146,13 @@ fn object_id_list(py: Python<'_>, value: &Bound<'_, PyAny>) -> PyResult<Vec<u32>
         .enumerate()
         .map(|(i, item)| {
             let item = item?;
-            let n = item.extract::<i64>().map_err(|_| {
+            let n = item.extract::<Whole>().map_err(|_| {
                 protocol_error(
                     py,
                     format!("object_ids[{i}] must be an object id; got {}", shown(&item)),
                 )
             })?;
-            unsigned(py, &format!("object_ids[{i}]"), n)
+            unsigned(py, &format!("object_ids[{i}]"), &n)
         })
         .collect()
 }
@@ -241,8 +325,8 @@ impl Detections {
     }
 
     /// The detections of one object, best first.
-    fn of(&self, py: Python<'_>, object_id: i64) -> PyResult<Vec<Py<Detection>>> {
-        let object_id = unsigned(py, "object_id", object_id)?;
+    fn of(&self, py: Python<'_>, object_id: Whole) -> PyResult<Vec<Py<Detection>>> {
+        let object_id = unsigned(py, "object_id", &object_id)?;
         Ok(self
             .detections
             .iter()
@@ -252,8 +336,8 @@ impl Detections {
     }
 
     /// The best-scored detection of one object, or None.
-    fn best(&self, py: Python<'_>, object_id: i64) -> PyResult<Option<Py<Detection>>> {
-        let object_id = unsigned(py, "object_id", object_id)?;
+    fn best(&self, py: Python<'_>, object_id: Whole) -> PyResult<Option<Py<Detection>>> {
+        let object_id = unsigned(py, "object_id", &object_id)?;
         Ok(self
             .detections
             .iter()
@@ -457,17 +541,19 @@ impl Client {
     /// says per object, after each stage, where the best candidate near its pose stands and at
     /// which stage it was lost; about twice the detection's time.
     #[pyo3(signature = (
-        camera, object_ids, hypotheses=1, timeout=None, *, max_frame_age=None, min_score=0.0,
+        camera, object_ids, hypotheses=Whole::of(1), timeout=None, *, max_frame_age=None, min_score=0.0,
         instance_distance=None, roi=None, max_tilt_deg=None, tilt_axis=None,
         tilt_direction=None, order="score", hints=None, diagnose=None
-    ))]
+    ), text_signature = "($self, camera, object_ids, hypotheses=1, timeout=None, *, \
+        max_frame_age=None, min_score=0.0, instance_distance=None, roi=None, max_tilt_deg=None, \
+        tilt_axis=None, tilt_direction=None, order=\"score\", hints=None, diagnose=None)")]
     #[allow(clippy::too_many_arguments)]
     fn detect(
         &self,
         py: Python<'_>,
         camera: &str,
         object_ids: &Bound<'_, PyAny>,
-        hypotheses: i64,
+        hypotheses: Whole,
         timeout: Option<f64>,
         max_frame_age: Option<f64>,
         min_score: f32,
@@ -481,7 +567,7 @@ impl Client {
         diagnose: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Detections> {
         let object_ids = object_id_list(py, object_ids)?;
-        let hypotheses = unsigned(py, "hypotheses", hypotheses)?;
+        let hypotheses = unsigned(py, "hypotheses", &hypotheses)?;
         let requirements = RequirementArgs {
             min_score,
             instance_distance,
@@ -556,15 +642,18 @@ impl Client {
     /// Loads a model file (`.ppfm`), or builds one from a PLY mesh, in the daemon; `path` as
     /// the daemon sees it; `object_id` 0 takes the id from the file; `timeout` in seconds
     /// (None: the client's `control_timeout`). Returns the model's dict.
-    #[pyo3(signature = (path, object_id=0, *, timeout=None))]
+    #[pyo3(
+        signature = (path, object_id=Whole::of(0), *, timeout=None),
+        text_signature = "($self, path, object_id=0, *, timeout=None)"
+    )]
     fn load_model<'py>(
         &self,
         py: Python<'py>,
         path: std::path::PathBuf,
-        object_id: i64,
+        object_id: Whole,
         timeout: Option<f64>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let object_id = unsigned(py, "object_id", object_id)?;
+        let object_id = unsigned(py, "object_id", &object_id)?;
         let path = path
             .to_str()
             .ok_or_else(|| protocol_error(py, format!("model path {path:?} is not valid UTF-8")))?;
@@ -582,8 +671,8 @@ impl Client {
     }
 
     /// Drops a model from the daemon.
-    fn drop_model(&self, py: Python<'_>, object_id: i64) -> PyResult<()> {
-        let object_id = unsigned(py, "object_id", object_id)?;
+    fn drop_model(&self, py: Python<'_>, object_id: Whole) -> PyResult<()> {
+        let object_id = unsigned(py, "object_id", &object_id)?;
         let client = &self.inner;
         py.detach(|| client.get().map(|c| c.drop_model(object_id)))?
             .map_err(|e| to_py(py, e))

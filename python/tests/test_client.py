@@ -39,9 +39,10 @@ def test_no_daemon_raises_no_daemon_naming_the_prefix(prefix):
         (("parts", [1]), {"hypotheses": 0}, "0"),
         (("parts", [1]), {"hypotheses": 17}, "17"),
         (("bad name", [1]), {}, "bad name"),
-        (("parts", [1]), {"timeout": -1.0}, "timeout must be a finite, non-negative number of seconds; got -1"),
-        (("parts", [1]), {"timeout": 1e300}, "number of seconds; got 1e300"),
-        (("parts", [1]), {"timeout": float("nan")}, "timeout must be a finite, non-negative number of seconds; got NaN"),
+        (("parts", [1]), {"timeout": -1.0}, "timeout must be a number of seconds from 0 to 1.8e19; got -1"),
+        (("parts", [1]), {"timeout": 1e300}, "number of seconds from 0 to 1.8e19; got 1e300"),
+        (("parts", [1]), {"timeout": 1e30}, "number of seconds from 0 to 1.8e19; got 1e30"),
+        (("parts", [1]), {"timeout": float("nan")}, "timeout must be a number of seconds from 0 to 1.8e19; got NaN"),
         (("parts", [1]), {"timeout": 0.0}, "timeout 0 s is out of range"),
         (("parts", [1]), {"max_frame_age": -0.5}, "max_frame_age must be"),
         (("parts", [1]), {"max_frame_age": 0.0}, "maximum frame age 0 s is out of range"),
@@ -49,6 +50,11 @@ def test_no_daemon_raises_no_daemon_naming_the_prefix(prefix):
         (("parts", [2**32]), {}, "object_ids[0] must be a whole number"),
         (("parts", "15"), {}, "object_ids must be a list of object ids; got '15'"),
         (("parts", [1]), {"hypotheses": -1}, "hypotheses must be a whole number"),
+        # However large: a Python int has no 64-bit bound to overflow.
+        (("parts", [1]), {"hypotheses": 2**63}, "hypotheses must be a whole number from 0 to 4294967295; got 9223372036854775808"),
+        (("parts", [2**100]), {}, "object_ids[0] must be a whole number from 0 to 4294967295; got 1267650600228229401496703205376"),
+        (("parts", [10**5000]), {}, "object_ids[0] must be a whole number from 0 to 4294967295; got a number of 16610 bits"),
+        (("parts", [1]), {"hypotheses": np.int64(-2)}, "hypotheses must be a whole number from 0 to 4294967295; got -2"),
     ],
 )
 def test_a_malformed_request_is_a_value_error_before_it_is_sent(prefix, args, options, says):
@@ -297,3 +303,23 @@ for make in (lambda: ppfd.Client(), lambda: ppfd.CameraPublisher("cam", 64, 48, 
     assert len(lines) == 2 and all(
         line.startswith("PPFD_PREFIX: prefix name \"cell1\" must end with '_'") for line in lines
     ), out.stdout
+
+
+def test_whole_numbers_of_any_size_name_their_argument(prefix):
+    client = ppfd.Client(prefix=prefix)
+    with pytest.raises(ppfd.ProtocolError, match="object_id must be a whole number from 0 to 4294967295; got 9223372036854775808"):
+        client.drop_model(2**63)
+    with pytest.raises(ppfd.ProtocolError, match="object_id must be a whole number"):
+        client.load_model("/m/obj_000001.ply", -(2**70))
+    with pytest.raises(ppfd.ProtocolError, match="width must be a whole number from 0 to 4294967295; got 9223372036854775808"):
+        ppfd.CameraPublisher("wide", 2**63, 48, 60.0, 60.0, 32.0, 24.0, prefix=prefix)
+    camera = ppfd.CameraPublisher("whole", 64, 48, 60.0, 60.0, 32.0, 24.0, prefix=prefix)
+    depth = np.zeros((48, 64), np.uint16)
+    with pytest.raises(ppfd.ProtocolError, match="capture_time_ns must be a whole number from 0 to 18446744073709551615; got -1"):
+        camera.publish(depth, -1)
+    assert camera.publish(depth, np.uint64(5)) == 1
+    # Not a number at all: Python's TypeError, as for its own int conversions.
+    with pytest.raises(TypeError):
+        client.detect("parts", [1], hypotheses="3")
+    camera.close()
+    del client
