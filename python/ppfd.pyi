@@ -144,7 +144,8 @@ class Detection:
     def object_id(self) -> int: ...
     @property
     def rank(self) -> int:
-        """0 for the best hypothesis of this object, 1 for the next, ..."""
+        """0 for the first hypothesis of this object in the request's order (the best, or
+        with `order="distance"` the nearest), 1 for the next, ..."""
     @property
     def score(self) -> float:
         """Score after the last stage the hypothesis passed, 0 to 1."""
@@ -159,8 +160,8 @@ class Detection:
         millimetres."""
 
 class Detections(Sequence[Detection]):
-    """The answer to a detect request: the detections grouped by object in request order, best
-    first within an object."""
+    """The answer to a detect request: the detections grouped by object in request order, and
+    within an object in the request's order (best or nearest first)."""
 
     @property
     def latency(self) -> Latency: ...
@@ -184,12 +185,13 @@ class Detections(Sequence[Detection]):
     @overload
     def __getitem__(self, index: slice) -> list[Detection]: ...
     def __iter__(self) -> Iterator[Detection]: ...
-    def index(self, detection: Detection) -> int:  # type: ignore[override]
-        """The position of `detection` (the object indexing returns)."""
+    def index(self, detection: Detection, start: int = 0, stop: Optional[int] = None) -> int:  # type: ignore[override]
+        """The position of `detection` (the object indexing returns), from `start` up to
+        `stop` as a list's `index`."""
     def count(self, detection: Detection) -> int:  # type: ignore[override]
         """How many times `detection` occurs: 0 or 1."""
     def of(self, object_id: int) -> list[Detection]:
-        """The detections of one object, best first."""
+        """The detections of one object, in the request's order (best or nearest first)."""
     def best(self, object_id: int) -> Optional[Detection]:
         """The best-scored detection of one object, or None."""
 

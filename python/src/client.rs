@@ -178,7 +178,8 @@ impl Detection {
         self.hypothesis.object_id
     }
 
-    /// 0 for the best hypothesis of this object, 1 for the next, ...
+    /// 0 for the first hypothesis of this object in the request's order (the best, or with
+    /// `order="distance"` the nearest), 1 for the next, ...
     #[getter]
     fn rank(&self) -> u32 {
         self.hypothesis.instance_rank
@@ -257,7 +258,8 @@ impl Checks {
 }
 
 /// The answer to a detect request: a sequence of `Detection`, grouped by object in request
-/// order and best first within an object, with the latency breakdown and the work's sizes.
+/// order and within an object in the request's order (best or nearest first), with the
+/// latency breakdown and the work's sizes.
 #[pyclass(module = "ppfd", frozen, sequence)]
 pub struct Detections {
     detections: Vec<Py<Detection>>,
@@ -307,12 +309,22 @@ impl Detections {
         Ok(self.detections[i as usize].clone_ref(py).into_any())
     }
 
-    /// The position of `detection` (the same object, as indexing returns it), as a sequence's
-    /// `index`.
-    fn index(&self, detection: &Bound<'_, PyAny>) -> PyResult<usize> {
+    /// The position of `detection` (the same object, as indexing returns it) from `start` up to
+    /// `stop` (negative: from the end, as a slice's), as a sequence's `index`.
+    #[pyo3(signature = (detection, start=0, stop=None))]
+    fn index(
+        &self,
+        detection: &Bound<'_, PyAny>,
+        start: isize,
+        stop: Option<isize>,
+    ) -> PyResult<usize> {
+        let len = self.detections.len() as isize;
+        let bound = |i: isize| (if i < 0 { i + len } else { i }).clamp(0, len) as usize;
+        let (start, stop) = (bound(start), bound(stop.unwrap_or(len)));
         self.detections
-            .iter()
-            .position(|d| d.as_ptr() == detection.as_ptr())
+            .get(start..stop.max(start))
+            .and_then(|part| part.iter().position(|d| d.as_ptr() == detection.as_ptr()))
+            .map(|i| start + i)
             .ok_or_else(|| pyo3::exceptions::PyValueError::new_err("not among these detections"))
     }
 
@@ -324,7 +336,7 @@ impl Detections {
             .count()
     }
 
-    /// The detections of one object, best first.
+    /// The detections of one object, in the request's order (best or nearest first).
     fn of(&self, py: Python<'_>, object_id: Whole) -> PyResult<Vec<Py<Detection>>> {
         let object_id = unsigned(py, "object_id", &object_id)?;
         Ok(self

@@ -81,6 +81,14 @@ def test_detections_are_a_sequence_grouped_by_object(client, camera, scene):
     assert found.index(found[1]) == 1 and found.count(found[0]) == 1
     with pytest.raises(ValueError):
         found.index(object())
+    # `index` takes a list's bounds, negative ones from the end.
+    last = len(found) - 1
+    assert found.index(found[last], 1) == last and found.index(found[last], -1) == last
+    assert found.index(found[0], 0, 1) == 0
+    with pytest.raises(ValueError):
+        found.index(found[0], 1)
+    with pytest.raises(ValueError):
+        found.index(found[last], 0, -1)
 
 
 def test_a_strided_array_publishes_the_same_frame(client, camera, scene):
