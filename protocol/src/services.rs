@@ -217,7 +217,7 @@ pub fn check_camera_name(name: &str) -> Result<(), ProtocolError> {
     match reason {
         Some(reason) => Err(ProtocolError::InvalidName {
             field: "camera",
-            name: name.escape_debug().to_string(),
+            name: name.to_owned(),
             reason,
         }),
         None => Ok(()),
@@ -438,7 +438,7 @@ pub fn check_prefix(prefix: &str) -> Result<(), ProtocolError> {
     };
     Err(ProtocolError::InvalidName {
         field: "prefix",
-        name: prefix.escape_debug().to_string(),
+        name: prefix.to_owned(),
         reason,
     })
 }

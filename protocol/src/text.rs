@@ -20,7 +20,7 @@ pub fn encode_name<const N: usize>(
     if bytes.contains(&0) {
         return Err(ProtocolError::InvalidName {
             field,
-            name: name.escape_debug().to_string(),
+            name: name.to_owned(),
             reason: "contains a NUL byte",
         });
     }
@@ -83,7 +83,9 @@ mod tests {
         assert!(encode_name::<8>("camera", "1234567").is_ok());
         let e = encode_name::<8>("camera", "12345678").unwrap_err();
         assert!(e.to_string().contains("at most 7 bytes"), "{e}");
-        assert!(encode_name::<8>("camera", "a\0b").is_err());
+        // The name is quoted as Rust writes a string, once: a NUL shows as `\0`.
+        let e = encode_name::<8>("camera", "a\0b").unwrap_err();
+        assert_eq!(e.to_string(), r#"camera name "a\0b" contains a NUL byte"#);
     }
 
     #[test]

@@ -152,6 +152,9 @@ pub fn poses<'py>(
         if !(rows.len() == 3 || rows.len() == 4) || rows.iter().any(|r| r.len() != 4) {
             return Err(wrong(": the pose must have 4 columns and 3 or 4 rows"));
         }
+        if rows.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(wrong(": the pose's numbers must be finite"));
+        }
         if rows.len() == 4 && rows[3] != [0.0, 0.0, 0.0, 1.0] {
             return Err(wrong(": the pose's last row must be (0, 0, 0, 1)"));
         }

@@ -55,6 +55,8 @@ def test_no_daemon_raises_no_daemon_naming_the_prefix(prefix):
         (("parts", [2**100]), {}, "object_ids[0] must be a whole number from 0 to 4294967295; got 1267650600228229401496703205376"),
         (("parts", [10**5000]), {}, "object_ids[0] must be a whole number from 0 to 4294967295; got a number of 16610 bits"),
         (("parts", [1]), {"hypotheses": np.int64(-2)}, "hypotheses must be a whole number from 0 to 4294967295; got -2"),
+        (("parts", [1]), {"hints": [(1, np.full((4, 4), np.nan))]}, "the pose's numbers must be finite"),
+        (("bad\0name", [1]), {}, 'camera name "bad\\0name" may hold only'),
     ],
 )
 def test_a_malformed_request_is_a_value_error_before_it_is_sent(prefix, args, options, says):
