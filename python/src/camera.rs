@@ -70,8 +70,10 @@ impl CameraPublisher {
         self.inner.close()
     }
 
-    fn __enter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
-        slf
+    /// Refused, as every use is, once closed or on another thread.
+    fn __enter__(slf: PyRef<'_, Self>) -> PyResult<PyRef<'_, Self>> {
+        slf.inner.get()?;
+        Ok(slf)
     }
 
     /// Closes the camera at the end of a `with` block.
@@ -154,14 +156,16 @@ impl CameraPublisher {
 
     /// Image width, pixels.
     #[getter]
-    fn width(&self) -> u32 {
-        self.width
+    fn width(&self) -> PyResult<u32> {
+        self.inner.get()?;
+        Ok(self.width)
     }
 
     /// Image height, pixels.
     #[getter]
-    fn height(&self) -> u32 {
-        self.height
+    fn height(&self) -> PyResult<u32> {
+        self.inner.get()?;
+        Ok(self.height)
     }
 }
 

@@ -511,8 +511,10 @@ impl Client {
         self.inner.close()
     }
 
-    fn __enter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
-        slf
+    /// Refused, as every use is, once closed or on another thread.
+    fn __enter__(slf: PyRef<'_, Self>) -> PyResult<PyRef<'_, Self>> {
+        slf.inner.get()?;
+        Ok(slf)
     }
 
     /// Closes the client at the end of a `with` block.

@@ -270,6 +270,15 @@ def test_a_client_and_a_camera_close_and_refuse_use_after(prefix):
         camera.publish(np.zeros((48, 64), np.uint16))
     with pytest.raises(ValueError, match="closed"):
         camera.idle(0.01)
+    # A with-block and the frame's size are uses too.
+    with pytest.raises(ValueError, match="closed"):
+        camera.width
+    with pytest.raises(ValueError, match="closed"):
+        with camera:
+            pass
+    with pytest.raises(ValueError, match="the ppfd.Client is closed"):
+        with client:
+            pass
     camera.close()
 
 
