@@ -928,9 +928,11 @@ fn frames_beyond_the_pixel_limit_are_refused_naming_the_limit() {
     let prefix = Prefix::new("bigframe");
     let models = fake_model_dir("bigframe", &[1]);
     let mut d = daemon(&prefix, &models, &[], "0");
-    let _huge = camera(&prefix, "huge", &["--fps", "2", "--size", "8000x6000"]);
+    let mut huge = camera(&prefix, "huge", &["--fps", "2", "--size", "8000x6000"]);
     let _vga = camera(&prefix, "vga", &["--fps", "50"]);
-    std::thread::sleep(Duration::from_millis(500));
+    // A 48-megapixel frame takes a while to make on a loaded host: wait for the second, which
+    // comes after the daemon's housekeeping has found the camera and subscribed.
+    huge.wait_line("frame 2", STARTUP);
     let client = connect(&prefix);
     let opts = DetectOptions::default();
     let (status, _, message) = refusal(client.detect("huge", &[1], &opts));
