@@ -1101,13 +1101,44 @@ fn open_depth_png(path: &Path) -> Result<std::fs::File> {
         })
 }
 
-/// The width and height a depth PNG's header gives, without decoding it.
+/// The most pixels a depth image may have: 4096 × 4096, the daemon's default frame limit
+/// (`ppfd --max-frame-pixels`). No depth sensor comes near it, and a larger image would take
+/// gigabytes to prepare before any error could be said.
+pub const MAX_DEPTH_PIXELS: u64 = 4096 * 4096;
+
+/// Refuses a depth PNG whose header gives another format than 16-bit grayscale, or more than
+/// [`MAX_DEPTH_PIXELS`]: said from the header, before anything is decoded.
+fn check_depth_header(path: &Path, info: &png::Info<'_>) -> Result<()> {
+    let (color, bit_depth) = (info.color_type, info.bit_depth);
+    if color != png::ColorType::Grayscale || bit_depth != png::BitDepth::Sixteen {
+        return Err(dataset_error(
+            path,
+            format!("depth PNG is {color:?} {bit_depth:?}, expected 16-bit grayscale"),
+        ));
+    }
+    let pixels = u64::from(info.width) * u64::from(info.height);
+    if pixels > MAX_DEPTH_PIXELS {
+        return Err(dataset_error(
+            path,
+            format!(
+                "depth PNG is {}x{}, {pixels} pixels, more than the {MAX_DEPTH_PIXELS} \
+                 (4096x4096) a frame may have",
+                info.width, info.height
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// The width and height a depth PNG's header gives, without decoding it; its format and size
+/// checked ([`check_depth_header`]).
 fn depth_png_size(path: &Path) -> Result<(u32, u32)> {
     let file = open_depth_png(path)?;
     let info = png::Decoder::new(BufReader::new(file))
         .read_info()
         .map_err(|e| dataset_error(path, format!("not a readable PNG: {e}")))?;
     let info = info.info();
+    check_depth_header(path, info)?;
     Ok((info.width, info.height))
 }
 
@@ -1119,13 +1150,8 @@ fn read_depth_png(path: &Path) -> Result<(u32, u32, Vec<u16>)> {
     let mut decoder = png::Decoder::new(BufReader::new(file));
     decoder.set_transformations(png::Transformations::IDENTITY);
     let mut reader = decoder.read_info().map_err(bad)?;
-    let (color, bit_depth) = reader.output_color_type();
-    if color != png::ColorType::Grayscale || bit_depth != png::BitDepth::Sixteen {
-        return Err(dataset_error(
-            path,
-            format!("depth PNG is {color:?} {bit_depth:?}, expected 16-bit grayscale"),
-        ));
-    }
+    // With no transformations, the output is as the header says.
+    check_depth_header(path, reader.info())?;
     let size = reader
         .output_buffer_size()
         .ok_or_else(|| dataset_error(path, "PNG too large"))?;
@@ -1529,6 +1555,12 @@ mod tests {
             "000000.png",
             &["expected 16-bit grayscale"],
         );
+        // Said by the check before any work too, from the header.
+        expect_dataset_error(
+            data.check_image(1, 0),
+            "000000.png",
+            &["Grayscale Eight", "expected 16-bit grayscale"],
+        );
         std::fs::write(
             dir.0.join("test/000001/depth/000000.png"),
             b"\x89PNG\r\n\x1a\ntruncated",
@@ -1539,6 +1571,33 @@ mod tests {
             "000000.png",
             &["not a readable PNG"],
         );
+    }
+
+    /// A depth image larger than any frame may be is refused from its header, before its
+    /// gigabytes would be decoded and prepared.
+    #[test]
+    fn depth_png_beyond_the_pixel_limit_is_refused_from_its_header() {
+        let dir = tiny_dataset();
+        let (width, height) = (4097u32, 4097u32);
+        let zeros = vec![0u8; (width * height * 2) as usize];
+        write_png(
+            &dir.0.join("test/000001/depth/000000.png"),
+            width,
+            height,
+            png::BitDepth::Sixteen,
+            &zeros,
+        );
+        let data = BopDataset::open(&dir.0).unwrap();
+        for refused in [
+            data.check_image(1, 0).map(|_| ()),
+            data.depth_frame(1, 0).map(|_| ()),
+        ] {
+            expect_dataset_error(
+                refused,
+                "000000.png",
+                &["4097x4097", "16785409 pixels", "4096x4096"],
+            );
+        }
     }
 
     #[test]

@@ -165,7 +165,7 @@ settings! {
     "rescoring.coarse_outline_px" => rescoring.coarse_outline_px in 0..=100000;
     "rescoring.residual_scale_mm" => rescoring.residual_scale_mm in 0.001..=1000.0;
     "rescoring.residual_weight" => rescoring.residual_weight in 0.0..=100.0;
-    "icp.top_poses" => icp.top_poses in 0..=100000;
+    "icp.top_poses" => icp.top_poses in 1..=100000;
     "icp.iterations" => icp.iterations in 0..=1000;
     "icp.initial_distance_fraction" => icp.initial_distance_fraction in 0.0..=1.0;
     "icp.final_distance_fraction" => icp.final_distance_fraction in 0.0..=1.0;
@@ -359,6 +359,8 @@ mod tests {
             ("voting.reference_step", "0", "outside 1..=1000"),
             ("filters.min_silhouette_fraction", "1.5", "outside 0..=1"),
             ("clustering.rotation_deg", "-5", "outside"),
+            // No pose refined is no pose answered.
+            ("icp.top_poses", "0", "outside 1..=100000"),
         ];
         for (key, value, said) in refused {
             let e = p.set(key, value).unwrap_err();
