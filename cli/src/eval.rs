@@ -99,6 +99,22 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
         };
         wanted_per_image.push(wanted);
     }
+    // The models of every object an image asks for: one its ground truth names that
+    // models_info.json does not list is detected too, not left out without a word.
+    let mut ids = ids;
+    ids.extend(wanted_per_image.iter().flatten());
+    ids.sort_unstable();
+    ids.dedup();
+    // Scoring reads the models_info.json entry (diameter, symmetries) of each object the
+    // ground truth names, when the file is there: one missing is said now, not after every
+    // detection.
+    if !args.no_score && dataset.has_models_info() {
+        for &(scene, im) in &images {
+            for g in dataset.ground_truth_if_any(scene, im)?.unwrap_or_default() {
+                dataset.model_info(g.obj_id)?;
+            }
+        }
+    }
     // Parameters before models: a mistyped name fails at once, not after the builds.
     let mut params = ppfd_models::detect::detector::DetectParams::new();
     for kv in &args.set {

@@ -115,3 +115,69 @@ fn one_scene_is_scored_against_its_own_targets() {
         "{stdout}"
     );
 }
+
+/// An object the ground truth names but `models_info.json` does not list is detected too, not
+/// left out without a word; and since scoring needs its entry, a scored run says so before any
+/// detection. A copy of the LM-O frame's dataset (links to its files) with object 12's entry
+/// taken out of `models_info.json`.
+#[test]
+fn an_object_missing_from_models_info_is_detected_and_named_before_scoring() {
+    let Some(dataset) = shared_test_data("lmo") else {
+        return;
+    };
+    let dir = std::env::temp_dir().join(format!("ppf-eval-noinfo-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let copy = dir.join("lmo");
+    std::fs::create_dir_all(copy.join("models")).unwrap();
+    for entry in std::fs::read_dir(&dataset).unwrap() {
+        let path = entry.unwrap().path();
+        if path.file_name().unwrap() != "models" {
+            std::os::unix::fs::symlink(&path, copy.join(path.file_name().unwrap())).unwrap();
+        }
+    }
+    for entry in std::fs::read_dir(dataset.join("models")).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap();
+        if name == "models_info.json" {
+            let mut info: serde_json::Map<String, serde_json::Value> =
+                serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+            assert!(info.remove("12").is_some());
+            let text = serde_json::to_string(&info).unwrap();
+            std::fs::write(copy.join("models").join(name), text).unwrap();
+        } else {
+            std::os::unix::fs::symlink(&path, copy.join("models").join(name)).unwrap();
+        }
+    }
+    let eval = |out: &str, extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_ppf"))
+            .arg("eval")
+            .arg(&copy)
+            .arg("--out")
+            .arg(dir.join(out))
+            .args(extra)
+            .env("PPFD_CACHE", dir.join("cache"))
+            .output()
+            .unwrap()
+    };
+    let scored = eval("scored.csv", &[]);
+    let stderr = String::from_utf8_lossy(&scored.stderr);
+    assert!(!scored.status.success());
+    assert!(stderr.contains("no entry for object 12"), "{stderr}");
+    assert!(
+        !stderr.contains("estimates"),
+        "nothing was detected: {stderr}"
+    );
+
+    let run = eval("detected.csv", &["--no-score"]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}");
+    let rows = std::fs::read_to_string(dir.join("detected.csv")).unwrap();
+    let objects: std::collections::BTreeSet<&str> = rows
+        .lines()
+        .skip(1)
+        .map(|line| line.split(',').nth(2).unwrap())
+        .collect();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert_eq!(objects.len(), 8, "{objects:?}");
+    assert!(objects.contains("12"), "{objects:?}");
+}
