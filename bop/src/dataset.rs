@@ -618,16 +618,20 @@ fn list_scenes(split_dir: &Path) -> Result<BTreeMap<u32, Scene>> {
     Ok(scenes)
 }
 
+/// The object id of a mesh file named as BOP names them (`obj_000005.ply`: 5).
+pub fn object_id_of_mesh(file_name: &str) -> Option<u32> {
+    file_name
+        .strip_prefix("obj_")?
+        .strip_suffix(".ply")?
+        .parse()
+        .ok()
+}
+
 /// The ids of `obj_XXXXXX.ply` files in a models folder, ascending.
 fn model_ids_in(dir: &Path) -> Result<Vec<u32>> {
     let mut ids: Vec<u32> = read_dir_names(dir)?
         .iter()
-        .filter_map(|name| {
-            name.strip_prefix("obj_")?
-                .strip_suffix(".ply")?
-                .parse()
-                .ok()
-        })
+        .filter_map(|name| object_id_of_mesh(name))
         .collect();
     ids.sort_unstable();
     Ok(ids)

@@ -25,7 +25,9 @@ use serde_json::json;
 
 #[derive(Args, Debug)]
 pub struct GenerateArgs {
-    /// Folder to write the dataset into (created; files of the same names are replaced).
+    /// Folder to write the dataset into (created; files of the same names are replaced, and a
+    /// models folder holding other objects' meshes or a models_info.json this run does not
+    /// write is refused).
     pub out: PathBuf,
     /// Seed of the generated scene (`ppf demo --seed`).
     #[arg(long, default_value_t = 1)]
@@ -175,6 +177,35 @@ fn write_dataset(
     )
 }
 
+/// Refuses an `out` whose `models` folder holds meshes of other objects, or a
+/// `models_info.json` this run does not write: a reader of the dataset would take them for its
+/// own (an earlier `--models` run's objects, asked for and never placed). Files this run writes
+/// are replaced.
+fn refuse_strangers(out: &Path, ids: &[u32], writes_info: bool) -> Result<(), String> {
+    let dir = out.join("models");
+    let Ok(entries) = std::fs::read_dir(&dir) else {
+        return Ok(());
+    };
+    let mut strangers: Vec<String> = entries
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|name| match name.as_str() {
+            "models_info.json" => !writes_info,
+            _ => ppfd_bop::dataset::object_id_of_mesh(name).is_some_and(|id| !ids.contains(&id)),
+        })
+        .collect();
+    if strangers.is_empty() {
+        return Ok(());
+    }
+    strangers.sort();
+    Err(format!(
+        "{} holds {} that this scene does not write, which would be read as part of it: give a \
+         new or empty folder, or remove them",
+        dir.display(),
+        strangers.join(", ")
+    ))
+}
+
 pub fn run(args: GenerateArgs) -> Result<(), String> {
     let meshes: Vec<(u32, Mesh)> = match &args.models {
         Some(dir) => read_meshes(dir, &args.objects)?,
@@ -189,6 +220,7 @@ pub fn run(args: GenerateArgs) -> Result<(), String> {
         Some(dir) => models_info_for(dir, &ids)?,
         None => None,
     };
+    refuse_strangers(&args.out, &ids, info.is_some())?;
     let refs: Vec<(u32, &Mesh)> = meshes.iter().map(|(id, m)| (*id, m)).collect();
     let noise = (!args.no_noise).then(NoiseModel::kinect);
     let scene = SyntheticScene::resting(args.seed, noise, args.clutter as usize, &refs)
@@ -346,6 +378,44 @@ mod tests {
             "4 pieces of clutter changed only {changed} pixels (near: {} against {})",
             near(&cluttered),
             near(&plain)
+        );
+    }
+
+    /// Generating over an earlier run's folder replaces what it writes, but refuses a folder
+    /// whose models the scene would not replace (another run's objects, or a models_info.json
+    /// it does not write), which a reader would take for the scene's; nothing is written then.
+    #[test]
+    fn a_folder_holding_other_objects_is_refused() {
+        let dir = crate::common::ScratchDir::create("ppf-generate-over").unwrap();
+        let source = mesh_folder(dir.path());
+        let out = dir.path().join("out");
+        let with_models = || GenerateArgs {
+            models: Some(source.clone()),
+            objects: vec![3],
+            ..args(&out, 2)
+        };
+        run(with_models()).unwrap();
+        run(with_models()).unwrap();
+        let depth = out.join("test/000000/depth/000000.png");
+        let before = std::fs::read(&depth).unwrap();
+        let e = run(args(&out, 5)).unwrap_err();
+        assert!(
+            e.contains("models_info.json") && !e.contains("obj_000003.ply"),
+            "object 3 is a part the scene writes too: {e}"
+        );
+        assert_eq!(std::fs::read(&depth).unwrap(), before, "nothing written");
+        std::fs::remove_file(out.join("models/models_info.json")).unwrap();
+        run(args(&out, 5)).unwrap();
+        let e = run(GenerateArgs {
+            models: Some(source.clone()),
+            objects: vec![4],
+            ..args(&out, 2)
+        })
+        .unwrap_err();
+        assert!(
+            e.contains("obj_000001.ply, obj_000002.ply, obj_000003.ply")
+                && e.contains("remove them"),
+            "{e}"
         );
     }
 
