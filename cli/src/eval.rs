@@ -122,19 +122,19 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
     }
     params.check()?;
     // Refuse an unwritable results file now rather than after the detections, without
-    // truncating one that is there: until the first image's results it keeps what it had, and
-    // a file this run created is removed again if the models fail to load.
+    // truncating one that is there: it keeps what it had until the results are written, and a
+    // file made only to try is removed at once, so that a run stopped on the way (Ctrl-C)
+    // leaves no empty results file, which would score as a detector that found nothing.
     let existed = args.out.exists();
     std::fs::OpenOptions::new()
         .append(true)
         .create(true)
         .open(&args.out)
         .map_err(|e| format!("{}: {e}", args.out.display()))?;
-    let models = dataset_models(&dataset, &ids).inspect_err(|_| {
-        if !existed {
-            let _ = std::fs::remove_file(&args.out);
-        }
-    })?;
+    if !existed {
+        let _ = std::fs::remove_file(&args.out);
+    }
+    let models = dataset_models(&dataset, &ids)?;
     let detector = Detector::new(params);
     let opts = RunOptions {
         hypotheses_per_object: args.hypotheses as usize,

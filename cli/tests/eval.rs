@@ -181,3 +181,35 @@ fn an_object_missing_from_models_info_is_detected_and_named_before_scoring() {
     assert_eq!(objects.len(), 8, "{objects:?}");
     assert!(objects.contains("12"), "{objects:?}");
 }
+
+/// A run stopped on the way (Ctrl-C) leaves no empty results file, which `ppf score` would
+/// take for a detector that found nothing. Reads `../shared/data/synth-lmo-dev` (40 images,
+/// several seconds), stopped after one.
+#[test]
+fn a_run_stopped_on_the_way_leaves_no_empty_results_file() {
+    let Some(dataset) = shared_test_data("synth-lmo-dev") else {
+        return;
+    };
+    let dir = std::env::temp_dir().join(format!("ppf-eval-stopped-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("results.csv");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ppf"))
+        .arg("eval")
+        .arg(&dataset)
+        .arg("--out")
+        .arg(&out)
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_secs(1));
+    // SAFETY: signals our own child, not yet reaped.
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    let status = child.wait().unwrap();
+    let left = out.exists();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(
+        !status.success(),
+        "the run ended before it was stopped: {status:?}"
+    );
+    assert!(!left, "an empty results file was left behind");
+}
