@@ -58,11 +58,7 @@ pub struct Objects(pub Vec<u32>);
 
 fn parse_objects(list: &str) -> Result<Objects, String> {
     list.split(',')
-        .map(|id| {
-            id.trim()
-                .parse::<u32>()
-                .map_err(|e| format!("object id {id:?}: {e}"))
-        })
+        .map(|id| crate::common::object_id(id.trim()).map_err(|e| format!("object id {id:?}: {e}")))
         .collect::<Result<Vec<u32>, String>>()
         .map(Objects)
 }

@@ -22,6 +22,16 @@ fn parse_prefix(s: &str) -> Result<String, String> {
     Ok(s.to_owned())
 }
 
+/// An object id as `--objects` takes it: a whole number from 1 (BOP's ids start at 1, and the
+/// protocol keeps 0 for none).
+pub fn object_id(s: &str) -> Result<u32, String> {
+    match s.parse::<u32>() {
+        Ok(0) => Err("object ids start at 1".into()),
+        Ok(id) => Ok(id),
+        Err(e) => Err(format!("not an object id: {e}")),
+    }
+}
+
 impl Connect {
     /// The prefix given, else the one of PPFD_PREFIX; a value of the variable that `ppfd` would
     /// refuse is refused with the variable's name, as `ppfd` refuses it.

@@ -24,7 +24,7 @@ pub struct DetectCommand {
     #[arg(long)]
     pub image: Option<u32>,
     /// Object ids, comma separated (with --dataset: default those in the image's ground truth).
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_delimiter = ',', value_parser = crate::common::object_id)]
     pub objects: Vec<u32>,
     /// Hypotheses per object, 1 to 16.
     #[arg(long, default_value_t = 1,

@@ -23,7 +23,7 @@ pub struct EvalArgs {
     pub scene: Option<u32>,
     /// Only these objects (comma separated); default: the objects of each image's ground truth,
     /// or every model when an image has none.
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_delimiter = ',', value_parser = crate::common::object_id)]
     pub objects: Vec<u32>,
     /// Hypotheses written per object and image, at least 1 (more than one only helps
     /// multi-instance targets).

@@ -41,7 +41,7 @@ pub struct GenerateArgs {
     pub models: Option<PathBuf>,
     /// With --models: only these object ids, comma separated (default: every mesh of the
     /// folder).
-    #[arg(long, value_delimiter = ',', requires = "models")]
+    #[arg(long, value_delimiter = ',', value_parser = crate::common::object_id, requires = "models")]
     pub objects: Vec<u32>,
     /// Random boxes and cylinders placed on the table around the objects, hiding parts of
     /// them (the generated scene of `ppf demo` has none).

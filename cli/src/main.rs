@@ -517,6 +517,50 @@ mod tests {
         Cli::try_parse_from(ok).unwrap();
     }
 
+    /// An object id of 0 is a usage error that says ids start at 1, in every command that takes
+    /// `--objects`.
+    #[test]
+    fn object_id_zero_is_a_usage_error() {
+        for args in [
+            &["ppf", "eval", "/d", "--objects", "1,0"][..],
+            &[
+                "ppf",
+                "detect",
+                "--dataset",
+                "/d",
+                "--scene",
+                "1",
+                "--image",
+                "1",
+                "--objects",
+                "0",
+            ],
+            &["ppf", "detect", "--camera", "k", "--objects", "0"],
+            &[
+                "ppf",
+                "profile",
+                "--dataset",
+                "/d",
+                "--scene",
+                "1",
+                "--image",
+                "1",
+                "--objects",
+                "0",
+            ],
+            &["ppf", "generate", "/o", "--models", "/m", "--objects", "0"],
+            &["ppf", "bench", "--camera", "k", "--objects", "5,0"],
+        ] {
+            let e = parse_cli(args).unwrap_err();
+            assert_eq!(e.exit_code(), 2, "{args:?}");
+            assert!(
+                e.to_string().contains("object ids start at 1"),
+                "{args:?}: {e}"
+            );
+        }
+        assert!(parse_cli(["ppf", "eval", "/d", "--objects", "1,5"]).is_ok());
+    }
+
     /// Bench counts of zero and a prefix the daemon would not take are usage errors (exit code
     /// 2), named before any connection is tried; so are fewer requests than clients.
     #[test]

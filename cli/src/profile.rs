@@ -26,7 +26,7 @@ pub struct ProfileArgs {
     #[arg(long)]
     pub image: u32,
     /// Object ids (comma separated); default: the image's ground truth.
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_delimiter = ',', value_parser = crate::common::object_id)]
     pub objects: Vec<u32>,
     /// Runs (at least 1); the table shows medians.
     #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..))]
