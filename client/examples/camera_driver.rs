@@ -25,7 +25,14 @@ fn main() -> std::process::ExitCode {
 fn run() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
     let camera = args.next().unwrap_or_else(|| "kinect".into());
-    let fps: f64 = args.next().and_then(|v| v.parse().ok()).unwrap_or(30.0);
+    let fps: f64 = match args.next() {
+        Some(v) => v
+            .parse()
+            .ok()
+            .filter(|f: &f64| f.is_finite() && *f > 0.0 && *f <= 1000.0)
+            .ok_or_else(|| format!("frames per second: {v:?} is not a number above 0 to 1000"))?,
+        None => 30.0,
+    };
     let (width, height) = (640u32, 480u32);
     // No prefix: PPFD_PREFIX's, as the daemon started in the same environment takes it.
     let mut publisher =

@@ -21,7 +21,9 @@ fn main() -> std::process::ExitCode {
 fn run() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
     let camera = args.next().unwrap_or_else(|| "kinect".into());
-    let objects: Vec<u32> = args.filter_map(|a| a.parse().ok()).collect();
+    let objects: Vec<u32> = args
+        .map(|a| a.parse().map_err(|_| format!("{a:?} is not an object id")))
+        .collect::<Result<_, _>>()?;
     let objects = if objects.is_empty() { vec![1] } else { objects };
 
     let client = Client::connect()?;
