@@ -306,6 +306,14 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         args.camera,
         objects_text(&args.objects)
     );
+    if all.is_empty() {
+        // Tables of zeros would read as measurements.
+        println!(
+            "{failed} failed, none served, so no latency figures: {}",
+            failures.summary()
+        );
+        return failures.outcome(0);
+    }
     if failed > 0 {
         println!(
             "{failed} failed, not in the figures below: {}",

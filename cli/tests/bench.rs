@@ -89,3 +89,29 @@ fn a_failed_warmup_ends_the_run() {
         "no figures for a run that never started"
     );
 }
+
+/// A run whose every request fails prints no latency table (a table of zeros would read as
+/// measurements), and says why.
+#[test]
+fn a_run_with_nothing_served_prints_no_figures() {
+    let scratch = Scratch::new("bench-none");
+    let mut served = ServedPart::start(&scratch, "bench_none", Part::TPipe, 5);
+    let mut command = Command::new(env!("CARGO_BIN_EXE_ppf"));
+    command
+        .args(["bench", "--prefix", &served.prefix, "--camera", "cam"])
+        .args(["--objects", UNKNOWN, "--requests", "3", "--warmup", "0"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    let out = served.publish_until_done(command.spawn().unwrap());
+    show(&command, &out);
+    assert_eq!(out.status.code(), Some(1));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("3 failed, none served, so no latency figures"),
+        "{stdout}"
+    );
+    assert!(
+        !stdout.contains("p50") && !stdout.contains("histogram"),
+        "{stdout}"
+    );
+}
