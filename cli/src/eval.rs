@@ -86,9 +86,13 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
     // Every image's files are checked before any work starts, and the objects each image
     // asks for come from its ground truth (every object where the scene has none).
     let mut wanted_per_image = Vec::with_capacity(images.len());
+    // Every object a ground truth names, whose models_info.json entry scoring reads.
+    let mut named = std::collections::BTreeSet::new();
     for &(scene, im) in &images {
         dataset.check_image(scene, im)?;
-        let wanted: Vec<u32> = match dataset.ground_truth_if_any(scene, im)? {
+        let gt = dataset.ground_truth_if_any(scene, im)?;
+        named.extend(gt.unwrap_or_default().iter().map(|g| g.obj_id));
+        let wanted: Vec<u32> = match gt {
             Some(gt) if args.objects.is_empty() && !gt.is_empty() => {
                 let mut v: Vec<u32> = gt.iter().map(|g| g.obj_id).collect();
                 v.sort_unstable();
@@ -109,10 +113,8 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
     // ground truth names, when the file is there: one missing is said now, not after every
     // detection.
     if !args.no_score && dataset.has_models_info() {
-        for &(scene, im) in &images {
-            for g in dataset.ground_truth_if_any(scene, im)?.unwrap_or_default() {
-                dataset.model_info(g.obj_id)?;
-            }
+        for &id in &named {
+            dataset.model_info(id)?;
         }
     }
     // Parameters before models: a mistyped name fails at once, not after the builds.

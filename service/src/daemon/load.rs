@@ -77,24 +77,12 @@ impl Daemon {
         self.next_job += 1;
         let engine = self.engine.clone();
         let check_path = path.clone();
-        let tx = self.loaded_tx.clone();
-        let signaller = self.signaller;
-        let spawned = std::thread::Builder::new()
-            .name("ppfd-check".into())
-            .spawn(move || {
-                block_termination_signals();
-                let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                    engine.check_load_path(&check_path)
-                }))
-                .unwrap_or_else(|_| {
-                    Err(EngineError::new(
-                        Status::Internal,
-                        "checking the file failed unexpectedly (panic)",
-                    ))
-                });
-                let _ = tx.send(LoadReport::Checked { job, result });
-                signaller.signal();
-            });
+        let spawned = self.spawn_reporting(
+            "ppfd-check",
+            "checking the file",
+            move || engine.check_load_path(&check_path),
+            move |result| LoadReport::Checked { job, result },
+        );
         if let Err(e) = spawned {
             let m = format!("cannot start checking the file: {e}");
             return self.control_answer(active, Status::Internal, &m, &[]);
@@ -108,6 +96,35 @@ impl Daemon {
                 object_id,
             },
         );
+    }
+
+    /// Runs `work` on a thread named `name`, off the I/O thread, and sends what `report` makes
+    /// of its result to the I/O thread, waking it. A panic in `work` is an internal error that
+    /// says what was `doing`; the thread takes no termination signal (the I/O thread reads them).
+    fn spawn_reporting<T: Send + 'static>(
+        &self,
+        name: &str,
+        doing: &'static str,
+        work: impl FnOnce() -> Result<T, EngineError> + Send + 'static,
+        report: impl FnOnce(Result<T, EngineError>) -> LoadReport + Send + 'static,
+    ) -> std::io::Result<()> {
+        let tx = self.loaded_tx.clone();
+        let signaller = self.signaller;
+        std::thread::Builder::new()
+            .name(name.into())
+            .spawn(move || {
+                block_termination_signals();
+                let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(work))
+                    .unwrap_or_else(|_| {
+                        Err(EngineError::new(
+                            Status::Internal,
+                            format!("{doing} failed unexpectedly (panic)"),
+                        ))
+                    });
+                let _ = tx.send(report(result));
+                signaller.signal();
+            })
+            .map(|_| ())
     }
 
     /// Loads not running yet: their files being checked, or waiting for their turn.
@@ -157,27 +174,17 @@ impl Daemon {
         };
         let engine = self.engine.clone();
         let cache = Some(self.config.model_cache_dir());
-        let tx = self.loaded_tx.clone();
-        let signaller = self.signaller;
         // Building a model from a mesh may take seconds: off the I/O thread and off the
         // detection workers.
-        let spawned = std::thread::Builder::new()
-            .name("ppfd-load".into())
-            .spawn(move || {
-                block_termination_signals();
-                let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                    engine.load(&path, object_id, cache.as_deref())
-                }))
-                .unwrap_or_else(|_| {
-                    Err(EngineError::new(
-                        Status::Internal,
-                        "loading failed unexpectedly (panic)",
-                    ))
-                });
+        let spawned = self.spawn_reporting(
+            "ppfd-load",
+            "loading",
+            move || engine.load(&path, object_id, cache.as_deref()),
+            move |result| {
                 release_freed_memory();
-                let _ = tx.send(LoadReport::Loaded { job, result });
-                signaller.signal();
-            });
+                LoadReport::Loaded { job, result }
+            },
+        );
         match spawned {
             Ok(_) => self.loading = Some(job),
             Err(e) => {
