@@ -4,6 +4,7 @@
 
 use std::rc::Rc;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::Sender;
 use std::sync::Arc;
 
 use iceoryx2::identifiers::UniqueClientId;
@@ -13,6 +14,7 @@ use ppfd_protocol::frame::FrameHeader;
 
 use crate::engine::{EngineError, EngineOptions, FrameView};
 use crate::responder::{DetectActive, Outcome, Served};
+use crate::wakeup::Signaller;
 
 use super::queue::Queued;
 use super::{Daemon, FrameSample};
@@ -54,8 +56,8 @@ pub(super) struct InFlight {
 
 /// A job's report, sent after its worker answered the request.
 pub(super) struct Completion {
-    job: u64,
-    outcome: Outcome,
+    pub(super) job: u64,
+    pub(super) outcome: Outcome,
 }
 
 impl Daemon {
@@ -190,6 +192,14 @@ impl Daemon {
         let started = Arc::new(AtomicBool::new(false));
         let started_flag = started.clone();
         self.pool.spawn(move || {
+            // First, so that it is dropped last: the completion goes out even if what follows
+            // panics, and the I/O thread then releases the frame and stops waiting for the job.
+            let mut report = Report {
+                job,
+                outcome: Outcome::Undelivered,
+                done,
+                signaller,
+            };
             let started_ns = monotonic_now_ns();
             started_flag.store(true, Ordering::Relaxed);
             let _span = tracing::debug_span!("detect", request = request_id).entered();
@@ -234,10 +244,7 @@ impl Daemon {
             };
             // Answered from here: the client does not wait for the I/O thread to wake up. The
             // request (and an inline frame in it) is released only after the answer.
-            let outcome = responder.answer(active, &served, result);
-            // The receiver lives as long as the daemon, which waits for every job.
-            let _ = done.send(Completion { job, outcome });
-            signaller.signal();
+            report.outcome = responder.answer(active, &served, result);
         });
         self.in_flight.insert(
             job,
@@ -255,6 +262,28 @@ impl Daemon {
     pub(super) fn finish(&mut self, c: Completion) {
         self.in_flight.remove(&c.job);
         self.count(c.outcome);
+    }
+}
+
+/// A job's completion, sent to the I/O thread when dropped: at the job's end, or while a panic
+/// unwinds it (iceoryx2 panics on some failures of its own). Until the job has answered, the
+/// outcome is [`Outcome::Undelivered`]: a job that panics before its answer is sent leaves its
+/// client without one.
+pub(super) struct Report {
+    pub(super) job: u64,
+    pub(super) outcome: Outcome,
+    pub(super) done: Sender<Completion>,
+    pub(super) signaller: Signaller,
+}
+
+impl Drop for Report {
+    fn drop(&mut self) {
+        // The receiver lives as long as the daemon, which waits for every job.
+        let _ = self.done.send(Completion {
+            job: self.job,
+            outcome: self.outcome,
+        });
+        self.signaller.signal();
     }
 }
 

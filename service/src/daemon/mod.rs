@@ -113,6 +113,29 @@ fn create_node(iox: &iceoryx2::config::Config) -> Result<Node<Ipc>> {
         })
 }
 
+/// The detection workers. A job that panics outside the engine (whose panics its job turns
+/// into an internal error) is logged and its worker goes on: rayon's default is to abort the
+/// process, which would take every model and running detection with it.
+fn worker_pool(threads: usize) -> Result<rayon::ThreadPool> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .thread_name(|i| format!("ppfd-worker-{i}"))
+        .start_handler(|_| block_termination_signals())
+        .panic_handler(|payload| {
+            let what = payload
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| payload.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "no message".to_owned());
+            tracing::error!(
+                panic = %what,
+                "a detection job panicked after its detection; its request is counted abandoned"
+            );
+        })
+        .build()
+        .map_err(resource("cannot start the worker pool"))
+}
+
 /// How many connections of dead clients the daemon's servers keep while the daemon still holds
 /// one of their requests (iceoryx2 panics beyond it). What the daemon holds of dead clients:
 /// queued requests (until the next housekeeping round drops them), running detections, and the
@@ -346,12 +369,7 @@ impl Daemon {
             .create()
             .map_err(resource("cannot notify on ppfd/responses"))?;
 
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(config.worker_threads())
-            .thread_name(|i| format!("ppfd-worker-{i}"))
-            .start_handler(|_| block_termination_signals())
-            .build()
-            .map_err(resource("cannot start the worker pool"))?;
+        let pool = worker_pool(config.worker_threads())?;
         let housekeeper = Housekeeper::start(
             node.config(),
             Duration::from_millis(config.housekeeping_ms),
@@ -447,6 +465,45 @@ impl Daemon {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A job that panics after its detection still reports (so its frame is released and a
+    /// stop does not wait for it), and the process and the worker live on.
+    #[test]
+    fn a_job_that_panics_reports_and_its_worker_goes_on() {
+        let wakeup = Wakeup::new().unwrap();
+        let signaller = wakeup.signaller();
+        let pool = worker_pool(1).unwrap();
+        let (done, finished) = channel();
+        let report = job::Report {
+            job: 7,
+            outcome: responder::Outcome::Refused,
+            done: done.clone(),
+            signaller,
+        };
+        pool.spawn(move || {
+            let _report = report;
+            panic!("a job made to panic by a test");
+        });
+        let c = finished.recv_timeout(Duration::from_secs(10)).unwrap();
+        assert_eq!((c.job, c.outcome), (7, responder::Outcome::Refused));
+        // The signal follows the completion.
+        let woken = Instant::now();
+        while !wakeup.drain() {
+            assert!(
+                woken.elapsed() < Duration::from_secs(10),
+                "the I/O thread is not woken"
+            );
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        // The same single worker takes the next job.
+        let (tx, rx) = channel();
+        pool.spawn(move || {
+            tx.send(std::thread::current().name().map(str::to_owned))
+                .unwrap()
+        });
+        let name = rx.recv_timeout(Duration::from_secs(10)).unwrap();
+        assert_eq!(name.as_deref(), Some("ppfd-worker-0"));
+    }
 
     /// A folder iceoryx2 cannot write is named, with what to check, not left as "InternalError".
     #[test]
