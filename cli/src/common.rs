@@ -32,6 +32,11 @@ pub fn object_id(s: &str) -> Result<u32, String> {
     }
 }
 
+/// The first object id that `ids` lists a second time.
+pub fn repeated(ids: &[u32]) -> Option<u32> {
+    (1..ids.len()).find_map(|i| ids[..i].contains(&ids[i]).then_some(ids[i]))
+}
+
 impl Connect {
     /// The prefix given, else the one of PPFD_PREFIX; a value of the variable that `ppfd` would
     /// refuse is refused with the variable's name, as `ppfd` refuses it.
@@ -55,8 +60,9 @@ impl Connect {
     }
 }
 
-/// One stage of a breakdown: its name in tables, its key in JSON (the protocol's field name
-/// without `_ns`, as Python's `latency` names it) and its time, ns.
+/// One stage of a breakdown: its name in tables, its key in `ppf bench --json` (the protocol's
+/// field name without `_ns`, which `ppf detect --json` and Python's `latency` keep) and its
+/// time, ns.
 pub struct Stage {
     pub label: &'static str,
     pub key: &'static str,
@@ -86,7 +92,7 @@ pub fn ms(ns: u64) -> String {
 
 /// Prints one request's latency breakdown.
 pub fn print_latency(d: &Detections) {
-    println!("latency (ms; the scene and kd-trees once per frame, the later stages summed over the objects, which run side by side, so they can add up to more than the detection):");
+    println!("latency (ms; the scene and kd-trees once per request, the later stages summed over the objects, which run side by side, so they can add up to more than the detection):");
     for Stage { label, ns, .. } in stages(&d.latency.daemon) {
         println!("  {label:<18} {:>10}", ms(ns));
     }

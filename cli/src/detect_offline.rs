@@ -103,11 +103,7 @@ impl DetectCommand {
     }
 
     pub fn into_target(self) -> Result<DetectTarget, String> {
-        if let Some(id) = (1..self.objects.len()).find_map(|i| {
-            self.objects[..i]
-                .contains(&self.objects[i])
-                .then_some(self.objects[i])
-        }) {
+        if let Some(id) = crate::common::repeated(&self.objects) {
             return Err(format!("--objects lists object {id} twice"));
         }
         if self.diagnose

@@ -40,6 +40,13 @@ pub struct ProfileArgs {
     pub hints_from_truth: bool,
 }
 
+/// Each id once, in the order of its first appearance: an image's ground truth lists an object
+/// once per instance, not always side by side, and an object is timed once.
+fn distinct(ids: impl Iterator<Item = u32>) -> Vec<u32> {
+    let mut seen = std::collections::BTreeSet::new();
+    ids.filter(|id| seen.insert(*id)).collect()
+}
+
 fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
@@ -47,14 +54,16 @@ fn ms(d: Duration) -> f64 {
 pub fn run(args: ProfileArgs) -> Result<(), Box<dyn std::error::Error>> {
     let dataset = BopDataset::open(&args.dataset)?;
     let ids = if args.objects.is_empty() {
-        let mut v: Vec<u32> = dataset
-            .ground_truth(args.scene, args.image)?
-            .iter()
-            .map(|g| g.obj_id)
-            .collect();
-        v.dedup();
-        v
+        distinct(
+            dataset
+                .ground_truth(args.scene, args.image)?
+                .iter()
+                .map(|g| g.obj_id),
+        )
     } else {
+        if let Some(id) = crate::common::repeated(&args.objects) {
+            return Err(format!("--objects lists object {id} twice").into());
+        }
         args.objects.clone()
     };
     // Parameters before models: a mistyped name fails at once, not after the builds.
@@ -197,4 +206,15 @@ fn compare_hinted(
         a / b
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_object_of_several_instances_is_timed_once() {
+        assert_eq!(distinct([1, 2, 3, 4, 1, 2].into_iter()), [1, 2, 3, 4]);
+        assert_eq!(distinct([5, 5, 1].into_iter()), [5, 1]);
+    }
 }

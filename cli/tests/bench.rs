@@ -57,7 +57,21 @@ fn bench_counts_failed_requests_beside_the_served() {
         (clients[1]["served"].clone(), clients[1]["failed"].clone()),
         (0.into(), 2.into())
     );
-    // The keys are the protocol's field names, as Python's `latency` has them.
+    // A client with nothing served has no figures, not zeros.
+    assert!(clients[0]["end_to_end_p50_ns"].is_u64(), "{clients:?}");
+    assert!(clients[1]["end_to_end_p50_ns"].is_null(), "{clients:?}");
+    // The distribution is of the same samples as the table: the same median and maximum.
+    let distribution = report["end_to_end_distribution"].as_array().unwrap();
+    let at = |q: f64| {
+        distribution
+            .iter()
+            .find(|d| d["quantile"].as_f64() == Some(q))
+            .map(|d| d["ns"].clone())
+    };
+    let end_to_end = &report["latency"]["end_to_end"];
+    assert_eq!(at(0.5), Some(end_to_end["p50_ns"].clone()), "{report}");
+    assert_eq!(at(1.0), Some(end_to_end["max_ns"].clone()), "{report}");
+    // The keys are the protocol's field names without `_ns`, each with its figures in ns.
     for key in ["queue_wait", "rescoring", "icp", "end_to_end", "overhead"] {
         assert!(report["latency"][key]["p50_ns"].is_u64(), "{key}: {report}");
     }
@@ -91,27 +105,43 @@ fn a_failed_warmup_ends_the_run() {
 }
 
 /// A run whose every request fails prints no latency table (a table of zeros would read as
-/// measurements), and says why.
+/// measurements), and says why; its JSON has no figures (`null`) and no distribution.
 #[test]
 fn a_run_with_nothing_served_prints_no_figures() {
     let scratch = Scratch::new("bench-none");
     let mut served = ServedPart::start(&scratch, "bench_none", Part::TPipe, 5);
-    let mut command = Command::new(env!("CARGO_BIN_EXE_ppf"));
-    command
-        .args(["bench", "--prefix", &served.prefix, "--camera", "cam"])
-        .args(["--objects", UNKNOWN, "--requests", "3", "--warmup", "0"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped());
-    let out = served.publish_until_done(command.spawn().unwrap());
-    show(&command, &out);
-    assert_eq!(out.status.code(), Some(1));
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        stdout.contains("3 failed, none served, so no latency figures"),
-        "{stdout}"
-    );
-    assert!(
-        !stdout.contains("p50") && !stdout.contains("histogram"),
-        "{stdout}"
-    );
+    for json in [false, true] {
+        let mut command = Command::new(env!("CARGO_BIN_EXE_ppf"));
+        command
+            .args(["bench", "--prefix", &served.prefix, "--camera", "cam"])
+            .args(["--objects", UNKNOWN, "--requests", "3", "--warmup", "0"])
+            .args(json.then_some("--json"))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped());
+        let out = served.publish_until_done(command.spawn().unwrap());
+        show(&command, &out);
+        assert_eq!(out.status.code(), Some(1));
+        if json {
+            let report: serde_json::Value =
+                serde_json::from_slice(&out.stdout).expect("JSON on stdout");
+            assert_eq!(
+                (report["served"].clone(), report["failed"].clone()),
+                (0.into(), 3.into())
+            );
+            for key in ["queue_wait", "end_to_end", "overhead"] {
+                assert!(report["latency"][key].is_null(), "{key}: {report}");
+            }
+            assert_eq!(report["end_to_end_distribution"], serde_json::json!([]));
+        } else {
+            let stdout = String::from_utf8_lossy(&out.stdout);
+            assert!(
+                stdout.contains("3 failed, none served, so no latency figures"),
+                "{stdout}"
+            );
+            assert!(
+                !stdout.contains("p50") && !stdout.contains("percentile"),
+                "{stdout}"
+            );
+        }
+    }
 }

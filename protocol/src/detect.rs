@@ -575,7 +575,8 @@ pub struct LatencyBreakdown {
 
 impl LatencyBreakdown {
     /// The stages in pipeline order, each by its field's name without `_ns` (the keys of
-    /// `ppf bench --json` and of Python's `latency`), with its time in ns.
+    /// `ppf bench --json`; Python's `latency` and `ppf detect --json` add `_ns`), with its time
+    /// in ns.
     pub fn stages(&self) -> [(&'static str, u64); 9] {
         [
             ("transport", self.transport_ns),

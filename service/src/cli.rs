@@ -21,8 +21,9 @@ pub struct Args {
     /// TOML configuration file; flags override it.
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Where models built from PLY meshes are saved (default: $PPFD_CACHE, $XDG_CACHE_HOME/ppfd
-    /// or ~/.cache/ppfd, shared with `ppf eval`); one is reused while its mesh is unchanged.
+    /// Where models built from PLY meshes are saved (default: $PPFD_CACHE, $XDG_CACHE_HOME/ppfd,
+    /// ~/.cache/ppfd, else ppfd-cache in $TMPDIR or /tmp; shared with `ppf eval`); one is reused
+    /// while its mesh is unchanged.
     #[arg(long)]
     pub model_cache: Option<PathBuf>,
     /// iceoryx2 resource prefix, ending with '_' (cell1_): daemons (and their clients) with
