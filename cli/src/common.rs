@@ -178,9 +178,28 @@ pub fn detect_once_framed(
     objects: &[u32],
     options: &ppfd_client::DetectOptions,
 ) -> ppfd_client::Result<Detections> {
-    let deadline = std::time::Instant::now() + options.timeout;
+    until_framed(options.timeout, |left| {
+        let options = ppfd_client::DetectOptions {
+            timeout: left,
+            ..options.clone()
+        };
+        client.detect(camera, objects, &options)
+    })
+}
+
+/// Calls `detect` with the time left of `timeout` until its answer is other than "no frame
+/// yet" or the time is up: the whole wait, the last request's included, stays within `timeout`.
+fn until_framed<T>(
+    timeout: Duration,
+    mut detect: impl FnMut(Duration) -> ppfd_client::Result<T>,
+) -> ppfd_client::Result<T> {
+    let deadline = std::time::Instant::now() + timeout;
     loop {
-        match client.detect(camera, objects, options) {
+        // At least a millisecond: a timeout of 0 is refused as malformed.
+        let left = deadline
+            .saturating_duration_since(std::time::Instant::now())
+            .max(millis(1));
+        match detect(left) {
             Err(ppfd_client::Error::Refused {
                 status: ppfd_client::Status::NoFrame,
                 ..
@@ -269,6 +288,46 @@ pub fn scenes_there(scenes: &[u32]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A camera whose first frame comes late: each request after a "no frame yet" is given only
+    /// the time left, so the wait ends within the timeout, not a whole timeout after the frame.
+    #[test]
+    fn the_wait_for_a_first_frame_stays_within_the_timeout() {
+        let timeout = millis(300);
+        let start = std::time::Instant::now();
+        let mut given = Vec::new();
+        let found: ppfd_client::Result<()> = until_framed(timeout, |left| {
+            given.push(left);
+            if start.elapsed() < millis(150) {
+                return Err(ppfd_client::Error::Refused {
+                    status: ppfd_client::Status::NoFrame,
+                    message: "no frame yet".into(),
+                    value: 0,
+                });
+            }
+            Ok(())
+        });
+        assert!(found.is_ok());
+        assert!(given.len() >= 2, "{given:?}");
+        assert!(
+            given[0] <= timeout && given[0] > timeout - millis(100),
+            "{given:?}"
+        );
+        let last = *given.last().unwrap();
+        assert!(last <= timeout - millis(150), "{given:?}");
+        // Never refused: "no frame yet" ends at the deadline with the last answer.
+        let ended = std::time::Instant::now();
+        let never = until_framed(millis(100), |left| {
+            assert!(left <= millis(100));
+            Err::<(), _>(ppfd_client::Error::Refused {
+                status: ppfd_client::Status::NoFrame,
+                message: "no frame yet".into(),
+                value: 0,
+            })
+        });
+        assert!(matches!(never, Err(ppfd_client::Error::Refused { .. })));
+        assert!(ended.elapsed() >= millis(100));
+    }
 
     #[test]
     fn the_median_of_an_even_count_is_the_mean_of_the_middle_two() {
