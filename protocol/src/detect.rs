@@ -503,15 +503,15 @@ pub struct PoseHypothesis {
 }
 
 impl PoseHypothesis {
-    /// The pose as a nalgebra isometry (model → camera, millimetres), as [`isometry_of`] makes
-    /// it.
+    /// The pose as a nalgebra isometry (model → camera, millimetres), made as
+    /// [`PoseHint::isometry`] makes it.
     pub fn isometry(&self) -> nalgebra::Isometry3<f32> {
         isometry_of(&self.rotation, &self.translation_mm)
     }
 }
 
 /// A nalgebra isometry (model → camera, millimetres) as the wire carries a pose: `R` row-major
-/// and `t` in millimetres; the inverse of [`isometry_of`] to f32's rounding.
+/// and `t` in millimetres; the inverse of [`PoseHint::isometry`] to f32's rounding.
 pub fn wire_pose(pose: &nalgebra::Isometry3<f32>) -> ([f32; 9], [f32; 3]) {
     let r = pose.rotation.to_rotation_matrix();
     let m = r.matrix();

@@ -238,10 +238,10 @@ fn segments_of(config: &iceoryx2::config::Config) -> Vec<Segment> {
         .collect()
 }
 
-/// Empty shared memory segments of the prefix that a round met ([`remove_unfinished_segments`]).
+/// Empty shared memory segments of the prefix that a round met (`remove_unfinished_segments`).
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
 pub struct Unfinished {
-    /// Removed: empty for [`UNFINISHED_AGE`] or longer.
+    /// Removed: empty for `UNFINISHED_AGE` (1 s) or longer.
     pub removed: u64,
     /// Left for a later round: younger, perhaps being made.
     pub young: u64,
