@@ -200,7 +200,13 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
                     run.served.reserve(n);
                     for _ in 0..n {
                         match request(&client) {
-                            Ok(d) => run.served.push(d.latency),
+                            Ok(d) => {
+                                run.served.push(d.latency);
+                                run.frames.push(FrameUsed {
+                                    sequence: d.frame_sequence,
+                                    age_ns: d.frame_age_ns,
+                                });
+                            }
                             Err(e) => run.failures.count(&e),
                         }
                     }
@@ -222,6 +228,7 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         .map(|t| t.elapsed())
         .unwrap_or_default();
     let mut all = Vec::new();
+    let mut frames_used = Vec::new();
     let mut per_client = Vec::new();
     let mut failures = Failures::default();
     for (i, r) in results.into_iter().enumerate() {
@@ -229,6 +236,7 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
         per_client.push(ClientFigures::of(i, objects_of(i), &r));
         failures.add(&r.failures);
         all.extend(r.served);
+        frames_used.extend(r.frames);
     }
     let failed = failures.total();
 
@@ -266,6 +274,7 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     }
     let throughput = all.len() as f64 / elapsed.as_secs_f64().max(1e-9);
     let end_to_end = &measures[measures.len() - 2];
+    let frames = FrameFigures::of(&frames_used);
 
     if args.json {
         let rows: serde_json::Map<String, serde_json::Value> = measures
@@ -283,6 +292,7 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             "served": all.len(), "failed": failed, "failures": failures.json(), "clients": args.clients,
             "seconds": elapsed.as_secs_f64(), "throughput_per_s": throughput,
             "latency": rows, "end_to_end_distribution": distribution,
+            "distinct_frames": frames.distinct, "frame_age": frames.age.json(),
             "per_client": per_client.iter().map(ClientFigures::json).collect::<Vec<_>>(),
         });
         println!(
@@ -332,6 +342,14 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
             ms(m.at(1.0))
         );
     }
+    println!(
+        "\nframes: the {} requests served were detected in {} distinct frames (by sequence \
+         number); frame age at the detection's start p50 {} ms, max {} ms",
+        all.len(),
+        frames.distinct,
+        ms(frames.age.at(0.5)),
+        ms(frames.age.at(1.0))
+    );
     if per_client.len() > 1 {
         println!("\nper client (ms):");
         println!(
@@ -358,11 +376,45 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     failures.outcome(all.len())
 }
 
-/// One client's measured requests: the latencies of those served, and the failures.
+/// One client's measured requests: the latencies of those served, the frames they were
+/// detected in, and the failures.
 #[derive(Default)]
 struct ClientRun {
     served: Vec<Latency>,
+    frames: Vec<FrameUsed>,
     failures: Failures,
+}
+
+/// The camera frame a served request was detected in.
+#[derive(Clone, Copy)]
+struct FrameUsed {
+    sequence: u64,
+    /// From the frame's capture to the detection's start, ns.
+    age_ns: u64,
+}
+
+/// What the served requests detected in: how many distinct frames (by sequence number), and
+/// the frames' ages when their detections started. Requests faster than the camera, or a
+/// camera that stopped, show as fewer frames than requests and older frames.
+struct FrameFigures {
+    distinct: usize,
+    age: Measure,
+}
+
+impl FrameFigures {
+    fn of(frames: &[FrameUsed]) -> FrameFigures {
+        let distinct = frames
+            .iter()
+            .map(|f| f.sequence)
+            .collect::<std::collections::BTreeSet<_>>()
+            .len();
+        let mut age = Measure::new("frame age", "frame_age");
+        for f in frames {
+            age.record(f.age_ns);
+        }
+        age.samples.sort_unstable();
+        FrameFigures { distinct, age }
+    }
 }
 
 /// Failed requests by kind (a refusal's status, a timeout, the daemon gone, ...): how many, and

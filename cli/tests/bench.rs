@@ -57,6 +57,10 @@ fn bench_counts_failed_requests_beside_the_served() {
         (clients[1]["served"].clone(), clients[1]["failed"].clone()),
         (0.into(), 2.into())
     );
+    // The frames the two served requests were detected in: one or two, each with its age.
+    let distinct = report["distinct_frames"].as_u64().unwrap();
+    assert!((1..=2).contains(&distinct), "{report}");
+    assert!(report["frame_age"]["max_ns"].is_u64(), "{report}");
     // A client with nothing served has no figures, not zeros.
     assert!(clients[0]["end_to_end_p50_ns"].is_u64(), "{clients:?}");
     assert!(clients[1]["end_to_end_p50_ns"].is_null(), "{clients:?}");
@@ -132,6 +136,8 @@ fn a_run_with_nothing_served_prints_no_figures() {
                 assert!(report["latency"][key].is_null(), "{key}: {report}");
             }
             assert_eq!(report["end_to_end_distribution"], serde_json::json!([]));
+            assert_eq!(report["distinct_frames"], 0);
+            assert!(report["frame_age"].is_null(), "{report}");
         } else {
             let stdout = String::from_utf8_lossy(&out.stdout);
             assert!(
