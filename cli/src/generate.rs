@@ -25,9 +25,9 @@ use serde_json::json;
 
 #[derive(Args, Debug)]
 pub struct GenerateArgs {
-    /// Folder to write the dataset into (created; files of the same names are replaced, and a
-    /// models folder holding other objects' meshes or a models_info.json this run does not
-    /// write is refused).
+    /// Folder to write the dataset into: created, or one holding only files this run writes
+    /// (an earlier run's, replaced); a folder holding anything else is refused, as a reader
+    /// of the dataset would take it for part of the scene.
     pub out: PathBuf,
     /// Seed of the generated scene (`ppf demo --seed`).
     #[arg(long, default_value_t = 1)]
@@ -44,7 +44,7 @@ pub struct GenerateArgs {
     #[arg(long, value_delimiter = ',', value_parser = crate::common::object_id, requires = "models")]
     pub objects: Vec<u32>,
     /// Random boxes and cylinders placed on the table around the objects, hiding parts of
-    /// them (the generated scene of `ppf demo` has none).
+    /// them, 0 to 50 (the generated scene of `ppf demo` has none).
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=50))]
     pub clutter: u32,
 }
@@ -109,12 +109,37 @@ fn models_info_for(source: &Path, ids: &[u32]) -> Result<Option<serde_json::Valu
     Ok((!kept.is_empty()).then_some(serde_json::Value::Object(kept)))
 }
 
-fn write(path: &Path, bytes: &[u8]) -> Result<(), String> {
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir)
-            .map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+/// Writes `files` so that a failure while writing (a full disk) leaves none of them: each goes
+/// to a temporary file beside it first, and only once every one is written are they renamed
+/// into place. A failure removes the temporary files; no half-written file is left.
+fn write_all(files: &[(PathBuf, Vec<u8>)]) -> Result<(), String> {
+    let temporary = |path: &Path| {
+        let mut name = path.file_name().unwrap_or_default().to_os_string();
+        name.push(format!(".partial-{}", std::process::id()));
+        path.with_file_name(name)
+    };
+    let mut written: Vec<PathBuf> = Vec::with_capacity(files.len());
+    let outcome = files.iter().try_for_each(|(path, bytes)| {
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir)
+                .map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+        }
+        let partial = temporary(path);
+        written.push(partial.clone());
+        std::fs::write(&partial, bytes).map_err(|e| format!("cannot write {}: {e}", path.display()))
+    });
+    let outcome = outcome.and_then(|()| {
+        files.iter().try_for_each(|(path, _)| {
+            std::fs::rename(temporary(path), path)
+                .map_err(|e| format!("cannot write {}: {e}", path.display()))
+        })
+    });
+    if outcome.is_err() {
+        for partial in &written {
+            let _ = std::fs::remove_file(partial);
+        }
     }
-    std::fs::write(path, bytes).map_err(|e| format!("cannot write {}: {e}", path.display()))
+    outcome
 }
 
 /// The depth image as BOP stores it: a 16-bit grayscale PNG.
@@ -132,16 +157,18 @@ fn depth_png(width: u32, height: u32, depth: &[u16]) -> Result<Vec<u8>, String> 
 }
 
 /// Writes `scene` and the meshes of its objects into `out` in the BOP layout.
-fn write_dataset(
-    out: &Path,
+/// The files of the dataset, each with its path below the dataset's folder.
+fn dataset_files(
     meshes: &[(u32, &Mesh)],
     scene: &SyntheticScene,
-) -> Result<(), String> {
+    info: Option<&serde_json::Value>,
+) -> Result<Vec<(PathBuf, Vec<u8>)>, String> {
     let f = &scene.frame;
     let k = f.intrinsics;
+    let mut files = Vec::new();
     for (id, mesh) in meshes {
-        let path = out.join("models").join(format!("obj_{id:06}.ply"));
-        write(&path, mesh.to_ply_ascii().as_bytes())?;
+        let path = Path::new("models").join(format!("obj_{id:06}.ply"));
+        files.push((path, mesh.to_ply_ascii().into_bytes()));
     }
     let camera = json!({
         "fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy,
@@ -163,46 +190,63 @@ fn write_dataset(
             json!({"obj_id": id, "cam_R_m2c": r, "cam_t_m2c": [t.x, t.y, t.z]})
         })
         .collect();
-    let scene_dir = out.join("test").join("000000");
+    let scene_dir = Path::new("test").join("000000");
     let pretty = |v: &serde_json::Value| serde_json::to_vec_pretty(v).expect("JSON values print");
-    write(&out.join("camera.json"), &pretty(&camera))?;
-    write(&scene_dir.join("scene_camera.json"), &pretty(&scene_camera))?;
-    write(
-        &scene_dir.join("scene_gt.json"),
-        &pretty(&json!({"0": truth})),
-    )?;
-    write(
-        &scene_dir.join("depth").join("000000.png"),
-        &depth_png(f.width, f.height, &f.depth)?,
-    )
+    if let Some(info) = info {
+        files.push((Path::new("models").join("models_info.json"), pretty(info)));
+    }
+    files.push((PathBuf::from("camera.json"), pretty(&camera)));
+    files.push((scene_dir.join("scene_camera.json"), pretty(&scene_camera)));
+    files.push((
+        scene_dir.join("scene_gt.json"),
+        pretty(&json!({"0": truth})),
+    ));
+    files.push((
+        scene_dir.join("depth").join("000000.png"),
+        depth_png(f.width, f.height, &f.depth)?,
+    ));
+    Ok(files)
 }
 
-/// Refuses an `out` whose `models` folder holds meshes of other objects, or a
-/// `models_info.json` this run does not write: a reader of the dataset would take them for its
-/// own (an earlier `--models` run's objects, asked for and never placed). Files this run writes
-/// are replaced.
-fn refuse_strangers(out: &Path, ids: &[u32], writes_info: bool) -> Result<(), String> {
-    let dir = out.join("models");
-    let Ok(entries) = std::fs::read_dir(&dir) else {
-        return Ok(());
-    };
-    let mut strangers: Vec<String> = entries
-        .filter_map(|e| e.ok())
-        .map(|e| e.file_name().to_string_lossy().into_owned())
-        .filter(|name| match name.as_str() {
-            "models_info.json" => !writes_info,
-            _ => ppfd_bop::dataset::object_id_of_mesh(name).is_some_and(|id| !ids.contains(&id)),
-        })
-        .collect();
+/// Refuses an `out` that holds files other than `files` (paths below `out`): a reader of the
+/// dataset would take them for part of the scene (an earlier `--models` run's objects, another
+/// dataset's scenes or colour images). The files this run writes are replaced. The walk stops
+/// at the tenth such file.
+fn refuse_strangers(out: &Path, files: &[PathBuf]) -> Result<(), String> {
+    const SHOWN: usize = 10;
+    let mut strangers = Vec::new();
+    let mut folders = vec![PathBuf::new()];
+    while let Some(relative) = folders.pop() {
+        let Ok(entries) = std::fs::read_dir(out.join(&relative)) else {
+            continue;
+        };
+        for entry in entries.filter_map(|e| e.ok()) {
+            let path = relative.join(entry.file_name());
+            if entry.file_type().is_ok_and(|t| t.is_dir()) {
+                folders.push(path);
+            } else if !files.contains(&path) {
+                strangers.push(path.display().to_string());
+            }
+        }
+        if strangers.len() >= SHOWN {
+            break;
+        }
+    }
     if strangers.is_empty() {
         return Ok(());
     }
     strangers.sort();
+    strangers.truncate(SHOWN);
     Err(format!(
-        "{} holds {} that this scene does not write, which would be read as part of it: give a \
-         new or empty folder, or remove them",
-        dir.display(),
-        strangers.join(", ")
+        "{} holds files that this scene does not write, which would be read as part of it \
+         ({}{}): give a new or empty folder, or remove them",
+        out.display(),
+        strangers.join(", "),
+        if strangers.len() == SHOWN {
+            ", …"
+        } else {
+            ""
+        }
     ))
 }
 
@@ -220,16 +264,18 @@ pub fn run(args: GenerateArgs) -> Result<(), String> {
         Some(dir) => models_info_for(dir, &ids)?,
         None => None,
     };
-    refuse_strangers(&args.out, &ids, info.is_some())?;
     let refs: Vec<(u32, &Mesh)> = meshes.iter().map(|(id, m)| (*id, m)).collect();
     let noise = (!args.no_noise).then(NoiseModel::kinect);
     let scene = SyntheticScene::resting(args.seed, noise, args.clutter as usize, &refs)
         .map_err(|e| e.to_string())?;
-    write_dataset(&args.out, &refs, &scene)?;
-    if let Some(info) = info {
-        let pretty = serde_json::to_vec_pretty(&info).expect("JSON values print");
-        write(&args.out.join("models").join("models_info.json"), &pretty)?;
-    }
+    let files = dataset_files(&refs, &scene, info.as_ref())?;
+    let paths: Vec<PathBuf> = files.iter().map(|(path, _)| path.clone()).collect();
+    refuse_strangers(&args.out, &paths)?;
+    let files: Vec<(PathBuf, Vec<u8>)> = files
+        .into_iter()
+        .map(|(path, bytes)| (args.out.join(path), bytes))
+        .collect();
+    write_all(&files)?;
     println!(
         "wrote the generated scene of seed {} ({} objects, {} pieces of clutter) as a BOP dataset in {}",
         args.seed,
@@ -243,6 +289,52 @@ pub fn run(args: GenerateArgs) -> Result<(), String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn write(path: &Path, bytes: &[u8]) -> Result<(), String> {
+        write_all(&[(path.to_path_buf(), bytes.to_vec())])
+    }
+
+    /// A file that cannot be written leaves none of the others, and no temporary file.
+    #[test]
+    fn a_failed_write_leaves_nothing() {
+        let dir = crate::common::ScratchDir::create("ppf-generate-write").unwrap();
+        let blocked = dir.path().join("blocked");
+        std::fs::write(&blocked, "a file where a folder is needed").unwrap();
+        let files = vec![
+            (dir.path().join("first.json"), b"{}".to_vec()),
+            (blocked.join("second.png"), vec![0; 16]),
+        ];
+        let e = write_all(&files).unwrap_err();
+        assert!(e.contains("blocked"), "{e}");
+        let mut left: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        assert_eq!(left, ["blocked"]);
+        write_all(&files[..1]).unwrap();
+        assert_eq!(std::fs::read(&files[0].0).unwrap(), b"{}");
+    }
+
+    /// Files of another dataset in the folder (a scene, a colour image, a file of targets) are
+    /// refused by name, and nothing is written.
+    #[test]
+    fn a_folder_holding_another_datasets_files_is_refused() {
+        let dir = crate::common::ScratchDir::create("ppf-generate-stray").unwrap();
+        let out = dir.path().join("out");
+        run(args(&out, 1)).unwrap();
+        let depth = out.join("test/000000/depth/000000.png");
+        let before = std::fs::read(&depth).unwrap();
+        write(&out.join("test/000000/rgb/000000.png"), b"colour").unwrap();
+        write(&out.join("test/000007/scene_gt.json"), b"{}").unwrap();
+        let e = run(args(&out, 2)).unwrap_err();
+        assert!(
+            e.contains("test/000000/rgb/000000.png, test/000007/scene_gt.json")
+                && e.contains("remove them"),
+            "{e}"
+        );
+        assert_eq!(std::fs::read(&depth).unwrap(), before, "nothing written");
+    }
     use crate::demo::parts_scene;
     use ppfd_bop::dataset::BopDataset;
 
@@ -413,7 +505,7 @@ mod tests {
         })
         .unwrap_err();
         assert!(
-            e.contains("obj_000001.ply, obj_000002.ply, obj_000003.ply")
+            e.contains("models/obj_000001.ply, models/obj_000002.ply, models/obj_000003.ply")
                 && e.contains("remove them"),
             "{e}"
         );
