@@ -324,9 +324,10 @@ fn read_element<E: PropertyAccess>(
                         .find(|(_, word)| !word.parse::<f64>().is_ok_and(f64::is_finite));
                     if let Some((k, word)) = not_finite {
                         return Err(format!(
-                            "{item_name} {i} (line {line_number}): value {} is '{word}', not a \
+                            "{item_name} {i} (line {line_number}): value {} is '{}', not a \
                              finite number",
-                            k + 1
+                            k + 1,
+                            shown(word)
                         ));
                     }
                 }
@@ -478,13 +479,34 @@ fn build_mesh(
 }
 
 /// A parser message on one line, without the grammar's internal debug dump.
+/// The parser's message on one line, its quote of the file [`shown`] safely.
 fn flatten(error: &ParseError) -> String {
     let text = error.to_string().replace("\r\n'", "'").replace("\n'", "'");
-    text.split(['\n', '\t'])
+    let text = text
+        .split(['\n', '\t'])
         .map(str::trim)
         .filter(|s| !s.is_empty() && !s.starts_with("Error: ParseError"))
         .collect::<Vec<_>>()
-        .join("; ")
+        .join("; ");
+    shown(&text)
+}
+
+/// Text taken from the file, fit for a message: cut short, its control characters escaped
+/// (a garbage line can be megabytes of terminal escape codes).
+fn shown(text: &str) -> String {
+    const MAX_CHARS: usize = 200;
+    let mut shown = String::new();
+    for c in text.chars().take(MAX_CHARS) {
+        if c.is_control() {
+            shown.extend(c.escape_default());
+        } else {
+            shown.push(c);
+        }
+    }
+    if text.chars().nth(MAX_CHARS).is_some() {
+        shown.push('…');
+    }
+    shown
 }
 
 #[cfg(test)]
@@ -1052,6 +1074,28 @@ mod tests {
         expect_ply_error(read(bad_line), &["bad header", "Line 3"]);
         let no_end = b"ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty float x\n";
         expect_ply_error(read(no_end), &["bad header", "end_header"]);
+        // A header line of megabytes of terminal escape codes is quoted short, escaped.
+        let mut garbage = b"ply\nformat ascii 1.0\n".to_vec();
+        for _ in 0..100_000 {
+            garbage.extend_from_slice(b"\x1b[31mX");
+        }
+        garbage.push(b'\n');
+        let e = read(&garbage).unwrap_err().to_string();
+        assert!(
+            e.contains("bad header") && e.contains("\\u{1b}[31mX"),
+            "{e}"
+        );
+        assert!(e.len() < 1000 && !e.contains('\x1b'), "{} bytes", e.len());
+        // So is a vertex's value.
+        let text = String::from_utf8(cube_fixture().bytes(Format::Ascii)).unwrap();
+        let word = "\x1b[31mX".repeat(100_000);
+        let text = text.replacen("\n10 -10 -10 ", &format!("\n10 {word} -10 "), 1);
+        let e = read(text.as_bytes()).unwrap_err().to_string();
+        assert!(
+            e.contains("value 2 is '\\u{1b}[31mX") && e.contains("…'"),
+            "{e}"
+        );
+        assert!(e.len() < 1000 && !e.contains('\x1b'), "{} bytes", e.len());
     }
 
     #[test]
