@@ -32,6 +32,13 @@ pub fn object_id(s: &str) -> Result<u32, String> {
     }
 }
 
+/// Each id once, in the order of its first appearance: an image's ground truth lists an object
+/// once per instance, not always side by side, and an object is detected (or timed) once.
+pub fn distinct(ids: impl Iterator<Item = u32>) -> Vec<u32> {
+    let mut seen = std::collections::BTreeSet::new();
+    ids.filter(|id| seen.insert(*id)).collect()
+}
+
 /// The first object id that `ids` lists a second time.
 pub fn repeated(ids: &[u32]) -> Option<u32> {
     (1..ids.len()).find_map(|i| ids[..i].contains(&ids[i]).then_some(ids[i]))
@@ -288,6 +295,14 @@ pub fn scenes_there(scenes: &[u32]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_object_of_several_instances_is_taken_once() {
+        assert_eq!(distinct([1, 2, 3, 4, 1, 2].into_iter()), [1, 2, 3, 4]);
+        assert_eq!(distinct([5, 5, 1].into_iter()), [5, 1]);
+        assert_eq!(repeated(&[1, 2, 3, 2]), Some(2));
+        assert_eq!(repeated(&[1, 2, 3]), None);
+    }
 
     /// A camera whose first frame comes late: each request after a "no frame yet" is given only
     /// the time left, so the wait ends within the timeout, not a whole timeout after the frame.

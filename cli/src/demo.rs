@@ -380,6 +380,9 @@ impl DemoArgs {
 pub fn run(args: DemoArgs) -> Result<(), String> {
     // Before any thread starts (model building runs on a pool).
     stop::handle_stop_signals(Some(ScratchDir::path_of(WORK_DIR)));
+    if let Some(path) = &args.overlay {
+        crate::overlay::check_path(path)?;
+    }
     let cache = args
         .model_cache
         .clone()
@@ -447,11 +450,7 @@ pub fn run(args: DemoArgs) -> Result<(), String> {
         ..Default::default()
     })
     .map_err(|e| e.to_string())?;
-    let ids: Vec<u32> = {
-        let mut v: Vec<u32> = scene.truth.iter().map(|t| t.0).collect();
-        v.dedup();
-        v
-    };
+    let ids = crate::common::distinct(scene.truth.iter().map(|t| t.0));
     let options = DetectOptions {
         hypotheses_per_object: args.hypotheses,
         timeout: Duration::from_secs(900),

@@ -122,6 +122,14 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
         }
         None => Vec::new(),
     };
+    // The picture's path and meshes are checked before the detection, not after its work.
+    let overlay_meshes = match &args.overlay {
+        Some((path, models)) => {
+            crate::overlay::check_path(path)?;
+            Some(meshes_in(models, &args.objects).map_err(|e| format!("--models: {e}"))?)
+        }
+        None => None,
+    };
     let client = args.connect.client()?;
     // Subscribed before the request, so that the frame the daemon uses arrives here too.
     let recorder = match &args.overlay {
@@ -138,9 +146,20 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
     };
     let found = crate::common::detect_once_framed(&client, &args.camera, &args.objects, &options)
         .map_err(|e| e.to_string())?;
-    if let (Some((path, models)), Some(recorder)) = (&args.overlay, recorder) {
-        write_overlay(path, models, &recorder.finish()?, &found, &args.objects)?;
+    print_found(&args, &found)?;
+    // After the answer is printed: a picture that cannot be drawn loses none of it.
+    if let (Some((path, models)), Some(recorder), Some(meshes)) =
+        (&args.overlay, recorder, overlay_meshes)
+    {
+        let models_info = client.models().map_err(|e| e.to_string())?;
+        check_meshes_match(models, &meshes, &models_info)?;
+        write_overlay(path, &meshes, &recorder.finish()?, &found)?;
     }
+    Ok(())
+}
+
+/// Prints the answer: as JSON with `--json`, else as tables.
+fn print_found(args: &DetectArgs, found: &ppfd_client::Detections) -> Result<(), String> {
     if args.json {
         let hyps: Vec<serde_json::Value> = found
             .hypotheses
@@ -192,12 +211,38 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
         found.counts.reference_points,
         found.counts.pairs
     );
-    print_hypotheses(&found, &args.objects);
+    print_hypotheses(found, &args.objects);
     if !found.diagnosis.is_empty() {
         println!("\ndiagnosis (against the poses of the --diagnose-against file):");
         print!("{}", found.diagnosis);
     }
-    print_latency(&found);
+    print_latency(found);
+    Ok(())
+}
+
+/// Refuses meshes that are not the daemon's models of their objects: an outline drawn from
+/// another object's mesh would show a wrong pose where the detection found a right one. A
+/// mesh whose diameter differs from the daemon's model's by more than 5 % is another mesh.
+fn check_meshes_match(
+    models: &std::path::Path,
+    meshes: &[(u32, ppfd_models::geometry::mesh::Mesh)],
+    served: &[ppfd_client::protocol::control::ModelInfo],
+) -> Result<(), String> {
+    for (id, mesh) in meshes {
+        let Some(info) = served.iter().find(|m| m.object_id == *id) else {
+            continue;
+        };
+        let drawn = ppfd_models::model::sampling::diameter(&mesh.positions);
+        if (drawn - info.diameter_mm).abs() > 0.05 * info.diameter_mm {
+            return Err(format!(
+                "--models {}: the mesh of object {id} is {drawn:.1} mm across, the daemon's model \
+                 of object {id} {:.1} mm: not the mesh the daemon detects with; give --models the \
+                 folder the daemon loaded (no overlay written)",
+                models.display(),
+                info.diameter_mm
+            ));
+        }
+    }
     Ok(())
 }
 
@@ -205,10 +250,9 @@ pub fn run(args: DetectArgs) -> Result<(), String> {
 /// that one has gone by) and writes the picture.
 fn write_overlay(
     path: &std::path::Path,
-    models: &std::path::Path,
+    meshes: &[(u32, ppfd_models::geometry::mesh::Mesh)],
     frames: &[Frame],
     found: &ppfd_client::Detections,
-    objects: &[u32],
 ) -> Result<(), String> {
     let (header, depth) = frames
         .iter()
@@ -220,16 +264,6 @@ fn write_overlay(
             "note: the overlay shows frame {}, the detection used frame {}",
             header.sequence, found.frame_sequence
         );
-    }
-    let meshes = meshes_in(models, objects)?;
-    if let Some(missing) = objects
-        .iter()
-        .find(|id| !meshes.iter().any(|(m, _)| m == *id))
-    {
-        return Err(format!(
-            "{} holds no mesh or model file of object {missing} to draw",
-            models.display()
-        ));
     }
     let k = header.intrinsics;
     let frame = ppfd_models::geometry::camera::DepthFrame {
@@ -244,7 +278,7 @@ fn write_overlay(
         depth_scale_mm: header.depth_scale_mm,
         depth,
     };
-    crate::overlay::draw_detections(&frame, None, &meshes, found, &[]).write_png(path)?;
+    crate::overlay::draw_detections(&frame, None, meshes, found, &[]).write_png(path)?;
     // On stderr: stdout may be the JSON answer.
     eprintln!("overlay written to {}", path.display());
     Ok(())
@@ -277,6 +311,15 @@ fn meshes_in(
                 Err(e) => eprintln!("note: {e}: not drawn from"),
             }
         }
+    }
+    if let Some(missing) = objects
+        .iter()
+        .find(|id| !meshes.iter().any(|(m, _)| m == *id))
+    {
+        return Err(format!(
+            "{} holds no mesh or model file of object {missing} to draw",
+            models.display()
+        ));
     }
     Ok(meshes)
 }
@@ -402,7 +445,11 @@ mod tests {
         assert_eq!(found.len(), 1);
         assert_eq!(found[0].0, id);
         assert!(!found[0].1.faces.is_empty());
-        assert!(super::meshes_in(&dir, &[id + 1]).unwrap().is_empty());
+        let e = super::meshes_in(&dir, &[id + 1]).unwrap_err();
+        assert!(
+            e.contains(&format!("no mesh or model file of object {}", id + 1)),
+            "{e}"
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

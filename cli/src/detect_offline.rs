@@ -242,6 +242,9 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
     if args.diagnose {
         return diagnose(&args);
     }
+    if let Some(path) = &args.overlay {
+        crate::overlay::check_path(path)?;
+    }
     let dataset = BopDataset::open(&args.dataset)?;
     dataset.check_image(args.scene, args.image)?;
     let gt = dataset
@@ -250,11 +253,7 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
         .unwrap_or_default();
     let ids = match &args.objects {
         ids if !ids.is_empty() => ids.clone(),
-        _ if !gt.is_empty() => {
-            let mut ids: Vec<u32> = gt.iter().map(|g| g.obj_id).collect();
-            ids.dedup();
-            ids
-        }
+        _ if !gt.is_empty() => crate::common::distinct(gt.iter().map(|g| g.obj_id)),
         _ => dataset.object_ids().to_vec(),
     };
     let detector = Detector::new(args.params()?);
@@ -317,8 +316,7 @@ pub fn run(args: DatasetDetectArgs) -> Result<(), Box<dyn std::error::Error>> {
         let meshes: Vec<_> = models.iter().map(|m| m.render_mesh()).collect();
         let colour = dataset
             .colour_path(args.scene, args.image)
-            .map(|p| crate::overlay::read_colour_png(&p))
-            .transpose()?;
+            .and_then(|p| crate::overlay::colour_or_note(&p));
         let view = frame.view();
         let mut overlay = colour
             .and_then(|(w, h, rgb)| crate::overlay::Overlay::from_colour(&view, w, h, rgb))

@@ -177,18 +177,70 @@ impl Overlay {
         }
     }
 
-    /// Writes the picture as an 8-bit RGB PNG.
+    /// Writes the picture as an 8-bit RGB PNG, to a temporary file renamed into place once
+    /// whole: a full disk leaves no half-written picture (and an earlier one as it was).
     pub fn write_png(&self, path: &Path) -> Result<(), String> {
-        let file = std::fs::File::create(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), self.width, self.height);
+        let fail = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+        let mut bytes = Vec::new();
+        let mut encoder = png::Encoder::new(&mut bytes, self.width, self.height);
         encoder.set_color(png::ColorType::Rgb);
         encoder.set_depth(png::BitDepth::Eight);
-        let mut writer = encoder
-            .write_header()
-            .map_err(|e| format!("{}: {e}", path.display()))?;
-        writer
-            .write_image_data(&self.rgb)
-            .map_err(|e| format!("{}: {e}", path.display()))
+        let mut writer = encoder.write_header().map_err(|e| fail(&e))?;
+        writer.write_image_data(&self.rgb).map_err(|e| fail(&e))?;
+        writer.finish().map_err(|e| fail(&e))?;
+        let mut name = path.file_name().unwrap_or_default().to_os_string();
+        name.push(format!(".partial-{}", std::process::id()));
+        let partial = path.with_file_name(name);
+        let written =
+            std::fs::write(&partial, &bytes).and_then(|()| std::fs::rename(&partial, path));
+        if let Err(e) = written {
+            let _ = std::fs::remove_file(&partial);
+            return Err(fail(&e));
+        }
+        Ok(())
+    }
+}
+
+/// Refuses, before any detection, an overlay path the picture cannot go to: one not ending in
+/// `.png` (the picture is a PNG), a folder, or one in a folder that is not there or cannot be
+/// written. Nothing is made or changed.
+pub fn check_path(path: &Path) -> Result<(), String> {
+    let png = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    if !png {
+        return Err(format!(
+            "{}: the overlay is a PNG picture; give a path ending in .png",
+            path.display()
+        ));
+    }
+    if path.is_dir() {
+        return Err(format!(
+            "{}: is a folder; give a file's path",
+            path.display()
+        ));
+    }
+    let parent = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let probe = parent.join(format!(".ppf-overlay-check-{}", std::process::id()));
+    std::fs::File::create(&probe)
+        .map(|_| {
+            let _ = std::fs::remove_file(&probe);
+        })
+        .map_err(|e| format!("{}: cannot write there: {e}", path.display()))
+}
+
+/// The colour image at `path` if it reads, else `None` with a note on stderr: the overlay
+/// falls back to the depth, and the detection's work is not lost to a broken picture.
+pub fn colour_or_note(path: &Path) -> Option<(u32, u32, Vec<u8>)> {
+    match read_colour_png(path) {
+        Ok(colour) => Some(colour),
+        Err(e) => {
+            eprintln!("note: {e}; the overlay is drawn on the depth instead");
+            None
+        }
     }
 }
 

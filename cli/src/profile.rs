@@ -40,13 +40,6 @@ pub struct ProfileArgs {
     pub hints_from_truth: bool,
 }
 
-/// Each id once, in the order of its first appearance: an image's ground truth lists an object
-/// once per instance, not always side by side, and an object is timed once.
-fn distinct(ids: impl Iterator<Item = u32>) -> Vec<u32> {
-    let mut seen = std::collections::BTreeSet::new();
-    ids.filter(|id| seen.insert(*id)).collect()
-}
-
 fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
@@ -54,7 +47,7 @@ fn ms(d: Duration) -> f64 {
 pub fn run(args: ProfileArgs) -> Result<(), Box<dyn std::error::Error>> {
     let dataset = BopDataset::open(&args.dataset)?;
     let ids = if args.objects.is_empty() {
-        distinct(
+        crate::common::distinct(
             dataset
                 .ground_truth(args.scene, args.image)?
                 .iter()
@@ -206,15 +199,4 @@ fn compare_hinted(
         a / b
     );
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn an_object_of_several_instances_is_timed_once() {
-        assert_eq!(distinct([1, 2, 3, 4, 1, 2].into_iter()), [1, 2, 3, 4]);
-        assert_eq!(distinct([5, 5, 1].into_iter()), [5, 1]);
-    }
 }

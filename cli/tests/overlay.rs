@@ -173,3 +173,136 @@ fn the_camera_overlay_outlines_the_part_on_the_cameras_frame() {
         "{on} on the part, {off} elsewhere"
     );
 }
+
+/// `ppf detect --camera --overlay` with `--models` holding another object's mesh under the
+/// served part's id: the answer is printed, and the picture is refused, naming both diameters,
+/// rather than outlining another object where the part was found.
+#[test]
+fn a_mesh_other_than_the_daemons_is_refused_after_the_answer() {
+    let scratch = Scratch::new("camera-overlay-other");
+    let mut served = ServedPart::start(&scratch, "overlay_other", Part::TPipe, 5);
+    let served_diameter = ppfd_models::model::sampling::diameter(&served.mesh.positions);
+    let other = Part::ALL
+        .into_iter()
+        .map(|p| p.mesh())
+        .find(|m| {
+            let d = ppfd_models::model::sampling::diameter(&m.positions);
+            (d - served_diameter).abs() > 0.2 * served_diameter
+        })
+        .expect("a part of another size");
+    let wrong = scratch.join("wrong-models");
+    std::fs::create_dir_all(&wrong).unwrap();
+    let id = served.part.object_id();
+    std::fs::write(wrong.join(format!("obj_{id:06}.ply")), other.to_ply_ascii()).unwrap();
+    let png_path = scratch.join("other.png");
+    let detect = Command::new(env!("CARGO_BIN_EXE_ppf"))
+        .args(["detect", "--prefix", &served.prefix, "--camera", "cam"])
+        .args(["--objects", &id.to_string()])
+        .arg("--overlay")
+        .arg(&png_path)
+        .arg("--models")
+        .arg(&wrong)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let out = served.publish_every_until_done(std::time::Duration::from_millis(20), detect);
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert_eq!(out.status.code(), Some(1), "{stdout}\n{stderr}");
+    assert!(
+        stdout.contains("scene points"),
+        "the answer is printed: {stdout}"
+    );
+    assert!(
+        stderr.contains("mm across") && stderr.contains("no overlay written"),
+        "{stderr}"
+    );
+    assert!(!png_path.exists());
+}
+
+/// An overlay path the picture cannot go to (not a PNG, in a folder that is not there) is
+/// refused before the detection, in both modes; a colour image that does not read leaves the
+/// picture on the depth, with a note, instead of losing the detection.
+#[test]
+fn overlay_paths_are_checked_first_and_a_broken_colour_image_falls_back_to_depth() {
+    let scratch = Scratch::new("overlay-paths");
+    let data = scratch.join("parts");
+    let generate = Command::new(env!("CARGO_BIN_EXE_ppf"))
+        .arg("generate")
+        .arg(&data)
+        .output()
+        .unwrap();
+    assert!(generate.status.success());
+    let detect = |overlay: &std::path::Path| {
+        Command::new(env!("CARGO_BIN_EXE_ppf"))
+            .args(["detect", "--dataset"])
+            .arg(&data)
+            .args([
+                "--scene",
+                "0",
+                "--image",
+                "0",
+                "--objects",
+                "4",
+                "--overlay",
+            ])
+            .arg(overlay)
+            .output()
+            .unwrap()
+    };
+    for (path, says) in [
+        (scratch.join("picture.jpg"), "ending in .png"),
+        (scratch.join("missing/picture.png"), "cannot write there"),
+    ] {
+        let out = detect(&path);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{stderr}");
+        assert!(stderr.contains(says), "{stderr}");
+        assert!(
+            out.stdout.is_empty(),
+            "refused before detecting: {}",
+            String::from_utf8_lossy(&out.stdout)
+        );
+    }
+    let camera = Command::new(env!("CARGO_BIN_EXE_ppf"))
+        .args([
+            "detect",
+            "--camera",
+            "cam",
+            "--objects",
+            "4",
+            "--prefix",
+            "ovpath_",
+        ])
+        .arg("--overlay")
+        .arg(scratch.join("picture.jpg"))
+        .arg("--models")
+        .arg(data.join("models"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&camera.stderr);
+    assert_eq!(camera.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("ending in .png"), "{stderr}");
+    // A colour image cut short: the picture is drawn on the depth.
+    let rgb = data.join("test/000000/rgb/000000.png");
+    std::fs::create_dir_all(rgb.parent().unwrap()).unwrap();
+    let mut png = Vec::new();
+    {
+        let mut encoder = png::Encoder::new(&mut png, 640, 480);
+        encoder.set_color(png::ColorType::Rgb);
+        let mut writer = encoder.write_header().unwrap();
+        writer
+            .write_image_data(&vec![128u8; 640 * 480 * 3])
+            .unwrap();
+    }
+    std::fs::write(&rgb, &png[..png.len() / 3]).unwrap();
+    let picture = scratch.join("depth.png");
+    let out = detect(&picture);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(stderr.contains("drawn on the depth instead"), "{stderr}");
+    assert_eq!(read_rgb(&picture).0, 640);
+}
