@@ -432,6 +432,11 @@ impl BopDataset {
         self.models_info_path.is_some()
     }
 
+    /// The `models_info.json` read, when there is one.
+    pub fn models_info_path(&self) -> Option<&Path> {
+        self.models_info_path.as_deref()
+    }
+
     /// The visibility of one image's annotated instances, in the order of
     /// [`BopDataset::ground_truth`].
     pub fn ground_truth_info(&self, scene_id: u32, im_id: u32) -> Result<&[GtInfo]> {

@@ -137,6 +137,15 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
         let _ = std::fs::remove_file(&args.out);
     }
     let models = dataset_models(&dataset, &ids)?;
+    // A models_info.json diameter that is not its mesh's would misjudge every pose of the
+    // object: said now, not after the detections.
+    if !args.no_score {
+        for model in &models {
+            let id = model.object_id();
+            let path = dataset.model_path(id)?;
+            ppfd_bop::eval::score::check_diameter(&dataset, id, model.diameter_mm(), &path)?;
+        }
+    }
     let detector = Detector::new(params);
     let opts = RunOptions {
         hypotheses_per_object: args.hypotheses as usize,

@@ -293,3 +293,52 @@ fn an_object_without_a_hypothesis_has_a_row_in_dataset_mode() {
     let o = text(&out.stdout);
     assert!(o.contains("| 1 |") && o.contains("(no hypothesis)"), "{o}");
 }
+
+/// A `models_info.json` diameter fifty times its mesh's (another unit, another object) would
+/// pass poses half a metre off: `ppf eval` refuses it before detecting, and `ppf score` before
+/// scoring, naming the object, both diameters and the file.
+#[test]
+fn a_diameter_that_is_not_the_meshs_is_refused() {
+    let scratch = Scratch::new("wrong-diameter");
+    let data = scratch.join("parts");
+    let out = run(ppf(&["generate"]).arg(&data));
+    assert!(out.status.success());
+    let entries: serde_json::Map<String, serde_json::Value> = Part::ALL
+        .iter()
+        .map(|p| {
+            let d = ppfd_models::model::sampling::diameter(&p.mesh().positions);
+            let stated = if *p == Part::TPipe { 50.0 * d } else { d };
+            (
+                p.object_id().to_string(),
+                serde_json::json!({"diameter": stated, "min_x": 0, "min_y": 0, "min_z": 0,
+                                   "size_x": 1, "size_y": 1, "size_z": 1}),
+            )
+        })
+        .collect();
+    std::fs::write(
+        data.join("models/models_info.json"),
+        serde_json::to_vec(&entries).unwrap(),
+    )
+    .unwrap();
+    let results = scratch.join("results.csv");
+    let out = run(ppf(&["eval"]).arg(&data).arg("--out").arg(&results));
+    let e = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{e}");
+    let id = Part::TPipe.object_id();
+    assert!(
+        e.contains("models_info.json")
+            && e.contains(&format!("object {id}: diameter"))
+            && e.contains("mm across"),
+        "{e}"
+    );
+    assert!(!results.exists(), "refused before detecting");
+    std::fs::write(
+        &results,
+        format!("scene_id,im_id,obj_id,score,R,t,time\n0,0,{id},1,1 0 0 0 1 0 0 0 1,0 0 500,-1\n"),
+    )
+    .unwrap();
+    let out = run(ppf(&["score"]).arg(&data).arg(&results));
+    let e = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{e}");
+    assert!(e.contains(&format!("object {id}: diameter")), "{e}");
+}

@@ -94,6 +94,38 @@ impl EvalObject {
     }
 }
 
+/// How far a `models_info.json` diameter may lie from its mesh's own: BOP computes both from
+/// the same vertices, so only a wrong entry (another object's, another unit's) is farther off.
+pub const DIAMETER_TOLERANCE: f32 = 0.05;
+
+/// Refuses a `models_info.json` entry whose diameter is not that of its object's mesh
+/// (`measured_mm`, of the mesh at `mesh_path`): the MSSD and MSPD thresholds and VSD's τ are
+/// fractions of it, so a diameter fifty times too large passes a pose half a metre off. A
+/// dataset without the file, or without an entry for the object, has nothing to check.
+pub fn check_diameter(
+    dataset: &BopDataset,
+    obj_id: u32,
+    measured_mm: f32,
+    mesh_path: &std::path::Path,
+) -> Result<()> {
+    let (Some(info_path), Ok(info)) = (dataset.models_info_path(), dataset.model_info(obj_id))
+    else {
+        return Ok(());
+    };
+    if (info.diameter_mm - measured_mm).abs() <= DIAMETER_TOLERANCE * measured_mm {
+        return Ok(());
+    }
+    Err(Error::Dataset {
+        path: info_path.to_path_buf(),
+        reason: format!(
+            "object {obj_id}: diameter {} mm, where its mesh {} measures {measured_mm:.1} mm \
+             across; scoring takes its thresholds as fractions of the diameter, so fix the entry",
+            info.diameter_mm,
+            mesh_path.display()
+        ),
+    })
+}
+
 /// One test image with its ground truth and targets.
 #[derive(Clone, Debug)]
 pub struct EvalImage {
@@ -368,6 +400,8 @@ where
                 .or_else(|_| dataset.model_path(obj_id))?;
             let mesh = Mesh::from_ply_file(&path)?;
             let info = if dataset.has_models_info() {
+                let measured = ppfd_models::model::sampling::diameter(&mesh.positions);
+                check_diameter(dataset, obj_id, measured, &path)?;
                 dataset.model_info(obj_id)?.clone()
             } else {
                 model_info_from_mesh(&mesh)
