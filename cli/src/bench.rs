@@ -20,7 +20,7 @@ use crate::common::{detect_once_framed, millis, ms, stages, Connect};
 #[derive(Args, Debug)]
 pub struct BenchArgs {
     /// Camera whose newest frame to use.
-    #[arg(long)]
+    #[arg(long, value_parser = crate::common::camera_name)]
     pub camera: String,
     /// Object ids, comma-separated; repeated, one list per client in turn (client i asks for
     /// list i modulo the number of lists).

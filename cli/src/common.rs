@@ -32,6 +32,12 @@ pub fn object_id(s: &str) -> Result<u32, String> {
     }
 }
 
+/// A camera name as `--camera` takes it: one the protocol allows, else a usage error.
+pub fn camera_name(s: &str) -> Result<String, String> {
+    ppfd_client::protocol::services::check_camera_name(s).map_err(|e| e.to_string())?;
+    Ok(s.to_owned())
+}
+
 /// Each id once, in the order of its first appearance: an image's ground truth lists an object
 /// once per instance, not always side by side, and an object is detected (or timed) once.
 pub fn distinct(ids: impl Iterator<Item = u32>) -> Vec<u32> {

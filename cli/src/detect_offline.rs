@@ -12,7 +12,7 @@ use crate::offline::dataset_models;
 #[derive(Args, Debug)]
 pub struct DetectCommand {
     /// Camera whose newest frame the daemon should use.
-    #[arg(long, conflicts_with = "dataset")]
+    #[arg(long, conflicts_with = "dataset", value_parser = crate::common::camera_name)]
     pub camera: Option<String>,
     /// A BOP dataset directory: detect in one of its frames in this process, no daemon.
     #[arg(long, requires_all = ["scene", "image"])]

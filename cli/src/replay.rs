@@ -28,7 +28,7 @@ pub struct ReplayArgs {
     /// Root of a BOP dataset (e.g. ../shared/data/lmo).
     pub dataset: PathBuf,
     /// Camera name to publish as.
-    #[arg(long)]
+    #[arg(long, value_parser = crate::common::camera_name)]
     pub camera: String,
     /// Frames per second, 0.01 to 1000.
     #[arg(long, default_value_t = 10.0, value_parser = parse_fps)]
@@ -176,6 +176,10 @@ pub fn run(args: ReplayArgs) -> Result<(), String> {
             });
             if let Some(line) = line {
                 println!("{line}");
+            }
+            if !args.repeat && index + 1 == images.len() {
+                // The last frame: the linger below follows it at once, while it is fresh.
+                break;
             }
             next += period;
             // Not a plain sleep: a daemon that subscribes meanwhile gets this frame now, not

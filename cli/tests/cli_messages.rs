@@ -618,3 +618,48 @@ fn a_replay_stopped_by_sigterm_leaves_no_shared_memory_behind() {
     );
     assert!(left.is_empty(), "left behind: {left:?}");
 }
+
+/// Without `--loop`, the replay stays 2 s after its last frame, at any rate: the linger starts
+/// when that frame is published, not a frame period later (at 0.2 frames per second, five
+/// seconds in which the frame grows older than the daemon's stale limit).
+#[test]
+fn a_replay_lingers_from_its_last_frame() {
+    let scratch = Scratch::new("replay-linger");
+    let data = scratch.join("parts");
+    assert!(run(ppf(&["generate"]).arg(&data)).status.success());
+    let prefix = format!("cf_linger_{}_", std::process::id());
+    let started = std::time::Instant::now();
+    let out = run(ppf(&["replay"]).arg(&data).args([
+        "--camera",
+        "cf_linger",
+        "--fps",
+        "0.2",
+        "--prefix",
+        &prefix,
+    ]));
+    let took = started.elapsed();
+    let _ = ppfd_client::remove_prefix_leftovers(&prefix);
+    assert!(out.status.success(), "{out:?}");
+    assert!(
+        took < std::time::Duration::from_secs_f32(4.5),
+        "one frame at 0.2 fps took {took:?}: a frame period (5 s) before the 2 s linger"
+    );
+}
+
+/// A camera name the protocol does not allow is a usage error (exit 2) in every command that
+/// takes `--camera`, as a bad `--prefix` is, before anything connects.
+#[test]
+fn a_bad_camera_name_is_a_usage_error() {
+    for args in [
+        &["detect", "--objects", "1", "--camera"][..],
+        &["bench", "--objects", "1", "--camera"][..],
+        &["replay", "/nonexistent", "--camera"][..],
+    ] {
+        for name in ["c 6", ""] {
+            let out = run(ppf(args).arg(name));
+            let e = String::from_utf8_lossy(&out.stderr);
+            assert_eq!(out.status.code(), Some(2), "{args:?} {name:?}: {e}");
+            assert!(e.contains("--camera"), "{args:?} {name:?}: {e}");
+        }
+    }
+}

@@ -73,7 +73,9 @@ pub fn diameter_out_of_range(diameter: f32) -> Option<String> {
     let (factor, name) = unit;
     Some(format!(
         "the diameter is {diameter} mm, outside {MIN_DIAMETER_MM}..{MAX_DIAMETER_MM} mm: the \
-         mesh looks like it is in {name}; scale it to millimetres (ppf model build --scale {factor})"
+         mesh looks like it is in {name}; scale it by {factor} to millimetres (`ppf model build \
+         --scale {factor}` makes a model file of it so; a mesh file read as it is must itself \
+         be in millimetres)"
     ))
 }
 
