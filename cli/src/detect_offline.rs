@@ -111,7 +111,7 @@ impl DetectCommand {
         {
             return Err(
                 "--diagnose ranks the first correct pose after each stage, without request \
-                 options or an overlay: leave those out, or --diagnose"
+                 options or an overlay: leave those out, or leave out --diagnose"
                     .into(),
             );
         }

@@ -255,7 +255,17 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
                 let (model, report) = match args.scale {
                     Some(factor) => {
                         mesh.scale(factor);
-                        ObjectModel::build_with_report(&mesh, id, &name, &params)?
+                        // The sizes a refusal gives are the scaled mesh's: said so.
+                        ObjectModel::build_with_report(&mesh, id, &name, &params).map_err(
+                            |e| match e {
+                                ppfd_models::Error::InvalidMesh(reason) => {
+                                    ppfd_models::Error::InvalidMesh(format!(
+                                        "scaled by --scale {factor}: {reason}"
+                                    ))
+                                }
+                                e => e,
+                            },
+                        )?
                     }
                     // The model of the file's very bytes, as the daemon would build it: it
                     // records their CRC, so that the daemon takes it, beside the mesh, before
