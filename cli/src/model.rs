@@ -256,16 +256,16 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
                     Some(factor) => {
                         mesh.scale(factor);
                         // The sizes a refusal gives are the scaled mesh's: said so.
-                        ObjectModel::build_with_report(&mesh, id, &name, &params).map_err(
-                            |e| match e {
+                        ObjectModel::build_with_report(&mesh, id, &name, &params).map_err(|e| {
+                            match e {
                                 ppfd_models::Error::InvalidMesh(reason) => {
                                     ppfd_models::Error::InvalidMesh(format!(
                                         "scaled by --scale {factor}: {reason}"
                                     ))
                                 }
                                 e => e,
-                            },
-                        )?
+                            }
+                        })?
                     }
                     // The model of the file's very bytes, as the daemon would build it: it
                     // records their CRC, so that the daemon takes it, beside the mesh, before
@@ -451,39 +451,53 @@ fn bench(args: BenchArgs) -> Result<(), Box<dyn std::error::Error>> {
     println!("| model | build (ms) | points | table entries | size (MB) | load (ms) | D (mm) |");
     println!("|---|---:|---:|---:|---:|---:|---:|");
     let params = ModelParams::default();
+    let mut failed = 0;
     for (i, path) in args.meshes.iter().enumerate() {
-        let mesh = Mesh::from_ply_file(path)?;
-        // The id only seeds the sampling here: a name without one is numbered by position.
-        let id = ppfd::ppf_engine::object_id_of_file(path)
-            .filter(|&id| id > 0)
-            .unwrap_or(i as u32 + 1);
-        let name = name_of(path);
-        let mut builds = Vec::new();
-        let mut model = None;
-        for _ in 0..repeat {
-            let t = Instant::now();
-            model = Some(ObjectModel::build(&mesh, id, &name, &params)?);
-            builds.push(t.elapsed());
+        // A mesh that fails is said and the others measured, as `ppf model build` goes on.
+        let row = || -> Result<String, Box<dyn std::error::Error>> {
+            let mesh = Mesh::from_ply_file(path)?;
+            // The id only seeds the sampling here: a name without one is numbered by position.
+            let id = ppfd::ppf_engine::object_id_of_file(path)
+                .filter(|&id| id > 0)
+                .unwrap_or(i as u32 + 1);
+            let name = name_of(path);
+            let mut builds = Vec::new();
+            let mut model = None;
+            for _ in 0..repeat {
+                let t = Instant::now();
+                model = Some(ObjectModel::build(&mesh, id, &name, &params)?);
+                builds.push(t.elapsed());
+            }
+            let model = model.expect("at least one run");
+            let file = dir.join(format!("{name}.{}", store::EXTENSION));
+            store::save(&model, &file)?;
+            let mut loads = Vec::new();
+            for _ in 0..repeat {
+                let t = Instant::now();
+                let loaded = store::load(&file)?;
+                loads.push(t.elapsed());
+                assert_eq!(loaded.table_entry_count(), model.table_entry_count());
+            }
+            Ok(format!(
+                "| {name} | {:.0} | {} | {} | {:.2} | {:.2} | {:.2} |",
+                crate::common::median_ms(&builds),
+                model.point_count(),
+                model.table_entry_count(),
+                model.byte_size() as f64 / 1e6,
+                crate::common::median_ms(&loads),
+                model.diameter_mm()
+            ))
+        };
+        match row() {
+            Ok(line) => println!("{line}"),
+            Err(e) => {
+                failed += 1;
+                eprintln!("error: {e}");
+            }
         }
-        let model = model.unwrap();
-        let file = dir.join(format!("{name}.{}", store::EXTENSION));
-        store::save(&model, &file)?;
-        let mut loads = Vec::new();
-        for _ in 0..repeat {
-            let t = Instant::now();
-            let loaded = store::load(&file)?;
-            loads.push(t.elapsed());
-            assert_eq!(loaded.table_entry_count(), model.table_entry_count());
-        }
-        println!(
-            "| {name} | {:.0} | {} | {} | {:.2} | {:.2} | {:.2} |",
-            crate::common::median_ms(&builds),
-            model.point_count(),
-            model.table_entry_count(),
-            model.byte_size() as f64 / 1e6,
-            crate::common::median_ms(&loads),
-            model.diameter_mm()
-        );
+    }
+    if failed > 0 {
+        return Err(format!("{failed} of {} meshes failed", args.meshes.len()).into());
     }
     Ok(())
 }

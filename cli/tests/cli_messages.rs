@@ -236,6 +236,30 @@ fn a_failed_model_bench_leaves_no_scratch_folder() {
     assert!(!left.exists(), "{} left behind", left.display());
 }
 
+/// A mesh that fails is said, and the meshes after it are measured all the same, as `ppf
+/// model build` goes on past one; the run exits 1 saying how many failed.
+#[test]
+fn model_bench_goes_on_past_a_bad_mesh() {
+    let scratch = Scratch::new("bench-goes-on");
+    let bad = scratch.join("obj_000004.ply");
+    std::fs::write(&bad, "ply\nformat ascii 1.0\nend_header\n").unwrap();
+    let good = scratch.join("obj_000001.ply");
+    std::fs::write(&good, Part::LBracket.mesh().to_ply_ascii()).unwrap();
+    let out = run(ppf(&["model", "bench", "--repeat", "1"])
+        .arg(&bad)
+        .arg(&good));
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert_eq!(out.status.code(), Some(1), "{stdout}\n{stderr}");
+    assert!(stdout.contains("| obj_000001 |"), "{stdout}");
+    assert!(
+        stderr.contains("obj_000004") && stderr.contains("1 of 2 meshes failed"),
+        "{stderr}"
+    );
+}
+
 /// The demo on a dataset whose mesh is not named `obj_<id>.ply`: the daemon is given it under
 /// that name, and the demo's folder goes, and its daemon is stopped, when the demo fails. A fake
 /// `ppfd` records the model folder it was given, then either dies before it is ready or says
