@@ -40,22 +40,28 @@ pairs=()
 for dataset in "${datasets[@]}"; do
     out="results/peers/$(basename "$dataset")"
     mkdir -p "$out"
+    # An earlier run's files (another scene distance's) would be scored as this run's.
+    rm -f "$out"/opencv_ppf*.csv "$out"/opencv_ppf*.score.txt "$out"/opencv_ppf*.score.json
     pairs+=("$dataset" "$out/opencv_ppf.csv")
 done
 # shellcheck disable=SC2086
 "$venv/bin/python" -u "$here/opencv_ppf.py" "${pairs[@]}" ${OPENCV_ARGS:-} \
     2> >(tee results/peers/opencv_ppf.log >&2)
 
+# With --max-images the images left out would count as misses: only the images run are scored.
+only=()
+case " ${OPENCV_ARGS:-} " in *" --max-images "*) only=(--only-result-images) ;; esac
 for dataset in "${datasets[@]}"; do
     out="results/peers/$(basename "$dataset")"
-    csvs=("$out/opencv_ppf.csv")
+    # One file per scene distance when several are given (opencv_ppf_sd<distance>.csv).
+    csvs=("$out"/opencv_ppf*.csv)
     if [ ${#datasets[@]} -eq 1 ] && [ -n "${EXTRA_CSV:-}" ]; then
         csvs+=("$EXTRA_CSV")
     fi
     for csv in "${csvs[@]}"; do
         echo
         echo "== $dataset: $csv"
-        "$ppf" score "$dataset" "$csv" | tee "${csv%.csv}.score.txt"
-        "$ppf" score "$dataset" "$csv" --json > "${csv%.csv}.score.json"
+        "$ppf" score "$dataset" "$csv" "${only[@]}" | tee "${csv%.csv}.score.txt"
+        "$ppf" score "$dataset" "$csv" "${only[@]}" --json > "${csv%.csv}.score.json"
     done
 done

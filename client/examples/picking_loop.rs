@@ -81,7 +81,7 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     let mut picked = 0;
     // The previous cycle's poses that passed both filters, less the one picked.
     let mut known: Vec<PoseHypothesis> = Vec::new();
-    // How the cycles ended, for the summary line (a soak run reads it): refusals the cell
+    // How the cycles ended, for the summary line: refusals the cell
     // expects (a stale camera, a daemon restarting), answers that never came, and answers that
     // do not match their request (poses of objects not asked for).
     let (mut refused, mut failed, mut mismatched) = (0usize, 0usize, 0usize);
