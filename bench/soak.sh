@@ -59,7 +59,7 @@ start_camera
 
 end=$(($(date +%s) + minutes * 60))
 # One picking loop for the whole run: cycles enough to outlast it; it is stopped at the end.
-"$bin/examples/picking_loop" soak 1000000 1,5,6 8,9,10 11,12 "--timeout-ms=$timeout_ms" >"$work/picking.log" 2>&1 &
+"$bin/examples/picking_loop" soak 1000000 1,5,6 8,9,10 11,12 --timeout-ms "$timeout_ms" >"$work/picking.log" 2>&1 &
 loop_pid=$!
 pids+=("$loop_pid")
 

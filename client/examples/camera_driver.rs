@@ -7,13 +7,33 @@
 //! cargo run --release -p ppfd-client --example camera_driver -- kinect 30
 //! ```
 
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use ppfd_client::{monotonic_now_ns, CameraPublisher, Intrinsics};
 
-/// Ends with the error's message (its `Display`), as a command-line tool says it.
+const USAGE: &str = "usage: camera_driver [CAMERA [FPS]]
+  CAMERA  the name to publish as (default: kinect)
+  FPS     frames per second, above 0 to 1000 (default: 30)
+Ctrl-C or SIGTERM stops it; the daemon is the one of PPFD_PREFIX's prefix.";
+
+/// Ends with the error's message (its `Display`), as a command-line tool says it: arguments
+/// that do not parse with the usage and exit code 2, a failure while publishing with 1.
 fn main() -> std::process::ExitCode {
-    match run() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.iter().any(|a| a == "-h" || a == "--help") {
+        println!("{USAGE}");
+        return std::process::ExitCode::SUCCESS;
+    }
+    let (camera, fps) = match parse(&args) {
+        Ok(parsed) => parsed,
+        Err(e) => {
+            eprintln!("error: {e}\n{USAGE}");
+            return std::process::ExitCode::from(2);
+        }
+    };
+    match run(&camera, fps, stop_on_signals()) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e}");
@@ -22,10 +42,18 @@ fn main() -> std::process::ExitCode {
     }
 }
 
-fn run() -> Result<(), Box<dyn std::error::Error>> {
-    let mut args = std::env::args().skip(1);
-    let camera = args.next().unwrap_or_else(|| "kinect".into());
-    let fps: f64 = match args.next() {
+/// The camera name and the frame rate.
+fn parse(args: &[String]) -> Result<(String, f64), String> {
+    if args.len() > 2 {
+        return Err(format!("{} arguments; it takes at most 2", args.len()));
+    }
+    let camera = args.first().cloned().unwrap_or_else(|| "kinect".into());
+    if camera.starts_with('-') {
+        return Err(format!(
+            "{camera:?} is no camera name (this example takes no flags)"
+        ));
+    }
+    let fps = match args.get(1) {
         Some(v) => v
             .parse()
             .ok()
@@ -33,15 +61,43 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
             .ok_or_else(|| format!("frames per second: {v:?} is not a number above 0 to 1000"))?,
         None => 30.0,
     };
+    Ok((camera, fps))
+}
+
+/// A flag set once SIGINT or SIGTERM arrives. The driver then returns and drops its publisher,
+/// which removes the camera's shared memory; killed by the signal's default action instead, it
+/// would leave the memory for the daemon's cleanup to find.
+fn stop_on_signals() -> Arc<AtomicBool> {
+    let stop = Arc::new(AtomicBool::new(false));
+    // SAFETY: plain libc calls on a local signal set; blocked before any other thread starts,
+    // so that every thread inherits the mask and only the waiting thread takes the signals.
+    let set = unsafe {
+        let mut set: libc::sigset_t = std::mem::zeroed();
+        libc::sigemptyset(&mut set);
+        libc::sigaddset(&mut set, libc::SIGINT);
+        libc::sigaddset(&mut set, libc::SIGTERM);
+        libc::pthread_sigmask(libc::SIG_BLOCK, &set, std::ptr::null_mut());
+        set
+    };
+    let flag = stop.clone();
+    std::thread::spawn(move || {
+        let mut signal = 0;
+        // SAFETY: waits for one of the signals blocked above.
+        while unsafe { libc::sigwait(&set, &mut signal) } != 0 {}
+        flag.store(true, Ordering::SeqCst);
+    });
+    stop
+}
+
+fn run(camera: &str, fps: f64, stop: Arc<AtomicBool>) -> Result<(), Box<dyn std::error::Error>> {
     let (width, height) = (640u32, 480u32);
     // No prefix: PPFD_PREFIX's, as the daemon started in the same environment takes it.
-    let mut publisher =
-        CameraPublisher::new(None, &camera, 0, width, height, Intrinsics::LMO, 1.0)?;
+    let mut publisher = CameraPublisher::new(None, camera, 0, width, height, Intrinsics::LMO, 1.0)?;
     println!("publishing {width}x{height} depth as camera {camera:?} at {fps} fps (Ctrl-C stops)");
 
     let period = Duration::from_secs_f64(1.0 / fps);
     let mut next = Instant::now();
-    loop {
+    while !stop.load(Ordering::SeqCst) {
         let capture = monotonic_now_ns();
         let t = (capture / 1_000_000) as f32 / 1000.0;
         let frame = publisher.loan()?.write_from_fn(|i| {
@@ -57,6 +113,15 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         }
         next += period;
         // Not a plain sleep: a daemon that subscribes between frames gets the newest at once.
-        publisher.idle(next.saturating_duration_since(Instant::now()))?;
+        // In steps, so that a stop is seen within 50 ms at any frame rate.
+        while !stop.load(Ordering::SeqCst) {
+            let left = next.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                break;
+            }
+            publisher.idle(left.min(Duration::from_millis(50)))?;
+        }
     }
+    println!("stopped; camera {camera:?} removed");
+    Ok(())
 }

@@ -7,9 +7,27 @@
 
 use ppfd_client::{Client, DetectOptions};
 
-/// Ends with the error's message (its `Display`), as a command-line tool says it.
+const USAGE: &str = "usage: detect [CAMERA [OBJECT_ID ...]]
+  CAMERA     the camera whose newest frame to detect in (default: kinect)
+  OBJECT_ID  object ids, from 1 (default: 1)
+The daemon is the one of PPFD_PREFIX's prefix (default: iceoryx2's).";
+
+/// Ends with the error's message (its `Display`), as a command-line tool says it: arguments
+/// that do not parse with the usage and exit code 2, a failed detection with 1.
 fn main() -> std::process::ExitCode {
-    match run() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.iter().any(|a| a == "-h" || a == "--help") {
+        println!("{USAGE}");
+        return std::process::ExitCode::SUCCESS;
+    }
+    let (camera, objects) = match parse(&args) {
+        Ok(parsed) => parsed,
+        Err(e) => {
+            eprintln!("error: {e}\n{USAGE}");
+            return std::process::ExitCode::from(2);
+        }
+    };
+    match run(&camera, &objects) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e}");
@@ -18,18 +36,31 @@ fn main() -> std::process::ExitCode {
     }
 }
 
-fn run() -> Result<(), Box<dyn std::error::Error>> {
-    let mut args = std::env::args().skip(1);
-    let camera = args.next().unwrap_or_else(|| "kinect".into());
+/// The camera and the object ids.
+fn parse(args: &[String]) -> Result<(String, Vec<u32>), String> {
+    let camera = args.first().cloned().unwrap_or_else(|| "kinect".into());
+    if camera.starts_with('-') {
+        return Err(format!(
+            "{camera:?} is no camera name (this example takes no flags)"
+        ));
+    }
     let objects: Vec<u32> = args
-        .map(|a| a.parse().map_err(|_| format!("{a:?} is not an object id")))
+        .iter()
+        .skip(1)
+        .map(|a| match a.parse::<u32>() {
+            Ok(id) if id > 0 => Ok(id),
+            _ => Err(format!("{a:?} is not an object id (a whole number from 1)")),
+        })
         .collect::<Result<_, _>>()?;
     let objects = if objects.is_empty() { vec![1] } else { objects };
+    Ok((camera, objects))
+}
 
+fn run(camera: &str, objects: &[u32]) -> Result<(), Box<dyn std::error::Error>> {
     let client = Client::connect()?;
     let found = client.detect(
-        &camera,
-        &objects,
+        camera,
+        objects,
         &DetectOptions {
             hypotheses_per_object: 3,
             // A cluttered frame takes seconds per object on a 2-core machine.
@@ -43,7 +74,8 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
         println!(
             "object {:>3} #{}: score {:.3}, t = ({:.1}, {:.1}, {:.1}) mm, rotation {:.1} deg about {:?}",
             h.object_id,
-            h.instance_rank,
+            // From 1, as `ppf detect` counts.
+            h.instance_rank + 1,
             h.score,
             t.x,
             t.y,

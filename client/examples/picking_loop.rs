@@ -9,17 +9,46 @@
 //! cargo run --release -p ppfd-client --example picking_loop -- kinect 20 1,5,6 8,9
 //! ```
 //!
-//! `--timeout-ms=N` anywhere among the arguments sets the detect timeout (default: the
-//! library's).
+//! `--timeout-ms N` anywhere among the arguments sets the detect timeout (default: the
+//! library's); `--help` says the rest.
 
 use std::time::{Duration, Instant};
 
 use ppfd_client::protocol::MAX_HINTS_PER_REQUEST;
 use ppfd_client::{checks, Client, DetectOptions, Error, PoseHint, PoseHypothesis, Status};
 
-/// Ends with the error's message (its `Display`), as a command-line tool says it.
+const USAGE: &str = "usage: picking_loop [CAMERA [CYCLES [ORDER ...]]] [--timeout-ms N]
+  CAMERA         the camera to detect in (default: kinect)
+  CYCLES         how many cycles to run (default: 10)
+  ORDER          the object ids of one order, comma separated, from 1; the orders are taken in
+                 turn (default: 1,5,6 8,9)
+  --timeout-ms N the detect timeout, milliseconds above 0 (default: the library's, 3 s)
+The daemon is the one of PPFD_PREFIX's prefix (default: iceoryx2's).";
+
+/// What the loop is asked to do.
+struct Args {
+    camera: String,
+    cycles: usize,
+    orders: Vec<Vec<u32>>,
+    timeout: Option<Duration>,
+}
+
+/// Ends with the error's message (its `Display`), as a command-line tool says it: arguments
+/// that do not parse with the usage and exit code 2, a run that fails with 1.
 fn main() -> std::process::ExitCode {
-    match run() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.iter().any(|a| a == "-h" || a == "--help") {
+        println!("{USAGE}");
+        return std::process::ExitCode::SUCCESS;
+    }
+    let args = match parse(args) {
+        Ok(parsed) => parsed,
+        Err(e) => {
+            eprintln!("error: {e}\n{USAGE}");
+            return std::process::ExitCode::from(2);
+        }
+    };
+    match run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e}");
@@ -28,32 +57,49 @@ fn main() -> std::process::ExitCode {
     }
 }
 
-fn run() -> Result<(), Box<dyn std::error::Error>> {
-    // `--timeout-ms=N` anywhere sets the detect timeout (default: the library's).
-    let (timeouts, args): (Vec<String>, Vec<String>) = std::env::args()
-        .skip(1)
-        .partition(|a| a.starts_with("--timeout-ms="));
-    let timeout = match timeouts.last() {
-        Some(t) => match t["--timeout-ms=".len()..].parse::<u64>() {
-            Ok(ms) if ms > 0 => Some(Duration::from_millis(ms)),
-            _ => return Err(format!("{t}: a number of milliseconds above 0").into()),
-        },
-        None => None,
-    };
+/// `--timeout-ms N` (or `=N`) anywhere; then the camera, the cycles and the orders in turn.
+fn parse(args: Vec<String>) -> Result<Args, String> {
+    let mut timeout = None;
+    let mut positional = Vec::new();
     let mut args = args.into_iter();
-    let camera = args.next().unwrap_or_else(|| "kinect".into());
-    let cycles: usize = match args.next() {
+    while let Some(a) = args.next() {
+        let value = if a == "--timeout-ms" {
+            Some(
+                args.next()
+                    .ok_or("--timeout-ms needs a number of milliseconds")?,
+            )
+        } else {
+            a.strip_prefix("--timeout-ms=").map(str::to_owned)
+        };
+        match value {
+            Some(v) => match v.parse::<u64>() {
+                Ok(ms) if ms > 0 => timeout = Some(Duration::from_millis(ms)),
+                _ => {
+                    return Err(format!(
+                        "--timeout-ms {v:?}: a number of milliseconds above 0"
+                    ))
+                }
+            },
+            None if a.starts_with('-') => return Err(format!("unknown flag {a:?}")),
+            None => positional.push(a),
+        }
+    }
+    let mut positional = positional.into_iter();
+    let camera = positional.next().unwrap_or_else(|| "kinect".into());
+    let cycles: usize = match positional.next() {
         Some(v) => v
             .parse()
             .map_err(|_| format!("cycles: {v:?} is not a count"))?,
         None => 10,
     };
-    let orders: Vec<Vec<u32>> = args
+    let orders: Vec<Vec<u32>> = positional
         .map(|o| {
             o.split(',')
-                .map(|s| {
-                    s.parse()
-                        .map_err(|_| format!("order {o:?}: {s:?} is not an object id"))
+                .map(|s| match s.parse::<u32>() {
+                    Ok(id) if id > 0 => Ok(id),
+                    _ => Err(format!(
+                        "order {o:?}: {s:?} is not an object id (a whole number from 1)"
+                    )),
                 })
                 .collect::<Result<Vec<u32>, String>>()
         })
@@ -63,7 +109,21 @@ fn run() -> Result<(), Box<dyn std::error::Error>> {
     } else {
         orders
     };
+    Ok(Args {
+        camera,
+        cycles,
+        orders,
+        timeout,
+    })
+}
 
+fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
+    let Args {
+        camera,
+        cycles,
+        orders,
+        timeout,
+    } = args;
     let client = Client::connect()?;
     // The default timeout, 3 s, is about six times what eight objects in a cluttered VGA frame
     // take on two cores (0.52 s).

@@ -7,33 +7,56 @@ camera, unknown object) are handled the way a cell controller would: skip, repor
 """
 
 import argparse
+import sys
 import time
 
 import ppfd
 
 
-def main() -> None:
+def order_of(text: str) -> list:
+    """One order: object ids from 1, comma-separated."""
+    try:
+        ids = [int(i) for i in text.split(",") if i]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: object ids are whole numbers, comma-separated")
+    if not ids or min(ids) < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: give object ids from 1, comma-separated")
+    return ids
+
+
+def positive(text: str) -> float:
+    """A number of seconds above 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number")
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: give seconds above 0")
+    return value
+
+
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("camera", nargs="?", default="kinect")
     parser.add_argument("cycles", nargs="?", type=int, default=10)
-    parser.add_argument("orders", nargs="*", default=["1,5,6", "8,9"],
+    parser.add_argument("orders", nargs="*", type=order_of, default=[[1, 5, 6], [8, 9]],
                         help="object ids of one order, comma-separated")
     parser.add_argument("--prefix", default=None, help="iceoryx2 prefix (default: PPFD_PREFIX)")
-    parser.add_argument("--timeout", type=float, default=None,
+    parser.add_argument("--timeout", type=positive, default=None,
                         help="seconds per request (default: the client's, 3 s)")
     args = parser.parse_args()
-    orders = [[int(i) for i in order.split(",") if i] for order in args.orders]
-    orders = [order for order in orders if order]
-    if not orders:
-        parser.error("every order is empty: give object ids, comma-separated (1,5,6)")
+    orders = args.orders
 
     client = ppfd.Client(prefix=args.prefix)
-    picked = 0
+    picked = failed = 0
+    both = ppfd.Checks.CONSISTENT | ppfd.Checks.SILHOUETTE
     for cycle in range(args.cycles):
         order = orders[cycle % len(orders)]
         start = time.monotonic()
         try:
-            found = client.detect(args.camera, order, hypotheses=2, timeout=args.timeout,
+            # Each object's best pose: a second pose that passes both filters is often a
+            # partial fit beside the first, and a cell would send the robot to it.
+            found = client.detect(args.camera, order, hypotheses=1, timeout=args.timeout,
                                   max_frame_age=0.5)
         except ppfd.CameraStale as e:
             print(f"cycle {cycle}: camera stale ({e.value / 1e6:.0f} ms), waiting for the driver")
@@ -48,10 +71,13 @@ def main() -> None:
             continue
         except ppfd.Error as e:
             print(f"cycle {cycle}: {e}")
+            failed += 1
             time.sleep(0.1)
             continue
-        # The best-scored instance of any object of the order is the next pick.
-        best = max(found, key=lambda d: d.score, default=None)
+        # The best-scored pose that passed both filters, of any object of the order, is the
+        # next pick; a pose that failed one is listed, never picked.
+        passed = [d for d in found if d.checks & both == both]
+        best = max(passed, key=lambda d: d.score, default=None)
         if best is None:
             print(f"cycle {cycle}: nothing of {order} in view")
             continue
@@ -68,8 +94,12 @@ def main() -> None:
             f"frame {found.frame_sequence} aged {found.frame_age_ns / 1e6:.1f} ms)",
             flush=True,
         )
-    print(f"{picked} picks in {args.cycles} cycles")
+    print(f"{picked} picks in {args.cycles} cycles; {failed} failed")
+    if args.cycles > 0 and failed == args.cycles:
+        print("error: every cycle failed", file=sys.stderr)
+        return 1
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
