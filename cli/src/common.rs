@@ -32,6 +32,39 @@ pub fn object_id(s: &str) -> Result<u32, String> {
     }
 }
 
+/// Writes `files` so that a failure while writing (a full disk) leaves none of them: each goes
+/// to a temporary file beside it first, and only once every one is written are they renamed
+/// into place. A failure removes the temporary files; no half-written file is left.
+pub fn write_all(files: &[(PathBuf, Vec<u8>)]) -> Result<(), String> {
+    let temporary = |path: &Path| {
+        let mut name = path.file_name().unwrap_or_default().to_os_string();
+        name.push(format!(".partial-{}", std::process::id()));
+        path.with_file_name(name)
+    };
+    let mut written: Vec<PathBuf> = Vec::with_capacity(files.len());
+    let outcome = files.iter().try_for_each(|(path, bytes)| {
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir)
+                .map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
+        }
+        let partial = temporary(path);
+        written.push(partial.clone());
+        std::fs::write(&partial, bytes).map_err(|e| format!("cannot write {}: {e}", path.display()))
+    });
+    let outcome = outcome.and_then(|()| {
+        files.iter().try_for_each(|(path, _)| {
+            std::fs::rename(temporary(path), path)
+                .map_err(|e| format!("cannot write {}: {e}", path.display()))
+        })
+    });
+    if outcome.is_err() {
+        for partial in &written {
+            let _ = std::fs::remove_file(partial);
+        }
+    }
+    outcome
+}
+
 /// A camera name as `--camera` takes it: one the protocol allows, else a usage error.
 pub fn camera_name(s: &str) -> Result<String, String> {
     ppfd_client::protocol::services::check_camera_name(s).map_err(|e| e.to_string())?;
@@ -301,6 +334,28 @@ pub fn scenes_there(scenes: &[u32]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A file that cannot be written leaves none of the others, and no temporary file.
+    #[test]
+    fn a_failed_write_leaves_nothing() {
+        let dir = ScratchDir::create("ppf-generate-write").unwrap();
+        let blocked = dir.path().join("blocked");
+        std::fs::write(&blocked, "a file where a folder is needed").unwrap();
+        let files = vec![
+            (dir.path().join("first.json"), b"{}".to_vec()),
+            (blocked.join("second.png"), vec![0; 16]),
+        ];
+        let e = write_all(&files).unwrap_err();
+        assert!(e.contains("blocked"), "{e}");
+        let mut left: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        assert_eq!(left, ["blocked"]);
+        write_all(&files[..1]).unwrap();
+        assert_eq!(std::fs::read(&files[0].0).unwrap(), b"{}");
+    }
 
     #[test]
     fn an_object_of_several_instances_is_taken_once() {

@@ -109,39 +109,6 @@ fn models_info_for(source: &Path, ids: &[u32]) -> Result<Option<serde_json::Valu
     Ok((!kept.is_empty()).then_some(serde_json::Value::Object(kept)))
 }
 
-/// Writes `files` so that a failure while writing (a full disk) leaves none of them: each goes
-/// to a temporary file beside it first, and only once every one is written are they renamed
-/// into place. A failure removes the temporary files; no half-written file is left.
-fn write_all(files: &[(PathBuf, Vec<u8>)]) -> Result<(), String> {
-    let temporary = |path: &Path| {
-        let mut name = path.file_name().unwrap_or_default().to_os_string();
-        name.push(format!(".partial-{}", std::process::id()));
-        path.with_file_name(name)
-    };
-    let mut written: Vec<PathBuf> = Vec::with_capacity(files.len());
-    let outcome = files.iter().try_for_each(|(path, bytes)| {
-        if let Some(dir) = path.parent() {
-            std::fs::create_dir_all(dir)
-                .map_err(|e| format!("cannot create {}: {e}", dir.display()))?;
-        }
-        let partial = temporary(path);
-        written.push(partial.clone());
-        std::fs::write(&partial, bytes).map_err(|e| format!("cannot write {}: {e}", path.display()))
-    });
-    let outcome = outcome.and_then(|()| {
-        files.iter().try_for_each(|(path, _)| {
-            std::fs::rename(temporary(path), path)
-                .map_err(|e| format!("cannot write {}: {e}", path.display()))
-        })
-    });
-    if outcome.is_err() {
-        for partial in &written {
-            let _ = std::fs::remove_file(partial);
-        }
-    }
-    outcome
-}
-
 /// The depth image as BOP stores it: a 16-bit grayscale PNG.
 fn depth_png(width: u32, height: u32, depth: &[u16]) -> Result<Vec<u8>, String> {
     let mut out = Vec::new();
@@ -156,8 +123,8 @@ fn depth_png(width: u32, height: u32, depth: &[u16]) -> Result<Vec<u8>, String> 
     Ok(out)
 }
 
-/// Writes `scene` and the meshes of its objects into `out` in the BOP layout.
-/// The files of the dataset, each with its path below the dataset's folder.
+/// The files of the dataset in the BOP layout (the meshes of `scene`'s objects, the scene,
+/// `info` as `models_info.json`), each with its path below the dataset's folder.
 fn dataset_files(
     meshes: &[(u32, &Mesh)],
     scene: &SyntheticScene,
@@ -275,7 +242,7 @@ pub fn run(args: GenerateArgs) -> Result<(), String> {
         .into_iter()
         .map(|(path, bytes)| (args.out.join(path), bytes))
         .collect();
-    write_all(&files)?;
+    crate::common::write_all(&files)?;
     println!(
         "wrote the generated scene of seed {} ({} objects, {} pieces of clutter) as a BOP dataset in {}",
         args.seed,
@@ -291,29 +258,7 @@ mod tests {
     use super::*;
 
     fn write(path: &Path, bytes: &[u8]) -> Result<(), String> {
-        write_all(&[(path.to_path_buf(), bytes.to_vec())])
-    }
-
-    /// A file that cannot be written leaves none of the others, and no temporary file.
-    #[test]
-    fn a_failed_write_leaves_nothing() {
-        let dir = crate::common::ScratchDir::create("ppf-generate-write").unwrap();
-        let blocked = dir.path().join("blocked");
-        std::fs::write(&blocked, "a file where a folder is needed").unwrap();
-        let files = vec![
-            (dir.path().join("first.json"), b"{}".to_vec()),
-            (blocked.join("second.png"), vec![0; 16]),
-        ];
-        let e = write_all(&files).unwrap_err();
-        assert!(e.contains("blocked"), "{e}");
-        let mut left: Vec<String> = std::fs::read_dir(dir.path())
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect();
-        left.sort();
-        assert_eq!(left, ["blocked"]);
-        write_all(&files[..1]).unwrap();
-        assert_eq!(std::fs::read(&files[0].0).unwrap(), b"{}");
+        crate::common::write_all(&[(path.to_path_buf(), bytes.to_vec())])
     }
 
     /// Files of another dataset in the folder (a scene, a colour image, a file of targets) are

@@ -188,16 +188,7 @@ impl Overlay {
         let mut writer = encoder.write_header().map_err(|e| fail(&e))?;
         writer.write_image_data(&self.rgb).map_err(|e| fail(&e))?;
         writer.finish().map_err(|e| fail(&e))?;
-        let mut name = path.file_name().unwrap_or_default().to_os_string();
-        name.push(format!(".partial-{}", std::process::id()));
-        let partial = path.with_file_name(name);
-        let written =
-            std::fs::write(&partial, &bytes).and_then(|()| std::fs::rename(&partial, path));
-        if let Err(e) = written {
-            let _ = std::fs::remove_file(&partial);
-            return Err(fail(&e));
-        }
-        Ok(())
+        crate::common::write_all(&[(path.to_path_buf(), bytes)])
     }
 }
 
