@@ -36,7 +36,8 @@ pub struct GenerateArgs {
     #[arg(long)]
     pub no_noise: bool,
     /// Place these meshes instead of the generated parts: a folder of PLY meshes in mm, named
-    /// by object id as `ppfd --models` takes them (`obj_000005.ply` is object 5).
+    /// by object id as `ppfd --models` takes them (`obj_000005.ply` is object 5); not the
+    /// output's own `models/`, which the scene rewrites.
     #[arg(long, value_name = "DIR")]
     pub models: Option<PathBuf>,
     /// With --models: only these object ids, comma separated (default: every mesh of the
@@ -217,7 +218,26 @@ fn refuse_strangers(out: &Path, files: &[PathBuf]) -> Result<(), String> {
     ))
 }
 
+/// Refuses `--models` naming the output's own `models/` folder: the scene rewrites its meshes
+/// there (as ASCII with normals, which drops a source's colours and texture coordinates) and its
+/// `models_info.json` (with only the objects placed).
+fn refuse_own_models(source: &Path, out: &Path) -> Result<(), String> {
+    let written = out.join("models");
+    match (source.canonicalize(), written.canonicalize()) {
+        (Ok(a), Ok(b)) if a == b => Err(format!(
+            "{}: --models names the folder this scene writes its models into, which would \
+             replace the meshes read from it: give another output folder, or copy the meshes \
+             elsewhere first",
+            source.display()
+        )),
+        _ => Ok(()),
+    }
+}
+
 pub fn run(args: GenerateArgs) -> Result<(), String> {
+    if let Some(dir) = &args.models {
+        refuse_own_models(dir, &args.out)?;
+    }
     let meshes: Vec<(u32, Mesh)> = match &args.models {
         Some(dir) => read_meshes(dir, &args.objects)?,
         None => Part::ALL
@@ -453,6 +473,39 @@ mod tests {
             e.contains("models/obj_000001.ply, models/obj_000002.ply, models/obj_000003.ply")
                 && e.contains("remove them"),
             "{e}"
+        );
+    }
+
+    /// The output's own models folder as `--models` is refused before anything is read or
+    /// written: its meshes stay as they are.
+    #[test]
+    fn the_outputs_own_models_folder_is_refused_as_source() {
+        let dir = crate::common::ScratchDir::create("ppf-generate-own").unwrap();
+        let source = mesh_folder(dir.path());
+        let out = dir.path().join("out");
+        run(GenerateArgs {
+            models: Some(source),
+            ..args(&out, 2)
+        })
+        .unwrap();
+        let mesh = out.join("models/obj_000001.ply");
+        // A mesh of the user's own, binary, in the folder the scene writes its models into.
+        let mut theirs = std::fs::read(&mesh).unwrap();
+        theirs.extend_from_slice(b"comment kept\n");
+        std::fs::write(&mesh, &theirs).unwrap();
+        let e = run(GenerateArgs {
+            models: Some(out.join("models/../models")),
+            ..args(&out, 3)
+        })
+        .unwrap_err();
+        assert!(
+            e.contains("--models names the folder this scene writes its models into"),
+            "{e}"
+        );
+        assert_eq!(
+            std::fs::read(&mesh).unwrap(),
+            theirs,
+            "the mesh is untouched"
         );
     }
 
