@@ -159,6 +159,7 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
         .unwrap(),
     );
     let mut rows = Vec::new();
+    let mut failed = Vec::new();
     for (&(scene, im), wanted) in images.iter().zip(&wanted_per_image) {
         let refs: Vec<_> = models
             .iter()
@@ -182,15 +183,13 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
         let det = match detected {
             Ok(det) => det,
             Err(e) => {
-                // Keep what the images before it gave.
-                bar.finish_and_clear();
-                write_results_file(&args.out, &rows)?;
-                return Err(format!(
-                    "scene {scene} image {im}: {e} (the {} estimates of the images before it are in {})",
-                    rows.len(),
-                    args.out.display()
-                )
-                .into());
+                // One frame that does not read or holds no depth to detect in costs its own
+                // targets, not the images after it: they are detected, scored, and the failed
+                // ones named at the end.
+                bar.suspend(|| eprintln!("scene {scene} image {im}: {e}"));
+                failed.push(format!("scene {scene} image {im}: {e}"));
+                bar.inc(1);
+                continue;
             }
         };
         for o in &det.objects {
@@ -210,14 +209,30 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
     }
     bar.finish_and_clear();
     write_results_file(&args.out, &rows)?;
+    let failed_note = match failed.len() {
+        0 => String::new(),
+        n => format!(" ({n} failed)"),
+    };
     eprintln!(
-        "{} estimates for {} images written to {}",
+        "{} estimates for {} images{failed_note} written to {}",
         rows.len(),
         images.len(),
         args.out.display()
     );
+    // Said last, after the score, so that a long run's end shows it.
+    let failures = || -> Result<(), Box<dyn std::error::Error>> {
+        match failed.first() {
+            None => Ok(()),
+            Some(first) => Err(format!(
+                "{} of {} images failed, so they have no estimates and their targets count as missed; the first: {first}",
+                failed.len(),
+                images.len()
+            )
+            .into()),
+        }
+    };
     if args.no_score {
-        return Ok(());
+        return failures();
     }
     let defaults = ScoreOptions::default();
     // One scene evaluated is scored against that scene's targets, not the whole dataset's.
@@ -246,5 +261,5 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
             crate::score::format_report(&args.dataset, &args.out, targets, &report)
         );
     }
-    Ok(())
+    failures()
 }

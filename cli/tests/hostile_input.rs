@@ -279,6 +279,46 @@ fn eval_reports_a_broken_image_before_any_work() {
     assert!(!cache.exists(), "no model was built");
 }
 
+/// A frame that holds no depth to detect in (every pixel 0, a sensor that dropped out) costs
+/// its own targets: the image after it is detected and the run scored, and then the failure is
+/// named and the exit code is 1.
+#[test]
+fn eval_goes_on_past_a_frame_it_cannot_detect_in() {
+    let dir = Scratch::new("eval-empty-frame");
+    let root = dir.join("dataset");
+    write_dataset(&root, GOOD_GT);
+    let depth = root.join("test/000000/depth/000000.png");
+    let file = std::io::BufWriter::new(std::fs::File::create(&depth).unwrap());
+    let mut encoder = png::Encoder::new(file, 64, 48);
+    encoder.set_color(png::ColorType::Grayscale);
+    encoder.set_depth(png::BitDepth::Sixteen);
+    let zeros = vec![0u8; 64 * 48 * 2];
+    encoder
+        .write_header()
+        .unwrap()
+        .write_image_data(&zeros)
+        .unwrap();
+    let csv = dir.join("r.csv");
+    let out = run(ppf(&["eval"])
+        .arg(&root)
+        .arg("--out")
+        .arg(&csv)
+        .env("PPFD_CACHE", dir.join("cache")));
+    assert_eq!(out.status.code(), Some(1));
+    let (o, e) = (text(&out.stdout), text(&out.stderr));
+    assert!(
+        o.contains("2 scored in 2 images") && o.contains("| all |"),
+        "both images' targets scored: {o}"
+    );
+    assert!(
+        e.contains("1 of 2 images failed")
+            && e.contains("scene 0 image 0: ")
+            && e.contains("no valid depth"),
+        "{e}"
+    );
+    assert!(csv.exists(), "the results are written");
+}
+
 /// On a frame where the object is not (a wall), its row says so.
 #[test]
 fn an_object_without_a_hypothesis_has_a_row_in_dataset_mode() {
