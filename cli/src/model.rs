@@ -252,6 +252,10 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
         let result = ppfd_models::file::read_bounded(path, &ppfd_models::limits::MESH_FILE)
             .and_then(|bytes| {
                 let mut mesh = Mesh::from_ply_reader(&bytes[..], path)?;
+                // The model records the CRC of the file's very bytes, as the daemon's own
+                // models do, so that the daemon takes it, beside the mesh, before the model it
+                // cached of the mesh (whose symmetry may differ), and, with --scale, instead of
+                // the mesh, which it would refuse as it is.
                 let (model, report) = match args.scale {
                     Some(factor) => {
                         mesh.scale(factor);
@@ -267,16 +271,9 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
                             }
                         })?
                     }
-                    // The model of the file's very bytes, as the daemon would build it: it
-                    // records their CRC, so that the daemon takes it, beside the mesh, before
-                    // the model it cached of the mesh, whose symmetry may differ.
-                    None => {
-                        let (model, report) =
-                            ObjectModel::build_with_report(&mesh, id, &name, &params)?;
-                        (model.with_source_crc(store::source_crc(&bytes))?, report)
-                    }
+                    None => ObjectModel::build_with_report(&mesh, id, &name, &params)?,
                 };
-                Ok((model, report))
+                Ok((model.with_source_crc(store::source_crc(&bytes))?, report))
             })
             .and_then(|(model, report)| {
                 if symmetry.is_none() {

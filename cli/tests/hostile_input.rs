@@ -319,6 +319,39 @@ fn eval_goes_on_past_a_frame_it_cannot_detect_in() {
     assert!(csv.exists(), "the results are written");
 }
 
+/// A mesh in metres is refused as it is; its model built with `--scale 1000` into the mesh's
+/// own folder, as the refusal advises, is taken in its place, where the mesh was refused again.
+#[test]
+fn a_model_built_with_scale_beside_its_mesh_in_metres_is_taken() {
+    let dir = Scratch::new("scaled-beside");
+    let root = dir.join("dataset");
+    write_dataset(&root, GOOD_GT);
+    let models = root.join("models");
+    let mut metres = Part::ALL[0].mesh();
+    metres.scale(0.001);
+    std::fs::write(models.join("obj_000001.ply"), metres.to_ply_ascii()).unwrap();
+    let detect = || {
+        run(ppf(&["detect", "--dataset"])
+            .arg(&root)
+            .args(["--scene", "0", "--image", "0"])
+            .env("PPFD_CACHE", dir.join("cache")))
+    };
+    let refused = detect();
+    assert_eq!(refused.status.code(), Some(1));
+    assert!(text(&refused.stderr).contains("--scale 1000"), "the advice");
+    let built = run(ppf(&["model", "build"])
+        .arg(models.join("obj_000001.ply"))
+        .args(["--scale", "1000", "--out"])
+        .arg(&models));
+    assert!(built.status.success());
+    let out = detect();
+    assert!(out.status.success(), "the scaled model is taken");
+    assert!(
+        text(&out.stdout).contains("| 1 |"),
+        "object 1 is detected for"
+    );
+}
+
 /// On a frame where the object is not (a wall), its row says so.
 #[test]
 fn an_object_without_a_hypothesis_has_a_row_in_dataset_mode() {

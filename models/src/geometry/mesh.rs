@@ -58,14 +58,16 @@ impl Mesh {
     /// normalised when present; other vertex properties and other elements are ignored. Faces
     /// are read from the `face` element's `vertex_indices` (or `vertex_index`) list of any
     /// integer type; polygons are fan-triangulated and degenerate triangles (a repeated index or
-    /// zero area) are skipped. A file without normals gets them from its faces, as
+    /// zero area) are skipped, and then vertices that no face uses are dropped (a file without
+    /// faces is read as a point cloud, every vertex kept). A file without normals gets them from
+    /// its faces, as
     /// [`Mesh::from_triangles`] does (split at creases); a vertex whose normal in the file has
     /// zero length gets the area-weighted normal of its faces.
     ///
     /// Errors: [`Error::Io`] when the file cannot be opened, [`Error::File`] for a special file
     /// or one beyond [`crate::limits::MESH_FILE`], [`Error::Ply`] naming what is wrong
     /// and where for anything malformed (truncated data, a missing coordinate, a non-finite
-    /// value, a face index out of range, no vertices, a vertex that can get no normal).
+    /// value, a face index out of range, no vertices, a point cloud's vertex with a zero normal).
     pub fn from_ply_file(path: impl AsRef<Path>) -> Result<Mesh> {
         let path = path.as_ref();
         let bytes = crate::file::read_bounded(path, &crate::limits::MESH_FILE)?;

@@ -390,7 +390,8 @@ fn build_mesh(
                 _ => {
                     return Err(format!(
                         "face {f}: vertex index {index} is out of range (the mesh has \
-                         {vertex_count} vertices, valid indices are 0..{vertex_count})"
+                         {vertex_count} vertices, numbered 0 to {})",
+                        vertex_count.saturating_sub(1)
                     ))
                 }
             }
@@ -424,10 +425,44 @@ fn build_mesh(
         );
     }
 
+    // A vertex that no face uses is not on the surface the model samples, yet it would count
+    // in the diameter, and so in every length of the model: one stray vertex half a metre out,
+    // as CAD and decimation exports leave, made a 100 mm part's model five times too coarse to
+    // be found. Such vertices are dropped; a file without faces is a point cloud and keeps all.
+    let kept: Vec<usize> = if triangles.is_empty() {
+        (0..vertex_count).collect()
+    } else {
+        let mut used = vec![false; vertex_count];
+        triangles
+            .iter()
+            .flatten()
+            .for_each(|&v| used[v as usize] = true);
+        if used.iter().all(|&u| u) {
+            (0..vertex_count).collect()
+        } else {
+            let mut new_index = vec![u32::MAX; vertex_count];
+            let kept: Vec<usize> = (0..vertex_count).filter(|&i| used[i]).collect();
+            for (j, &i) in kept.iter().enumerate() {
+                new_index[i] = j as u32;
+            }
+            for t in &mut triangles {
+                *t = t.map(|v| new_index[v as usize]);
+            }
+            positions = kept.iter().map(|&i| positions[i]).collect();
+            tracing::debug!(
+                dropped = vertex_count - kept.len(),
+                "PLY vertices that no face uses dropped"
+            );
+            kept
+        }
+    };
+
     let mut face_normals = None;
-    let mut normals = Vec::with_capacity(vertex_count);
+    let mut normals = Vec::with_capacity(kept.len());
     if has_normals {
-        for (i, v) in vertices.iter().enumerate() {
+        // `i` is the vertex's number in the file, for messages; `j` its index in the mesh.
+        for (j, &i) in kept.iter().enumerate() {
+            let v = &vertices[i];
             let n = Vector3::new(v.values[3], v.values[4], v.values[5]);
             if !n.iter().all(|c| c.is_finite()) {
                 return Err(format!(
@@ -446,7 +481,7 @@ fn build_mesh(
                 None => {
                     let from_faces = face_normals
                         .get_or_insert_with(|| vertex_normals_from_faces(&positions, &triangles));
-                    from_faces[i].ok_or_else(|| {
+                    from_faces[j].ok_or_else(|| {
                         format!(
                             "vertex {i}: the normal has zero length and the vertex lies on no \
                              face of non-zero area to compute one from"
@@ -869,10 +904,15 @@ mod tests {
             .faces
             .extend([vec![0, 0, 1], vec![0, 8, 4], vec![1, 2]]);
         fixture.faces.push(vec![0, 4, 6, 2]);
-        let mesh = read(&fixture.bytes(Format::Le));
-        // Vertex 8 is on no face of non-zero area, so without normals it must be refused...
-        expect_ply_error(mesh, &["vertex 8"]);
-        // ...and with normals in the file it is kept while the bad faces are dropped.
+        // Vertex 8 is on no face of non-zero area: it is dropped, with the bad faces, whether
+        // the file has normals or not.
+        let mesh = read(&fixture.bytes(Format::Le)).unwrap();
+        assert!(
+            mesh.positions
+                .iter()
+                .all(|p| p != &Point3::new(-10.0, -10.0, 0.0)),
+            "vertex 8 dropped"
+        );
         let with_normals = Fixture {
             vertex_props: XYZ_N,
             vertices: fixture
@@ -884,7 +924,7 @@ mod tests {
             faces: fixture.faces.clone(),
         };
         let mesh = read(&with_normals.bytes(Format::Ascii)).unwrap();
-        assert_eq!(mesh.positions.len(), 9);
+        assert_eq!(mesh.positions.len(), 8);
         assert_eq!(
             mesh.faces.len(),
             14,
@@ -1031,6 +1071,58 @@ mod tests {
         );
     }
 
+    /// A stray vertex that no face uses (first in the file, so that every face's indices move)
+    /// reads as the mesh without it, normals in the file or not: it would otherwise count in
+    /// the diameter, and so in every length of the model.
+    #[test]
+    fn a_vertex_no_face_uses_is_dropped() {
+        let shifted = |faces: &[Vec<i64>]| -> Vec<Vec<i64>> {
+            faces
+                .iter()
+                .map(|f| f.iter().map(|i| i + 1).collect())
+                .collect()
+        };
+        for (props, stray) in [
+            (XYZ, vec![500.0, 0.0, 0.0]),
+            (XYZ_N, vec![500.0, 0.0, 0.0, 0.0, 0.0, 1.0]),
+        ] {
+            let corners: Vec<Vec<f64>> = cube_corners()
+                .iter()
+                .map(|c| {
+                    let mut v = c.to_vec();
+                    if props.len() == 6 {
+                        v.extend(c.iter().map(|x| x / 10.0 / 3f64.sqrt()));
+                    }
+                    v
+                })
+                .collect();
+            let clean = Fixture {
+                vertex_props: props,
+                vertices: corners.clone(),
+                face_list: Some(("uchar", "int", "vertex_indices")),
+                faces: cube_quads(),
+            };
+            let with_stray = Fixture {
+                vertex_props: props,
+                vertices: std::iter::once(stray).chain(corners).collect(),
+                face_list: Some(("uchar", "int", "vertex_indices")),
+                faces: shifted(&cube_quads()),
+            };
+            for format in [Format::Ascii, Format::Le] {
+                let (clean, with_stray) = (
+                    read(&clean.bytes(format)).unwrap(),
+                    read(&with_stray.bytes(format)).unwrap(),
+                );
+                assert_eq!(
+                    with_stray.positions, clean.positions,
+                    "{props:?} {format:?}"
+                );
+                assert_eq!(with_stray.faces, clean.faces, "{props:?} {format:?}");
+                assert_eq!(with_stray.fingerprint(), clean.fingerprint());
+            }
+        }
+    }
+
     #[test]
     fn face_index_out_of_range_names_face_and_index() {
         let mut fixture = cube_fixture();
@@ -1038,7 +1130,7 @@ mod tests {
         for format in [Format::Ascii, Format::Le] {
             expect_ply_error(
                 read(&fixture.bytes(format)),
-                &["face 4", "vertex index 9", "8 vertices"],
+                &["face 4", "vertex index 9", "8 vertices, numbered 0 to 7"],
             );
         }
         fixture.faces[4] = vec![0, -2, 3];
