@@ -108,12 +108,16 @@ impl Args {
     }
 }
 
-/// The most characters of a logged field's value. iceoryx2 logs its port's whole state as the
-/// `origin` of each message (8.8 kB on one line for a frame lost from a driver that died).
-const MAX_FIELD_CHARS: usize = 240;
+/// The most characters of iceoryx2's `origin` field: it logs its port's whole state there with
+/// each message (8.8 kB on one line for a frame lost from a driver that died).
+const MAX_ORIGIN_CHARS: usize = 240;
 
-/// Writes one logged field; a value other than the message is cut to [`MAX_FIELD_CHARS`]
-/// characters.
+/// The most characters of any other field's value: the daemon's own errors, whose advice comes
+/// last (a mesh in metres is told the `--scale` to build it with), are kept whole.
+const MAX_FIELD_CHARS: usize = 4000;
+
+/// Writes one logged field; a value other than the message is cut to [`MAX_ORIGIN_CHARS`] or
+/// [`MAX_FIELD_CHARS`] characters.
 fn write_field(
     w: &mut tracing_subscriber::fmt::format::Writer<'_>,
     field: &tracing::field::Field,
@@ -127,7 +131,11 @@ fn write_field(
         return Ok(());
     }
     let text = format!("{value:?}");
-    match text.char_indices().nth(MAX_FIELD_CHARS) {
+    let most = match field.name() {
+        "origin" => MAX_ORIGIN_CHARS,
+        _ => MAX_FIELD_CHARS,
+    };
+    match text.char_indices().nth(most) {
         Some((at, _)) => write!(w, "{}={} …", field.name(), &text[..at]),
         None => write!(w, "{}={text}", field.name()),
     }
@@ -245,7 +253,8 @@ mod tests {
         }
     }
 
-    /// A long field value (iceoryx2's `origin`) is cut; the message and short fields are whole.
+    /// iceoryx2's long `origin` is cut; the message, an error of the daemon's and short fields
+    /// are whole, and any field beyond [`MAX_FIELD_CHARS`] is cut.
     #[test]
     fn long_logged_values_are_cut() {
         use tracing_subscriber::field::MakeExt;
@@ -258,17 +267,26 @@ mod tests {
             .finish();
         let message = "m".repeat(300);
         let origin = "o".repeat(5000);
+        let error = format!("{} (`ppf model build --scale 1000`)", "e".repeat(400));
+        let huge = "h".repeat(MAX_FIELD_CHARS + 10);
         tracing::subscriber::with_default(subscriber, || {
-            tracing::warn!(origin = %origin, camera = "left", "{message}");
+            tracing::warn!(origin = %origin, camera = "left", error = %error, "{message}");
+            tracing::warn!(reason = %huge, "second");
         });
-        let line = buffer.text();
+        let text = buffer.text();
+        let (line, second) = text.split_once('\n').unwrap();
         assert!(line.contains(&message), "{line}");
         assert!(line.contains("camera=\"left\""), "{line}");
+        assert!(line.contains(&format!("error={error}")), "{line}");
         assert!(
-            line.contains(&format!("origin={} …", "o".repeat(MAX_FIELD_CHARS))),
+            line.contains(&format!("origin={} …", "o".repeat(MAX_ORIGIN_CHARS))),
             "{line}"
         );
-        assert!(line.len() < 700, "{} bytes", line.len());
+        assert!(line.len() < 1200, "{} bytes", line.len());
+        assert!(
+            second.contains(&format!("reason={} …", "h".repeat(MAX_FIELD_CHARS))),
+            "{second}"
+        );
     }
 
     /// The prefix: the flag, else `PPFD_PREFIX`, else the file.
