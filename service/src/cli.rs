@@ -159,8 +159,8 @@ pub fn init_tracing() {
 pub type EngineFactory = dyn FnOnce(&DaemonConfig) -> Result<Arc<dyn DetectionEngine>>;
 
 /// Parses the command line and runs the daemon with the engine `make_engine` builds from the
-/// configuration. Prints one line, `ppfd ready pid=<pid> models=<n>`, on stdout once it
-/// serves (scripts wait for it).
+/// configuration. Prints one line, `ppfd ready pid=<pid> models=<n> failed=<n>` (the models
+/// folder's files that did not load), on stdout once it serves (scripts wait for it).
 pub fn main(make_engine: Box<EngineFactory>) -> ExitCode {
     main_with_args(std::env::args_os(), make_engine)
 }
@@ -208,7 +208,11 @@ where
     let result = crate::daemon::run(config, engine, |ready| {
         use std::io::Write;
         let mut out = std::io::stdout().lock();
-        let _ = writeln!(out, "ppfd ready pid={} models={}", ready.pid, ready.models);
+        let _ = writeln!(
+            out,
+            "ppfd ready pid={} models={} failed={}",
+            ready.pid, ready.models, ready.failed
+        );
         let _ = out.flush();
     });
     match result {

@@ -25,6 +25,9 @@ pub fn object_id_zero(path: &Path) -> EngineError {
 #[derive(Default)]
 pub struct Registry {
     models: BTreeMap<u32, Arc<LoadedModel>>,
+    /// Files of the models folder that did not load at start, with why: a request for the
+    /// object a file's name gives is told, rather than only that the id is unknown.
+    failed: BTreeMap<PathBuf, String>,
 }
 
 impl Registry {
@@ -116,7 +119,13 @@ impl Registry {
 
     /// Adds a model, replacing one of the same id.
     pub fn insert(&mut self, model: LoadedModel) -> Option<Arc<LoadedModel>> {
+        self.failed.remove(&model.source);
         self.models.insert(model.info.object_id, Arc::new(model))
+    }
+
+    /// Records that the models folder's file `path` did not load, and why.
+    pub fn record_failure(&mut self, path: PathBuf, reason: String) {
+        self.failed.insert(path, reason);
     }
 
     /// Drops a model.
@@ -128,10 +137,23 @@ impl Registry {
     pub fn resolve(&self, ids: &[u32]) -> Result<Vec<Arc<LoadedModel>>, EngineError> {
         ids.iter()
             .map(|id| {
-                self.models.get(id).cloned().ok_or_else(|| EngineError {
-                    status: Status::UnknownObject,
-                    message: format!("unknown object id {id}: loaded are {}", self.id_list()),
-                    value: *id as u64,
+                self.models.get(id).cloned().ok_or_else(|| {
+                    // The list of ids first: the reason of a failure may be long, and the
+                    // message is cut to fit the answer.
+                    let mut message =
+                        format!("unknown object id {id}: loaded are {}", self.id_list());
+                    if let Some((path, reason)) = self
+                        .failed
+                        .iter()
+                        .find(|(path, _)| crate::ppf_engine::object_id_of_file(path) == Some(*id))
+                    {
+                        message += &format!("; {} did not load: {reason}", path.display());
+                    }
+                    EngineError {
+                        status: Status::UnknownObject,
+                        message,
+                        value: *id as u64,
+                    }
                 })
             })
             .collect()

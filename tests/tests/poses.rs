@@ -601,6 +601,53 @@ fn the_daemon_refuses_unknown_detector_parameters_at_start() {
     }
 }
 
+/// A mesh of the models folder that does not load (one in metres) is counted in the ready line,
+/// and a request for its object is told why, beside the ids that are loaded.
+#[test]
+fn a_request_for_an_object_whose_mesh_did_not_load_is_told_why() {
+    let prefix = Prefix::new("failed_mesh");
+    let work = WorkDir::new("failed-mesh");
+    let (models, cache) = (work.join("models"), work.join("cache"));
+    std::fs::create_dir_all(&models).unwrap();
+    let part = Part::ALL[0];
+    let good = models.join(format!("obj_{:06}.ply", part.object_id()));
+    std::fs::write(&good, part.mesh().to_ply_ascii()).unwrap();
+    let mut metres = Part::ALL[1].mesh();
+    metres.scale(0.001);
+    let broken = models.join("obj_000007.ply");
+    std::fs::write(&broken, metres.to_ply_ascii()).unwrap();
+    let mut daemon = Proc::spawn(
+        Path::new(DAEMON),
+        &["--prefix", &prefix.0, "--models", models.to_str().unwrap()],
+        &[("PPFD_CACHE", cache.to_str().unwrap())],
+    );
+    let ready = daemon.wait_line("ppfd ready", DETECTION);
+    assert!(ready.contains("models=1 failed=1"), "{ready}");
+    let mut camera = spawn_camera(&prefix, "cam0", &["--fps", "20"]);
+    camera.wait_line("camera ready", STARTUP);
+    let client = ppfd_client::Client::connect_with(&ppfd_client::ClientOptions {
+        prefix: Some(prefix.0.clone()),
+        ..Default::default()
+    })
+    .unwrap();
+    match client.detect("cam0", &[part.object_id(), 7], &plain_options()) {
+        Err(ppfd_client::Error::Refused {
+            status, message, ..
+        }) => {
+            assert_eq!(status, ppfd_client::Status::UnknownObject, "{message}");
+            assert!(
+                message.starts_with(&format!(
+                    "unknown object id 7: loaded are {}; {} did not load: ",
+                    part.object_id(),
+                    broken.display()
+                )) && message.contains("metres"),
+                "{message}"
+            );
+        }
+        other => panic!("expected a refusal, got {other:?}"),
+    }
+}
+
 /// A daemon without `--model-cache` saves the models it builds from meshes in the user's cache
 /// (`$PPFD_CACHE` here), not beside the meshes: a dataset's folder may be read-only (then every
 /// start rebuilt every model) or shared, and a daemon running as root wrote into it anyway. The

@@ -257,6 +257,7 @@ pub fn run(
             if let Some(on_ready) = on_ready.take() {
                 on_ready(&ReadyInfo {
                     models: daemon.registry.len(),
+                    failed: daemon.startup_files.2,
                     pid: std::process::id(),
                 });
                 tracing::info!(
@@ -302,6 +303,8 @@ pub fn run(
 pub struct ReadyInfo {
     /// Models loaded.
     pub models: usize,
+    /// Files of the models folder that did not load (the log says why).
+    pub failed: u64,
     /// Process id.
     pub pid: u32,
 }

@@ -34,7 +34,8 @@ pub(super) struct StartupLoad {
 
 enum StartupEvent {
     Loaded(LoadedModel),
-    Failed,
+    /// A file that did not load, and why.
+    Failed(PathBuf, String),
     /// Every file done, or the loading stopped.
     Finished,
 }
@@ -66,7 +67,7 @@ impl StartupLoad {
                         Some(&cache_dir),
                         &|| stop.load(Ordering::SeqCst),
                         &mut |model| send(StartupEvent::Loaded(model)),
-                        &mut |_, _| send(StartupEvent::Failed),
+                        &mut |path, e| send(StartupEvent::Failed(path, e.message)),
                     );
                     send(StartupEvent::Finished);
                 })
@@ -95,9 +96,10 @@ impl StartupLoad {
                     self.done += 1;
                     registry.insert(model);
                 }
-                StartupEvent::Failed => {
+                StartupEvent::Failed(path, reason) => {
                     self.done += 1;
                     self.failed += 1;
+                    registry.record_failure(path, reason);
                 }
                 StartupEvent::Finished => finished = true,
             }
