@@ -67,6 +67,16 @@ fn read_meshes(dir: &Path, only: &[u32]) -> Result<Vec<(u32, Mesh)>, String> {
     if paths.is_empty() {
         return Err(format!("{}: no PLY meshes (*.ply) in it", dir.display()));
     }
+    // The folder's own refusal first: `ppf model build`'s would offer its --id.
+    for path in &paths {
+        if ppfd::ppf_engine::object_id_of_file(path).is_none_or(|id| id == 0) {
+            return Err(format!(
+                "{}: no object id: the digits ending a mesh's name are its id, from 1 \
+                 (obj_000005.ply is object 5); rename it, or move it out of the folder",
+                path.display()
+            ));
+        }
+    }
     let ids = crate::model::object_ids(&paths, None)?;
     if let Some(missing) = only.iter().find(|id| !ids.contains(id)) {
         let mut have = ids.clone();
@@ -533,6 +543,26 @@ mod tests {
         })
         .unwrap_err();
         assert!(e.contains("no PLY meshes"), "{e}");
+        // A mesh whose name gives no id is named, with what to do in this command.
+        let unnamed = dir.path().join("unnamed");
+        write(
+            &unnamed.join("bracket.ply"),
+            Part::TPipe.mesh().to_ply_ascii().as_bytes(),
+        )
+        .unwrap();
+        let e = run(GenerateArgs {
+            models: Some(unnamed.clone()),
+            ..args(&dir.path().join("out"), 1)
+        })
+        .unwrap_err();
+        assert!(
+            e.starts_with(&format!(
+                "{}: no object id",
+                unnamed.join("bracket.ply").display()
+            )) && e.contains("rename it")
+                && !e.contains("--id"),
+            "{e}"
+        );
         // A mesh in metres is refused with the file's name, before anything is written.
         let metres = dir.path().join("metres");
         let mut mesh = Part::TPipe.mesh();

@@ -40,8 +40,9 @@ pub struct BuildArgs {
     /// Object id for a single mesh, from 1 (instead of the digits ending its name).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     pub id: Option<u32>,
-    /// Multiply every coordinate by this to get millimetres: 1000 for a mesh in metres. A mesh
-    /// whose diameter is not 2 mm to 10 m is refused without it.
+    /// Multiply every coordinate by this to get millimetres: 1000 for a mesh in metres, 10 in
+    /// centimetres, 25.4 in inches. A mesh whose diameter is not 2 mm to 10 m is refused, and
+    /// one below 20 mm warned of.
     #[arg(long, value_parser = positive_scale)]
     pub scale: Option<f32>,
     /// The object's symmetry, for a single mesh; repeatable, the symmetry is all the given turns
@@ -309,6 +310,9 @@ fn build(args: BuildArgs) -> Result<(), Box<dyn std::error::Error>> {
                          has them flipped to point outward",
                         path.display()
                     );
+                }
+                if let Some(warning) = report.small_warning() {
+                    eprintln!("warning: {}: {warning}", path.display());
                 }
                 if let (Some(e), Some(info)) = (&left_out, symmetry_from) {
                     eprintln!(

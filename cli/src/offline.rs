@@ -21,8 +21,13 @@ pub fn dataset_models(dataset: &BopDataset, ids: &[u32]) -> Result<Vec<ObjectMod
             let path = dataset.model_path(id).map_err(|e| e.to_string())?;
             // In the daemon's default cache, on the daemon's terms.
             let files = ModelFiles::of_mesh(&path, Some(&store::default_cache_dir()));
-            let cached = load_or_build(MeshSource::File(&path), id, &params, &files)
-                .map_err(|e| e.to_string())?;
+            // A mesh refused for what it holds is named by its file, as a malformed one is.
+            let cached = load_or_build(MeshSource::File(&path), id, &params, &files).map_err(
+                |e| match e {
+                    ppfd_models::Error::InvalidMesh(_) => format!("{}: {e}", path.display()),
+                    e => e.to_string(),
+                },
+            )?;
             // With the symmetry of the models_info.json beside the mesh, as the daemon's.
             if let Some(why) = &cached.symmetry_left_out {
                 bar.suspend(|| eprintln!("warning: {why}"));

@@ -338,7 +338,14 @@ fn a_model_built_with_scale_beside_its_mesh_in_metres_is_taken() {
     };
     let refused = detect();
     assert_eq!(refused.status.code(), Some(1));
-    assert!(text(&refused.stderr).contains("--scale 1000"), "the advice");
+    let said = text(&refused.stderr);
+    assert!(
+        said.contains(&format!(
+            "{}: invalid mesh",
+            models.join("obj_000001.ply").display()
+        )) && said.contains("--scale 1000"),
+        "the file and the advice: {said}"
+    );
     let built = run(ppf(&["model", "build"])
         .arg(models.join("obj_000001.ply"))
         .args(["--scale", "1000", "--out"])

@@ -302,3 +302,37 @@ fn a_malformed_or_false_symmetry_is_refused_saying_why() {
     }
     assert!(!out.join("obj_000001.ppfm").exists());
 }
+
+/// A mesh in centimetres (a 100 mm part measuring 10) builds, with a warning that says the
+/// scale; the same mesh scaled by 10 builds without it.
+#[test]
+fn a_mesh_in_centimetres_is_warned_of_with_its_scale() {
+    let scratch = Scratch::new("model-build-cm");
+    let mut mesh = Part::ALL[0].mesh();
+    mesh.scale(0.1);
+    let path = scratch.0.join("obj_000003.ply");
+    std::fs::write(&path, mesh.to_ply_ascii()).unwrap();
+    let out = scratch.0.join("models");
+    let (run, _, stderr) = ppf_model(&[
+        "build".as_ref(),
+        path.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    assert!(run.status.success());
+    assert!(
+        stderr.contains(&format!("warning: {}: the diameter is", path.display()))
+            && stderr.contains("scale it by 10"),
+        "{stderr}"
+    );
+    let (run, _, stderr) = ppf_model(&[
+        "build".as_ref(),
+        path.as_os_str(),
+        "--scale".as_ref(),
+        "10".as_ref(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    assert!(run.status.success());
+    assert!(!stderr.contains("warning"), "{stderr}");
+}

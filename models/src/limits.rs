@@ -36,10 +36,27 @@ pub const MIN_DIAMETER_MM: f32 = 2.0;
 /// micrometres or another unit.
 pub const MAX_DIAMETER_MM: f32 = 10_000.0;
 
+/// Below this diameter a model is built with a warning: at 1 m a VGA depth pixel spans about
+/// 1.7 mm, so a few pixels cover the object and a model this small matches any blob of the
+/// scene; a mesh in centimetres (or inches) lands here too, where metres are refused.
+pub const SMALL_DIAMETER_MM: f32 = 20.0;
+
+/// The warning for a diameter below [`SMALL_DIAMETER_MM`]; `None` for a larger one.
+pub fn small_diameter(diameter: f32) -> Option<String> {
+    (diameter < SMALL_DIAMETER_MM).then(|| {
+        format!(
+            "the diameter is {diameter:.1} mm, below {SMALL_DIAMETER_MM} mm: depth sensors see \
+             few points of an object this small, and its model matches small blobs of any \
+             scene; if the mesh is in centimetres, scale it by 10 (inches: 25.4) with `ppf \
+             model build --scale`"
+        )
+    })
+}
+
 /// The fewest subsampled model points a model may have. Subsampling takes its leaf from the
 /// diameter, so a surface that spans its mesh's extent gives hundreds (the LM-O models have
 /// 300–1 000); a handful means that the faces cover almost nothing of the extent the vertices
-/// claim (stray vertices, degenerate faces), and a model of them votes for any small blob.
+/// claim (a few faces far apart), and a model of them votes for any small blob.
 pub const MIN_MODEL_POINTS: usize = 16;
 
 /// The refusal of a diameter outside [`MIN_DIAMETER_MM`]..=[`MAX_DIAMETER_MM`], with the scale

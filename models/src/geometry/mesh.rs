@@ -65,7 +65,9 @@ impl Mesh {
     /// zero length gets the area-weighted normal of its faces.
     ///
     /// Errors: [`Error::Io`] when the file cannot be opened, [`Error::File`] for a special file
-    /// or one beyond [`crate::limits::MESH_FILE`], [`Error::Ply`] naming what is wrong
+    /// or one beyond [`crate::limits::MESH_FILE`] or whose header declares more vertices or
+    /// faces than [`crate::limits::MAX_MESH_VERTICES`] or [`crate::limits::MAX_MESH_FACES`],
+    /// [`Error::Ply`] naming what is wrong
     /// and where for anything malformed (truncated data, a missing coordinate, a non-finite
     /// value, a face index out of range, no vertices, a point cloud's vertex with a zero normal).
     pub fn from_ply_file(path: impl AsRef<Path>) -> Result<Mesh> {

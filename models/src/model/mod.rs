@@ -224,7 +224,8 @@ impl ObjectModel {
     /// of every ordered pair of the subsampled points.
     ///
     /// A mesh that makes no sense in millimetres is refused ([`sanity::check_mesh`]); a closed
-    /// mesh whose normals point inward is built with them flipped, and a warning is logged.
+    /// mesh whose normals point inward is built with them flipped, and a warning is logged, as
+    /// it is for a diameter below [`crate::limits::SMALL_DIAMETER_MM`].
     pub fn build(mesh: &Mesh, object_id: u32, name: &str, params: &ModelParams) -> Result<Self> {
         let (model, report) = Self::build_with_report(mesh, object_id, name, params)?;
         if report.inward_normals {
@@ -232,6 +233,9 @@ impl ObjectModel {
                 name,
                 "the normals of this closed mesh point inward: flipped to point outward"
             );
+        }
+        if let Some(warning) = report.small_warning() {
+            tracing::warn!(name, "{warning}");
         }
         Ok(model)
     }

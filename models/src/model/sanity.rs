@@ -29,9 +29,17 @@ pub struct MeshReport {
     /// Closed, and its normals point inward for the most part (the flux of the normals through
     /// the surface is negative).
     pub inward_normals: bool,
+    /// The diameter is below [`limits::SMALL_DIAMETER_MM`]: the caller warns
+    /// ([`MeshReport::small_warning`]), and the model is built all the same.
+    pub small: bool,
 }
 
 impl MeshReport {
+    /// The warning of a small diameter ([`limits::small_diameter`]), when it is.
+    pub fn small_warning(&self) -> Option<String> {
+        limits::small_diameter(self.diameter_mm)
+    }
+
     /// "diameter 103.2 mm, size 80.0 × 60.0 × 40.0 mm".
     pub fn describe(&self) -> String {
         let s = self.size_mm;
@@ -65,6 +73,7 @@ pub fn check_mesh(mesh: &Mesh) -> Result<MeshReport> {
         size_mm,
         closed,
         inward_normals,
+        small: limits::small_diameter(diameter_mm).is_some(),
     })
 }
 
@@ -160,6 +169,17 @@ mod tests {
         assert!((r.size_mm - Vector3::new(60.0, 40.0, 20.0)).norm() < 1e-3);
         assert!(r.closed && !r.inward_normals, "{r:?}");
         assert!(r.describe().contains("60.0 × 40.0 × 20.0 mm"));
+    }
+
+    /// A mesh of a 100 mm part in centimetres passes, with the warning that names the scale.
+    #[test]
+    fn a_mesh_in_centimetres_passes_with_a_warning() {
+        let r = check_mesh(&box_mesh(Vector3::new(8.0, 4.0, 4.4))).unwrap();
+        assert!(r.small, "{r:?}");
+        let w = r.small_warning().unwrap();
+        assert!(w.contains("centimetres") && w.contains("--scale"), "{w}");
+        let r = check_mesh(&box_mesh(Vector3::new(60.0, 40.0, 20.0))).unwrap();
+        assert!(!r.small && r.small_warning().is_none(), "{r:?}");
     }
 
     #[test]

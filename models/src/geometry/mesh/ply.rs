@@ -122,18 +122,6 @@ impl Layout {
         if vertex.count == 0 {
             return Err("the mesh is empty: the header declares 0 vertices".into());
         }
-        let faces = header.elements.get("face").map_or(0, |f| f.count);
-        for (count, max, noun) in [
-            (vertex.count, MAX_MESH_VERTICES, "vertices"),
-            (faces, MAX_MESH_FACES, "faces"),
-        ] {
-            if count > max {
-                return Err(format!(
-                    "the header declares {count} {noun}, more than the {max} a mesh may have \
-                     ({MESH_RAISE})"
-                ));
-            }
-        }
         let is_number = |name: &str| -> std::result::Result<bool, String> {
             match vertex.properties.get(name).map(|p| &p.data_type) {
                 None => Ok(false),
@@ -209,6 +197,22 @@ pub(super) fn read_mesh<R: Read>(source: R, path: &Path) -> Result<Mesh> {
         .read_header(&mut reader)
         .map_err(|e| fail(format!("bad header: {}", flatten(&e))))?;
     let layout = Layout::from_header(&header).map_err(fail)?;
+    // A well-formed file beyond a limit: refused as too large, not as malformed.
+    let count = |element: &str| header.elements.get(element).map_or(0, |e| e.count);
+    for (count, max, noun) in [
+        (count("vertex"), MAX_MESH_VERTICES, "vertices"),
+        (count("face"), MAX_MESH_FACES, "faces"),
+    ] {
+        if count > max {
+            return Err(Error::File {
+                path: path.to_path_buf(),
+                reason: format!(
+                    "the header declares {count} {noun}, more than the {max} a mesh may have \
+                     ({MESH_RAISE})"
+                ),
+            });
+        }
+    }
 
     let mut vertices: Vec<VertexRecord> = Vec::new();
     let mut faces: Vec<FaceRecord> = Vec::new();
@@ -1120,6 +1124,29 @@ mod tests {
                 assert_eq!(with_stray.faces, clean.faces, "{props:?} {format:?}");
                 assert_eq!(with_stray.fingerprint(), clean.fingerprint());
             }
+        }
+    }
+
+    /// A header declaring more faces than a mesh may have is refused as too large (not as
+    /// malformed) before any data is read, saying how to get past it.
+    #[test]
+    fn a_mesh_beyond_the_face_limit_is_refused_as_too_large() {
+        let text = format!(
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+             property float z\nelement face {}\nproperty list uchar int vertex_indices\n\
+             end_header\n0 0 0\n1 0 0\n0 1 0\n",
+            MAX_MESH_FACES + 1
+        );
+        match read(text.as_bytes()) {
+            Err(Error::File { path, reason }) => {
+                assert_eq!(path, PathBuf::from("fixture.ply"));
+                assert!(
+                    reason.contains(&format!("{} faces, more than the", MAX_MESH_FACES + 1))
+                        && reason.contains("decimate the mesh"),
+                    "{reason}"
+                );
+            }
+            other => panic!("expected a refusal as too large, got {other:?}"),
         }
     }
 
