@@ -91,15 +91,23 @@ impl Connect {
             .map_err(|e| e.to_string())
     }
 
+    /// A client that detects.
     pub fn client(&self) -> Result<Client, String> {
-        self.client_with(ClientOptions::default().control_timeout)
+        let options = ClientOptions {
+            prefix: self.prefix()?,
+            ..Default::default()
+        };
+        Client::connect_with(&options).map_err(|e| e.to_string())
     }
 
-    /// A client whose control requests wait up to `control_timeout` for their answers.
-    pub fn client_with(&self, control_timeout: Duration) -> Result<Client, String> {
+    /// A client for control requests only (`ppf stats`, `ppf models`), which wait up to
+    /// `control_timeout` for their answers: without a detect port, it connects while the daemon
+    /// serves its most robot clients.
+    pub fn control_client(&self, control_timeout: Duration) -> Result<Client, String> {
         let options = ClientOptions {
             prefix: self.prefix()?,
             control_timeout,
+            detects: false,
             ..Default::default()
         };
         Client::connect_with(&options).map_err(|e| e.to_string())

@@ -32,7 +32,7 @@ pub struct ModelsArgs {
 pub fn models(args: ModelsArgs) -> Result<(), String> {
     let client = args
         .connect
-        .client_with(Duration::from_millis(args.timeout_ms))?;
+        .control_client(Duration::from_millis(args.timeout_ms))?;
     if let Some(path) = &args.load {
         let path = absolute_path(path)?;
         let before = client.models().map_err(|e| e.to_string())?;
@@ -138,7 +138,7 @@ pub struct StatsArgs {
 pub fn stats(args: StatsArgs) -> Result<(), String> {
     let client = args
         .connect
-        .client_with(Duration::from_millis(args.timeout_ms))?;
+        .control_client(Duration::from_millis(args.timeout_ms))?;
     let (s, message) = client.statistics().map_err(|e| e.to_string())?;
     let detector = message.strip_prefix("detector:").unwrap_or(&message).trim();
     if args.json {

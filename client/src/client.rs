@@ -27,13 +27,11 @@ use crate::{iceoryx_config, transport, Error, Result};
 /// clients as it can says so.
 fn client_port(
     what: &'static str,
+    max: usize,
 ) -> impl FnOnce(iceoryx2::service::port_factory::client::ClientCreateError) -> Error {
     use iceoryx2::service::port_factory::client::ClientCreateError;
     move |e| match e {
-        ClientCreateError::ExceedsMaxSupportedClients => Error::TooManyClients {
-            what,
-            max: services::limits::MAX_CLIENTS,
-        },
+        ClientCreateError::ExceedsMaxSupportedClients => Error::TooManyClients { what, max },
         e => transport(what)(e),
     }
 }
@@ -92,6 +90,12 @@ pub struct ClientOptions {
     /// Timeout of control requests, above 0 (zero is refused at connect). A model load can
     /// take longer (a large mesh builds for seconds to minutes): see [`Client::load_model`].
     pub control_timeout: Duration,
+    /// Whether the client detects (the default). A client that only sends control requests
+    /// (statistics, the model list, loads) says `false`: it takes no detect port, so it
+    /// connects while the daemon serves its most detect clients
+    /// ([`services::limits::MAX_CONTROL_CLIENTS`]), and its detect calls return
+    /// [`Error::ControlOnly`].
+    pub detects: bool,
 }
 
 impl Default for ClientOptions {
@@ -100,6 +104,7 @@ impl Default for ClientOptions {
             prefix: None,
             inline_frame_capacity: 0,
             control_timeout: Duration::from_secs(5),
+            detects: true,
         }
     }
 }
@@ -215,7 +220,7 @@ impl Detections {
 
 /// A connection to the daemon's services. Not `Send`: one per thread.
 pub struct Client {
-    detect: DetectPort,
+    detect: Option<DetectPort>,
     control: ControlPort,
     wake: Notifier<Ipc>,
     replies: Listener<Ipc>,
@@ -304,19 +309,30 @@ impl Client {
         let detect_service = services::detect_builder(&node)
             .open_or_create()
             .map_err(open_service(services::DETECT))?;
-        let detect = detect_service
-            .client_builder()
-            .initial_max_slice_len(options.inline_frame_capacity.max(1))
-            .allocation_strategy(AllocationStrategy::PowerOfTwo)
-            .create()
-            .map_err(client_port("cannot create a ppfd/detect client"))?;
+        let detect = if options.detects {
+            let port = detect_service
+                .client_builder()
+                .initial_max_slice_len(options.inline_frame_capacity.max(1))
+                .allocation_strategy(AllocationStrategy::PowerOfTwo)
+                .create()
+                .map_err(client_port(
+                    "cannot create a ppfd/detect client",
+                    services::limits::MAX_CLIENTS,
+                ))?;
+            Some(port)
+        } else {
+            None
+        };
         let control_service = services::control_builder(&node)
             .open_or_create()
             .map_err(open_service(services::CONTROL))?;
         let control = control_service
             .client_builder()
             .create()
-            .map_err(client_port("cannot create a ppfd/control client"))?;
+            .map_err(client_port(
+                "cannot create a ppfd/control client",
+                services::limits::MAX_CONTROL_CLIENTS,
+            ))?;
         let wake_service = services::daemon_wake_builder(&node)
             .open_or_create()
             .map_err(transport("cannot open ppfd/daemon"))?;
@@ -373,7 +389,7 @@ impl Client {
         header.camera_name = text::encode_name("camera", camera)?;
         header.validate(0)?;
         let request = self
-            .detect
+            .detect_port()?
             .loan_slice_uninit(0)
             .map_err(transport("cannot loan a request"))?;
         let mut request = request.write_from_fn(|_| 0);
@@ -395,7 +411,7 @@ impl Client {
         header.inline_frame = *frame;
         header.validate(depth.len())?;
         let request = self
-            .detect
+            .detect_port()?
             .loan_slice_uninit(depth.len())
             .map_err(transport("cannot loan a request"))?;
         let mut request = request.write_from_slice(depth);
@@ -412,12 +428,18 @@ impl Client {
         timeout: Duration,
     ) -> Result<Detections> {
         let request = self
-            .detect
+            .detect_port()?
             .loan_slice_uninit(depth.len())
             .map_err(transport("cannot loan a request"))?;
         let mut request = request.write_from_slice(depth);
         *request.user_header_mut() = *header;
         self.send_detect(request, timeout)
+    }
+
+    /// The detect port, which a client connected with [`ClientOptions::detects`] `false` has
+    /// not.
+    fn detect_port(&self) -> Result<&DetectPort> {
+        self.detect.as_ref().ok_or(Error::ControlOnly)
     }
 
     fn request_header(

@@ -87,6 +87,10 @@ pub enum Error {
     /// The request was malformed before it was sent.
     #[error("{0}")]
     Protocol(#[from] ppfd_protocol::ProtocolError),
+    /// A detect call on a client connected to send control requests only
+    /// ([`ClientOptions::detects`] `false`).
+    #[error("this client was connected for control requests only (ClientOptions::detects false): connect one that detects")]
+    ControlOnly,
     /// At `connect`: the daemon serves as many clients as it can. Connect again once one has
     /// disconnected (or its process ended).
     #[error("{what}: {max} clients are connected to the daemon, the most it serves at once; one must disconnect (or its process end) first")]

@@ -35,7 +35,7 @@ pub mod services;
 pub mod text;
 
 /// Version of this contract; it travels in every header.
-pub const PROTOCOL_VERSION: u32 = 6;
+pub const PROTOCOL_VERSION: u32 = 7;
 /// Bytes of a camera name field (names are at most one less: the last byte stays NUL).
 pub const CAMERA_NAME_BYTES: usize = 32;
 /// Bytes of a message field: room for the longest refusal, whose end says how to fix it (the

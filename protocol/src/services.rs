@@ -54,8 +54,12 @@ pub mod wake {
 /// Port limits: capacity is a decision. Sized for one daemon, a handful of cameras and up to
 /// [`limits::MAX_CLIENTS`] robot processes, with VGA depth frames.
 pub mod limits {
-    /// Detect (and, separately, control) clients at once.
+    /// Detect clients at once (robot processes).
     pub const MAX_CLIENTS: usize = 32;
+    /// Control clients at once: one per detect client, and room for the operator's tools
+    /// (`ppf stats`, `ppf models`, a monitoring script), which connect without a detect port,
+    /// so that they work while the daemon serves its most detect clients.
+    pub const MAX_CONTROL_CLIENTS: usize = MAX_CLIENTS + 8;
     /// Daemons serving at once: 1, plus one while a restarted daemon replaces a dead one.
     pub const MAX_SERVERS: usize = 2;
     /// Outstanding detect requests per client (a client that times out may leave one behind).
@@ -65,7 +69,7 @@ pub mod limits {
     /// Responses buffered per request before the oldest is discarded (one is sent).
     pub const RESPONSE_BUFFER: usize = 2;
     /// Processes attached to one service.
-    pub const MAX_NODES: usize = 2 * MAX_CLIENTS + 8;
+    pub const MAX_NODES: usize = 2 * MAX_CONTROL_CLIENTS + 8;
     /// Hypotheses one response can carry.
     pub const MAX_RESPONSE_HYPOTHESES: usize =
         super::MAX_OBJECTS_PER_REQUEST * super::MAX_HYPOTHESES_PER_OBJECT as usize;
@@ -152,7 +156,7 @@ pub fn control_builder<S: Service>(
         .max_response_buffer_size(limits::RESPONSE_BUFFER)
         .max_borrowed_responses_per_pending_response(1)
         .max_servers(limits::MAX_SERVERS)
-        .max_clients(limits::MAX_CLIENTS)
+        .max_clients(limits::MAX_CONTROL_CLIENTS)
         .max_nodes(limits::MAX_NODES)
 }
 
@@ -161,7 +165,7 @@ pub fn daemon_wake_builder<S: Service>(node: &Node<S>) -> event::Builder<S> {
     node.service_builder(&fixed_name(DAEMON_WAKE))
         .event()
         .max_listeners(limits::MAX_SERVERS)
-        .max_notifiers(2 * limits::MAX_CLIENTS + 8)
+        .max_notifiers(2 * limits::MAX_CONTROL_CLIENTS + 8)
         .max_nodes(limits::MAX_NODES)
         .event_id_max_value(wake::MAX)
 }
@@ -170,7 +174,7 @@ pub fn daemon_wake_builder<S: Service>(node: &Node<S>) -> event::Builder<S> {
 pub fn responses_builder<S: Service>(node: &Node<S>) -> event::Builder<S> {
     node.service_builder(&fixed_name(RESPONSES))
         .event()
-        .max_listeners(2 * limits::MAX_CLIENTS)
+        .max_listeners(2 * limits::MAX_CONTROL_CLIENTS)
         .max_notifiers(limits::MAX_SERVERS)
         .max_nodes(limits::MAX_NODES)
         .event_id_max_value(1)
@@ -363,12 +367,17 @@ pub fn remove_node_entries(node_dir: &std::path::Path, prefix: &str) -> usize {
 }
 
 /// Whether a request/response service could not be opened because its messages have another
-/// layout than this build's: processes of another protocol version hold it.
+/// layout, or its ports other limits, than this build's: processes of another protocol version
+/// hold it.
 pub fn is_other_protocol_version(e: &request_response::RequestResponseOpenOrCreateError) -> bool {
+    use request_response::RequestResponseOpenError as Open;
     matches!(
         e,
         request_response::RequestResponseOpenOrCreateError::RequestResponseOpenError(
-            request_response::RequestResponseOpenError::IncompatibleRequestOrResponseType,
+            Open::IncompatibleRequestOrResponseType
+                | Open::DoesNotSupportRequestedAmountOfClients
+                | Open::DoesNotSupportRequestedAmountOfServers
+                | Open::DoesNotSupportRequestedAmountOfNodes,
         )
     )
 }

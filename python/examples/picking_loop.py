@@ -50,52 +50,62 @@ def main() -> int:
     client = ppfd.Client(prefix=args.prefix)
     picked = failed = 0
     both = ppfd.Checks.CONSISTENT | ppfd.Checks.SILHOUETTE
-    for cycle in range(args.cycles):
-        order = orders[cycle % len(orders)]
-        start = time.monotonic()
-        try:
-            # Each object's best pose: a second pose that passes both filters is often a
-            # partial fit beside the first, and a cell would send the robot to it.
-            found = client.detect(args.camera, order, hypotheses=1, timeout=args.timeout,
-                                  max_frame_age=0.5)
-        except ppfd.CameraStale as e:
-            print(f"cycle {cycle}: camera stale ({e.value / 1e6:.0f} ms), waiting for the driver")
-            time.sleep(0.2)
-            continue
-        except (ppfd.NoDaemon, ppfd.DaemonGone, ppfd.NoFrame, ppfd.UnknownCamera,
-                ppfd.Busy) as e:
-            # Waiting out the daemon (restarting, or not yet up), or a camera that has not
-            # published yet: retrying at once would spin.
-            print(f"cycle {cycle}: {e}; retrying in 0.5 s")
-            time.sleep(0.5)
-            continue
-        except ppfd.Error as e:
-            print(f"cycle {cycle}: {e}")
-            failed += 1
-            time.sleep(0.1)
-            continue
-        # The best-scored pose that passed both filters, of any object of the order, is the
-        # next pick; a pose that failed one is listed, never picked.
-        passed = [d for d in found if d.checks & both == both]
-        best = max(passed, key=lambda d: d.score, default=None)
-        if best is None:
-            print(f"cycle {cycle}: nothing of {order} in view")
-            continue
-        x, y, z = best.pose[:3, 3]
-        # A real cell would plan a grasp from best.pose and move the arm here.
-        picked += 1
-        latency = found.latency
-        print(
-            f"cycle {cycle}: order {order} -> pick object {best.object_id} "
-            f"(score {best.score:.2f}) at ({x:.0f}, {y:.0f}, {z:.0f}) mm; "
-            f"cycle {(time.monotonic() - start) * 1e3:.1f} ms "
-            f"(detection {latency['detection_ns'] / 1e6:.1f} ms, "
-            f"overhead {latency['overhead_ns'] / 1e6:.3f} ms, "
-            f"frame {found.frame_sequence} aged {found.frame_age_ns / 1e6:.1f} ms)",
-            flush=True,
-        )
-    print(f"{picked} picks in {args.cycles} cycles; {failed} failed")
-    if args.cycles > 0 and failed == args.cycles:
+    cycles = 0
+    interrupted = False
+    try:
+        for cycle in range(args.cycles):
+            cycles = cycle + 1
+            order = orders[cycle % len(orders)]
+            start = time.monotonic()
+            try:
+                # Each object's best pose: a second pose that passes both filters is often a
+                # partial fit beside the first, and a cell would send the robot to it.
+                found = client.detect(args.camera, order, hypotheses=1, timeout=args.timeout,
+                                      max_frame_age=0.5)
+            except ppfd.CameraStale as e:
+                print(f"cycle {cycle}: camera stale ({e.value / 1e6:.0f} ms), waiting for the driver")
+                time.sleep(0.2)
+                continue
+            except (ppfd.NoDaemon, ppfd.DaemonGone, ppfd.NoFrame, ppfd.UnknownCamera,
+                    ppfd.Busy) as e:
+                # Waiting out the daemon (restarting, or not yet up), or a camera that has not
+                # published yet: retrying at once would spin.
+                print(f"cycle {cycle}: {e}; retrying in 0.5 s")
+                time.sleep(0.5)
+                continue
+            except ppfd.Error as e:
+                print(f"cycle {cycle}: {e}")
+                failed += 1
+                time.sleep(0.1)
+                continue
+            # The best-scored pose that passed both filters, of any object of the order, is the
+            # next pick; a pose that failed one is listed, never picked.
+            passed = [d for d in found if d.checks & both == both]
+            best = max(passed, key=lambda d: d.score, default=None)
+            if best is None:
+                print(f"cycle {cycle}: nothing of {order} in view")
+                continue
+            x, y, z = best.pose[:3, 3]
+            # A real cell would plan a grasp from best.pose and move the arm here.
+            picked += 1
+            latency = found.latency
+            print(
+                f"cycle {cycle}: order {order} -> pick object {best.object_id} "
+                f"(score {best.score:.2f}) at ({x:.0f}, {y:.0f}, {z:.0f}) mm; "
+                f"cycle {(time.monotonic() - start) * 1e3:.1f} ms "
+                f"(detection {latency['detection_ns'] / 1e6:.1f} ms, "
+                f"overhead {latency['overhead_ns'] / 1e6:.3f} ms, "
+                f"frame {found.frame_sequence} aged {found.frame_age_ns / 1e6:.1f} ms)",
+                flush=True,
+            )
+    except KeyboardInterrupt:
+        # Ctrl-C ends the loop with the summary of the cycles run, as the cell's log needs.
+        interrupted = True
+    stopped = " (stopped by Ctrl-C)" if interrupted else ""
+    print(f"{picked} picks in {cycles} cycles{stopped}; {failed} failed")
+    if interrupted:
+        return 130
+    if cycles > 0 and failed == cycles:
         print("error: every cycle failed", file=sys.stderr)
         return 1
     return 0

@@ -130,3 +130,26 @@ def test_the_replay_example_names_a_camera_another_driver_publishes(scene):
     assert second.returncode == 1
     assert "camera 'taken': another driver already publishes" in second.stderr, second.stderr
     assert "Traceback" not in second.stderr
+
+
+def test_the_picking_loop_stopped_by_ctrl_c_prints_its_summary(daemon):
+    import signal
+
+    # A camera that never comes: every cycle waits and retries, until Ctrl-C.
+    picking = subprocess.Popen(
+        [sys.executable, str(EXAMPLES / "picking_loop.py"), "nocamera", "1000", "1",
+         "--prefix", daemon.prefix, "--timeout", "5"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        first = picking.stdout.readline()
+        assert first.startswith("cycle 0: "), first
+        picking.send_signal(signal.SIGINT)
+        out, err = picking.communicate(timeout=60)
+    finally:
+        picking.kill()
+    assert picking.returncode == 130, (out, err)
+    assert re.search(r"^0 picks in \d+ cycles \(stopped by Ctrl-C\); 0 failed$", out, re.M), out
+    assert "Traceback" not in err, err

@@ -798,6 +798,26 @@ fn a_client_beyond_the_most_the_daemon_serves_is_told_so() {
             other.map(|_| "connected")
         ),
     }
+    // The operator's tools connect without a detect port, and are served all the same, up to
+    // the control service's own limit.
+    let limits = ppfd_client::protocol::services::limits::MAX_CONTROL_CLIENTS;
+    let control_only = ppfd_client::ClientOptions {
+        detects: false,
+        ..options.clone()
+    };
+    let mut tools: Vec<ppfd_client::Client> = (clients.len()..limits)
+        .map(|_| ppfd_client::Client::connect_with(&control_only).expect("a tool connects"))
+        .collect();
+    tools[0].statistics().expect("statistics served to a tool");
+    assert!(matches!(
+        tools[0].detect("cam0", &[1], &ppfd_client::DetectOptions::default()),
+        Err(ppfd_client::Error::ControlOnly)
+    ));
+    match ppfd_client::Client::connect_with(&control_only) {
+        Err(ppfd_client::Error::TooManyClients { max, .. }) => assert_eq!(max, limits),
+        other => panic!("a tool beyond the limit: {:?}", other.map(|_| "connected")),
+    }
+    tools.pop();
     clients.pop();
     let again = ppfd_client::Client::connect_with(&options).expect("a client connects again");
     again.models().expect("and is served");
