@@ -449,7 +449,7 @@ impl Failures {
         self.0.values().map(|(n, _)| n).sum()
     }
 
-    /// `timeout 3 (no answer from ppfd within 80ms); ...`
+    /// `timeout 3 (the first: no answer from ppfd within 80 ms: …); ...`
     fn summary(&self) -> String {
         self.0
             .iter()

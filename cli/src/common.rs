@@ -258,6 +258,10 @@ fn until_framed<T>(
                 status: ppfd_client::Status::NoFrame,
                 ..
             }) if std::time::Instant::now() < deadline => std::thread::sleep(millis(20)),
+            // The timeout the user gave, not what was left of it for the last try.
+            Err(ppfd_client::Error::Timeout(_)) => {
+                return Err(ppfd_client::Error::Timeout(timeout));
+            }
             found => return found,
         }
     }
@@ -411,6 +415,26 @@ mod tests {
         });
         assert!(matches!(never, Err(ppfd_client::Error::Refused { .. })));
         assert!(ended.elapsed() >= millis(100));
+        // A timeout after a wait for a frame says the timeout given, in whole milliseconds.
+        let mut tries = 0;
+        let late = until_framed(millis(2000), |left| {
+            tries += 1;
+            if tries == 1 {
+                std::thread::sleep(millis(30));
+                return Err(ppfd_client::Error::Refused {
+                    status: ppfd_client::Status::NoFrame,
+                    message: "no frame yet".into(),
+                    value: 0,
+                });
+            }
+            Err::<(), _>(ppfd_client::Error::Timeout(left))
+        })
+        .unwrap_err();
+        assert!(
+            late.to_string()
+                .starts_with("no answer from ppfd within 2000 ms: "),
+            "{late}"
+        );
     }
 
     #[test]

@@ -40,6 +40,12 @@ pub use ppfd_protocol::detect::{
 };
 pub use ppfd_protocol::frame::{FrameHeader, Intrinsics};
 
+/// A duration in whole milliseconds, rounded: the timeout a caller gave, though the wait
+/// measured it from a later start (2000 ms, not 1.999999642 s).
+fn millis(d: &std::time::Duration) -> u128 {
+    (d.as_nanos() + 500_000) / 1_000_000
+}
+
 /// What can go wrong talking to the daemon.
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
@@ -54,7 +60,7 @@ pub enum Error {
         value: u64,
     },
     /// No answer within the timeout.
-    #[error("no answer from ppfd within {0:?}")]
+    #[error("no answer from ppfd within {} ms: the daemon is busy, slow or stopped (a longer timeout waits more)", millis(.0))]
     Timeout(std::time::Duration),
     /// The daemon let go of the request without answering it (it will not answer; sending the
     /// request again is safe).

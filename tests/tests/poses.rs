@@ -648,6 +648,58 @@ fn a_request_for_an_object_whose_mesh_did_not_load_is_told_why() {
     }
 }
 
+/// A load refused at run time is logged whole, where its answer is cut to fit: a loading
+/// script's journal says why.
+#[test]
+fn a_refused_load_is_logged_whole() {
+    use std::io::BufRead;
+    let prefix = Prefix::new("load_log");
+    let work = WorkDir::new("load-log");
+    let models = work.join("models");
+    std::fs::create_dir_all(&models).unwrap();
+    let deep = work.join("l".repeat(150));
+    std::fs::create_dir_all(&deep).unwrap();
+    let garbage = deep.join("obj_000040.ply");
+    std::fs::write(&garbage, "x".repeat(600)).unwrap();
+    let log = work.join("ppfd.log");
+    let mut daemon = std::process::Command::new(DAEMON)
+        .args(["--prefix", &prefix.0, "--models", models.to_str().unwrap()])
+        .env("PPFD_CACHE", work.join("cache"))
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .unwrap();
+    let mut lines = std::io::BufReader::new(daemon.stdout.take().unwrap()).lines();
+    assert!(
+        lines.any(|l| l.is_ok_and(|l| l.starts_with("ppfd ready"))),
+        "the daemon did not start"
+    );
+    let client = ppfd_client::Client::connect_with(&ppfd_client::ClientOptions {
+        prefix: Some(prefix.0.clone()),
+        ..Default::default()
+    })
+    .unwrap();
+    let answered = match client.load_model(garbage.to_str().unwrap(), 0) {
+        Err(ppfd_client::Error::Refused { message, .. }) => message,
+        other => panic!("expected a refusal, got {other:?}"),
+    };
+    drop(client);
+    // SAFETY: a signal to the child this test started.
+    unsafe { libc::kill(daemon.id() as i32, libc::SIGTERM) };
+    daemon.wait().unwrap();
+    let logged = std::fs::read_to_string(&log).unwrap();
+    let line = logged
+        .lines()
+        .find(|l| l.contains("control request refused"))
+        .unwrap_or_else(|| panic!("no refusal logged: {logged}"));
+    assert!(answered.ends_with('…'), "the answer is cut: {answered}");
+    let whole = answered.trim_end_matches('…');
+    assert!(
+        line.contains(whole) && line.len() > line.find(whole).unwrap() + whole.len() + 20,
+        "the log has the whole reason: {line}\nanswered: {answered}"
+    );
+}
+
 /// A daemon without `--model-cache` saves the models it builds from meshes in the user's cache
 /// (`$PPFD_CACHE` here), not beside the meshes: a dataset's folder may be read-only (then every
 /// start rebuilt every model) or shared, and a daemon running as root wrote into it anyway. The

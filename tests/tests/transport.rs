@@ -984,3 +984,51 @@ fn frames_beyond_the_pixel_limit_are_refused_naming_the_limit() {
     assert_eq!(status, Status::InvalidFrame, "{message}");
     assert!(message.contains("limit of 300000"), "{message}");
 }
+
+/// A request beyond a full queue is refused "busy", naming the setting that holds more.
+#[test]
+fn a_request_beyond_a_full_queue_is_refused_naming_the_capacity() {
+    let prefix = Prefix::new("busy");
+    let models = fake_model_dir("busy", &[1]);
+    let _d = daemon(&prefix, &models, &["--queue-capacity", "1"], "800");
+    let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let answers: Vec<_> = (0..4)
+        .map(|_| {
+            let prefix = prefix.0.clone();
+            std::thread::spawn(move || {
+                let client = ppfd_client::Client::connect_with(&ppfd_client::ClientOptions {
+                    prefix: Some(prefix),
+                    ..Default::default()
+                })
+                .expect("client connects");
+                let options = ppfd_client::DetectOptions {
+                    timeout: Duration::from_secs(20),
+                    ..Default::default()
+                };
+                client.detect("cam0", &[1], &options)
+            })
+        })
+        .collect::<Vec<_>>()
+        .into_iter()
+        .map(|t| t.join().unwrap())
+        .collect();
+    let busy: Vec<String> = answers
+        .iter()
+        .filter_map(|a| match a {
+            Err(ppfd_client::Error::Refused {
+                status: ppfd_client::Status::Busy,
+                message,
+                ..
+            }) => Some(message.clone()),
+            _ => None,
+        })
+        .collect();
+    assert!(!busy.is_empty(), "{answers:?}");
+    for m in &busy {
+        assert!(
+            m.contains("the most the queue holds") && m.contains("--queue-capacity"),
+            "{m}"
+        );
+    }
+}

@@ -98,6 +98,16 @@ impl Daemon {
         message: &str,
         models: &[ModelInfo],
     ) {
+        // A refused load or drop is logged whole: the answer's message is cut to fit, and a
+        // loading script's journal must say why.
+        let command = active.payload().command;
+        if status != Status::Ok
+            && [ControlCommand::LoadModel, ControlCommand::DropModel]
+                .iter()
+                .any(|&c| c as u32 == command)
+        {
+            tracing::warn!(status = status.name(), "control request refused: {message}");
+        }
         if !self.responder.control_client_alive(&active) {
             // As for detect requests: never touch a dead client's possibly reused channel.
             self.responder.abandon_control(active);

@@ -208,10 +208,16 @@ impl Daemon {
                 self.start_next_load();
             }
         }
+        let result = result.and_then(Registry::with_valid_id);
         let Some(active) = self.control_pending.remove(&job) else {
+            // Nobody to answer; the log still says why (an answer's refusal is logged as it
+            // is sent).
+            if let Err(e) = &result {
+                tracing::warn!(error = %e.message, "model not loaded; its client has gone");
+            }
             return;
         };
-        match result.and_then(Registry::with_valid_id) {
+        match result {
             Ok(model) => {
                 let info = model.info;
                 // Named: a model file asked for by name may come from the mesh beside it.

@@ -80,7 +80,8 @@ impl Daemon {
             let e = EngineError::new(
                 Status::Busy,
                 format!(
-                    "{} requests are already waiting; retry later",
+                    "{} requests are already waiting, the most the queue holds \
+                     (queue_capacity, ppfd --queue-capacity); retry later",
                     self.queue.len()
                 ),
             );
