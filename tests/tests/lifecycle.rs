@@ -401,6 +401,43 @@ fn a_daemon_meeting_another_protocol_version_says_so() {
     );
 }
 
+/// A daemon started while two others are starting (both listening on `ppfd/daemon`, the most
+/// it takes) is told another daemon serves, where it said only iceoryx2's
+/// "ExceedsMaxSupportedListeners".
+#[test]
+fn a_third_daemon_starting_at_once_is_told_another_serves() {
+    use iceoryx2::prelude::*;
+    use ppfd_client::protocol::services;
+
+    let prefix = Prefix::new("thirddaemon");
+    let models = fake_model_dir("thirddaemon", &[1]);
+    let mut config = iceoryx2::config::Config::default();
+    config.global.prefix = FileName::new(prefix.0.as_bytes()).unwrap();
+    let node = NodeBuilder::new()
+        .config(&config)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<ipc::Service>()
+        .unwrap();
+    let wake = services::daemon_wake_builder(&node)
+        .open_or_create()
+        .unwrap();
+    let _listeners: Vec<_> = (0..services::limits::MAX_SERVERS)
+        .map(|_| wake.listener_builder().create().unwrap())
+        .collect();
+    let out = std::process::Command::new(DAEMON)
+        .args(["--prefix", &prefix.0, "--models", models.to_str().unwrap()])
+        .env("PPFD_TEST_ENGINE", "fake")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("another ppfd already serves with this prefix")
+            && stderr.contains("stop it first"),
+        "{stderr}"
+    );
+}
+
 /// The names of `dir`'s entries that start with `prefix`.
 fn entries_of(dir: &Path, prefix: &str) -> Vec<String> {
     std::fs::read_dir(dir)

@@ -151,6 +151,31 @@ fn the_daemon_takes_its_prefix_from_the_clients_variable() {
     }
 }
 
+/// A camera whose driver has died is stale with the reason: its driver, not the age limit.
+#[test]
+fn a_camera_whose_driver_died_is_stale_saying_so() {
+    use ppfd_client::{DetectOptions, Status};
+    let prefix = Prefix::new("driverless");
+    let models = fake_model_dir("driverless", &[1]);
+    let _d = daemon(&prefix, &models, &["--max-frame-age-ms", "500"], "0");
+    let cam = camera(&prefix, "cam0", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let client = connect(&prefix);
+    let opts = DetectOptions::default();
+    client
+        .detect("cam0", &[1], &opts)
+        .expect("a frame of the running driver served");
+    drop(cam);
+    // Beyond the age limit and a housekeeping round (100 ms), which lets go of a dead driver.
+    std::thread::sleep(Duration::from_millis(1200));
+    let (status, _, message) = refusal(client.detect("cam0", &[1], &opts));
+    assert_eq!(status, Status::CameraStale, "{message}");
+    assert!(
+        message.contains("no driver publishes on it any more: restart its driver"),
+        "{message}"
+    );
+}
+
 #[test]
 fn a_camera_that_stops_is_reported_stale_with_the_age_of_its_last_frame() {
     use ppfd_client::{DetectOptions, Status};

@@ -25,9 +25,14 @@ pub(super) struct Camera {
 }
 
 impl Camera {
+    /// Whether a driver publishes on the camera now.
+    pub(super) fn has_driver(&self) -> bool {
+        self.service.dynamic_config().number_of_publishers() > 0
+    }
+
     /// Whether the camera has been without a driver for `limit`, as of `now`; keeps count.
     fn driverless_for(&mut self, limit: Duration, now: Instant) -> bool {
-        if self.service.dynamic_config().number_of_publishers() > 0 {
+        if self.has_driver() {
             self.driverless_since = None;
             return false;
         }

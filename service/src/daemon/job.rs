@@ -96,6 +96,7 @@ impl Daemon {
                 };
                 let arrived = camera.refresh(name);
                 let newest = camera.newest.clone();
+                let driverless = !camera.has_driver();
                 self.stats.frames_received += arrived;
                 let Some(sample) = newest else {
                     let e = EngineError::new(
@@ -145,7 +146,12 @@ impl Daemon {
                 if let Some(e) = stamped_ahead(&fh, now, &whose) {
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 }
-                if let Some(e) = stale(name, &fh, now, max_age_ns) {
+                if let Some(mut e) = stale(name, &fh, now, max_age_ns) {
+                    // A frame stale because its driver has gone is not a slow camera: said so,
+                    // not left to read as "raise the age limit".
+                    if driverless {
+                        e.message += "; no driver publishes on it any more: restart its driver";
+                    }
                     return Err(Box::new((q.active, q.header, q.received_ns, e)));
                 }
                 let payload = sample.payload();

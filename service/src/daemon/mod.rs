@@ -223,10 +223,20 @@ pub fn run(
     let wake_service = services::daemon_wake_builder(&node)
         .open_or_create()
         .map_err(resource("cannot open the ppfd/daemon event service"))?;
+    // Two daemons listen at most (one replacing a dead one): a third started at the same time
+    // as another is refused here, before the server check would name the other daemon.
     let wake_listener = wake_service
         .listener_builder()
         .create()
-        .map_err(resource("cannot listen on ppfd/daemon"))?;
+        .map_err(|e| match e {
+            iceoryx2::port::listener::ListenerCreateError::ExceedsMaxSupportedListeners => {
+                Error::AlreadyServing {
+                    servers: limits::MAX_SERVERS + 1,
+                    service: services::DAEMON_WAKE,
+                }
+            }
+            e => resource("cannot listen on ppfd/daemon")(e),
+        })?;
     let wakeup = Wakeup::new().map_err(resource("cannot create an eventfd"))?;
 
     let mut daemon = Daemon::new(config, engine, node, wakeup.signaller())?;
