@@ -3,7 +3,7 @@
 use std::cell::Cell;
 use std::time::{Duration, Instant};
 
-use iceoryx2::node::Node;
+use iceoryx2::node::{Node, NodeView};
 use iceoryx2::port::client::Client as IoxClient;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
@@ -499,6 +499,7 @@ impl Client {
         let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
         self.await_answer(
             timeout,
+            send_ns,
             || pending.is_connected(),
             || {
                 while let Some(response) = pending
@@ -517,13 +518,14 @@ impl Client {
         )
     }
 
-    /// Waits up to `timeout` for the answer to a request just sent: `answer` looks for it,
-    /// `held` says whether the daemon still holds the request. Ends with the answer, or
+    /// Waits up to `timeout` for the answer to a request sent at `send_ns`: `answer` looks
+    /// for it, `held` says whether the daemon still holds the request. Ends with the answer, or
     /// [`Error::Dropped`] when the daemon let go of the request without one,
     /// [`Error::DaemonGone`], or [`Error::Timeout`].
     fn await_answer<T>(
         &self,
         timeout: Duration,
+        send_ns: u64,
         held: impl Fn() -> bool,
         mut answer: impl FnMut() -> Result<Option<T>>,
     ) -> Result<T> {
@@ -538,7 +540,11 @@ impl Client {
                 return Ok(found);
             }
             if !held {
-                return Err(Error::Dropped);
+                return Err(if self.daemon_replaced_since(send_ns) {
+                    Error::DaemonGone
+                } else {
+                    Error::Dropped
+                });
             }
             if gone {
                 return Err(Error::DaemonGone);
@@ -549,6 +555,30 @@ impl Client {
             }
             self.wait_reply(left.min(HELD_CHECK_PERIOD))?;
         }
+    }
+
+    /// Whether the daemon that took a request sent at `send_ns` has gone, asked when the
+    /// request was let go of: no daemon is attached to the detect service now, or the one
+    /// attached started after the request was sent. A daemon restarted at once (as systemd's
+    /// `Restart=` does) removes its dead predecessor's ports as it starts, which lets go of the
+    /// request before the periodic check ([`AliveCheck`]) sees the death.
+    fn daemon_replaced_since(&self, send_ns: u64) -> bool {
+        let mut taken_by_a_live_daemon = false;
+        let listed = self._detect_service.nodes(|state| {
+            let older = match &state {
+                NodeState::Alive(view) => view.id().creation_time::<Ipc>().map_or(true, |t| {
+                    t.seconds() * 1_000_000_000 + u64::from(t.nanoseconds()) <= send_ns
+                }),
+                _ => true,
+            };
+            taken_by_a_live_daemon = services::may_be_the_daemon(&state) && older;
+            if taken_by_a_live_daemon {
+                CallbackProgression::Stop
+            } else {
+                CallbackProgression::Continue
+            }
+        });
+        listed.is_ok() && !taken_by_a_live_daemon
     }
 
     /// Sets what decides, while a request waits for its answer, whether to stop waiting: it is
@@ -612,6 +642,7 @@ impl Client {
         above_zero("timeout", timeout)?;
         request.request_id = self.request_id();
         request.reply_token = self.reply_token;
+        let send_ns = monotonic_now_ns();
         let pending = self
             .control
             .send_copy(request)
@@ -625,6 +656,7 @@ impl Client {
         let _ = self.wake.notify_with_custom_event_id(wake::REQUEST);
         self.await_answer(
             timeout,
+            send_ns,
             || pending.is_connected(),
             || {
                 let Some(response) = pending

@@ -8,7 +8,7 @@ use ppfd_client::protocol::control::RECENT_WINDOW_NS;
 use ppfd_tests::{fake_model_dir, Prefix, Proc};
 
 mod common;
-use common::{camera, fake_daemon, CAMERA, CLIENT, DAEMON, STARTUP};
+use common::{camera, fake_daemon, spawn_fake_daemon, CAMERA, CLIENT, DAEMON, STARTUP};
 
 fn daemon(prefix: &Prefix, models: &Path, extra: &[&str], delay_ms: &str) -> Proc {
     fake_daemon(prefix, models, extra, &[("PPFD_FAKE_DELAY_MS", delay_ms)])
@@ -680,6 +680,43 @@ fn client_proc_served(prefix: &Prefix) -> Vec<String> {
         &["--camera", "cam0", "--objects", "1", "--requests", "2"],
     );
     results(&mut c, Duration::from_secs(10))
+}
+
+/// A daemon killed under a request and restarted at once (as systemd's `Restart=` does): the
+/// new daemon removes the dead one's ports as it starts, which lets go of the request before the
+/// client's periodic check sees the death. The client says the daemon died, not that a live
+/// daemon let go of the request.
+#[test]
+fn a_daemon_restarted_at_once_under_a_request_is_reported_gone() {
+    let prefix = Prefix::new("restarted");
+    let models = fake_model_dir("restarted", &[1]);
+    let d = daemon(&prefix, &models, &[], "20000");
+    let _cam = camera(&prefix, "cam0", &["--fps", "50"]);
+    std::thread::sleep(Duration::from_millis(300));
+    let client = connect(&prefix);
+    let models_dir = models.to_path_buf();
+    let prefix_name = prefix.0.clone();
+    let restarter = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_millis(300));
+        let mut d = d;
+        d.signal(libc::SIGKILL);
+        d.wait_exit(Duration::from_secs(5)).expect("daemon killed");
+        let again = Prefix(prefix_name);
+        let new = spawn_fake_daemon(&again, &models_dir, &[], &[("PPFD_FAKE_DELAY_MS", "0")]);
+        // The prefix's files belong to the test's own `Prefix`.
+        std::mem::forget(again);
+        new
+    });
+    let opts = ppfd_client::DetectOptions {
+        timeout: Duration::from_secs(60),
+        ..Default::default()
+    };
+    let result = client.detect("cam0", &[1], &opts);
+    let _new = restarter.join().unwrap();
+    assert!(
+        matches!(result, Err(ppfd_client::Error::DaemonGone)),
+        "{result:?}"
+    );
 }
 
 /// A daemon killed while it works on a request never answers it: the client learns so at once
