@@ -354,6 +354,31 @@ fn requests_that_come_while_the_daemon_stops_are_answered() {
     assert!(status.success(), "{status:?}");
 }
 
+/// A node of this test process under `prefix`, to hold services as other processes would.
+fn node_under(prefix: &Prefix) -> iceoryx2::node::Node<iceoryx2::service::ipc::Service> {
+    use iceoryx2::prelude::*;
+    let mut config = iceoryx2::config::Config::default();
+    config.global.prefix = FileName::new(prefix.0.as_bytes()).unwrap();
+    NodeBuilder::new()
+        .config(&config)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<ipc::Service>()
+        .unwrap()
+}
+
+/// The stderr of a daemon started under `prefix` with the fake engine, which must refuse to
+/// start (exit code 1).
+fn refused_start(prefix: &Prefix, models: &Path) -> String {
+    let out = std::process::Command::new(DAEMON)
+        .args(["--prefix", &prefix.0, "--models", models.to_str().unwrap()])
+        .env("PPFD_TEST_ENGINE", "fake")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    stderr
+}
+
 /// A daemon that meets `ppfd/detect` held open with the messages of another protocol version
 /// (clients of another ppfd release still running under the prefix) says so and exits 1,
 /// where it said only iceoryx2's type error.
@@ -374,13 +399,7 @@ fn a_daemon_meeting_another_protocol_version_says_so() {
 
     let prefix = Prefix::new("otherversion");
     let models = fake_model_dir("otherversion", &[1]);
-    let mut config = iceoryx2::config::Config::default();
-    config.global.prefix = FileName::new(prefix.0.as_bytes()).unwrap();
-    let node = NodeBuilder::new()
-        .config(&config)
-        .signal_handling_mode(SignalHandlingMode::Disabled)
-        .create::<ipc::Service>()
-        .unwrap();
+    let node = node_under(&prefix);
     let _held = node
         .service_builder(&ServiceName::new(services::DETECT).unwrap())
         .request_response::<[u16], [PoseHypothesis]>()
@@ -388,13 +407,7 @@ fn a_daemon_meeting_another_protocol_version_says_so() {
         .response_user_header::<DetectResponseHeader>()
         .create()
         .unwrap();
-    let out = std::process::Command::new(DAEMON)
-        .args(["--prefix", &prefix.0, "--models", models.to_str().unwrap()])
-        .env("PPFD_TEST_ENGINE", "fake")
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    let stderr = refused_start(&prefix, &models);
     assert!(
         stderr.contains("cannot open ppfd/detect: processes of another ppfd release"),
         "{stderr}"
@@ -406,31 +419,18 @@ fn a_daemon_meeting_another_protocol_version_says_so() {
 /// "ExceedsMaxSupportedListeners".
 #[test]
 fn a_third_daemon_starting_at_once_is_told_another_serves() {
-    use iceoryx2::prelude::*;
     use ppfd_client::protocol::services;
 
     let prefix = Prefix::new("thirddaemon");
     let models = fake_model_dir("thirddaemon", &[1]);
-    let mut config = iceoryx2::config::Config::default();
-    config.global.prefix = FileName::new(prefix.0.as_bytes()).unwrap();
-    let node = NodeBuilder::new()
-        .config(&config)
-        .signal_handling_mode(SignalHandlingMode::Disabled)
-        .create::<ipc::Service>()
-        .unwrap();
+    let node = node_under(&prefix);
     let wake = services::daemon_wake_builder(&node)
         .open_or_create()
         .unwrap();
     let _listeners: Vec<_> = (0..services::limits::MAX_SERVERS)
         .map(|_| wake.listener_builder().create().unwrap())
         .collect();
-    let out = std::process::Command::new(DAEMON)
-        .args(["--prefix", &prefix.0, "--models", models.to_str().unwrap()])
-        .env("PPFD_TEST_ENGINE", "fake")
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    let stderr = refused_start(&prefix, &models);
     assert!(
         stderr.contains("another ppfd already serves with this prefix")
             && stderr.contains("stop it first"),
