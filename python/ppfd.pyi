@@ -198,10 +198,15 @@ class Detections(Sequence[Detection]):
 class Client:
     """A connection to the daemon, used by the thread that made it (one per thread)."""
 
-    def __init__(self, prefix: Optional[str] = None, *, control_timeout: float = 5.0) -> None:
+    def __init__(
+        self, prefix: Optional[str] = None, *, control_timeout: float = 5.0, detects: bool = True
+    ) -> None:
         """Connects under the iceoryx2 `prefix` (None: `PPFD_PREFIX`, else iceoryx2's
         default). Works before the daemon starts: requests then raise `NoDaemon`.
-        `control_timeout` in seconds, above 0, bounds model listings, loads and statistics."""
+        `control_timeout` in seconds, above 0, bounds model listings, loads and statistics.
+        `detects=False` connects for control requests only (a monitor): it takes no detect
+        place, so it connects while the daemon serves its most detecting clients, and its
+        detect calls raise `ValueError`."""
     def close(self) -> None:
         """Closes the connection now, releasing its shared-memory ports (otherwise released
         when the object is collected, and never when that happens on another thread); using it

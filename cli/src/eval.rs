@@ -160,6 +160,7 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
     );
     let mut rows = Vec::new();
     let mut failed = Vec::new();
+    let mut images_detected = 0usize;
     for (&(scene, im), wanted) in images.iter().zip(&wanted_per_image) {
         let refs: Vec<_> = models
             .iter()
@@ -192,6 +193,7 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
                 continue;
             }
         };
+        images_detected += 1;
         for o in &det.objects {
             for h in &o.hypotheses {
                 rows.push(EstimateRow {
@@ -208,6 +210,17 @@ pub fn run(args: EvalArgs) -> Result<(), Box<dyn std::error::Error>> {
         bar.inc(1);
     }
     bar.finish_and_clear();
+    // When no image could be detected in, the cause is the run's, not one frame's: nothing is
+    // written, as an empty results file would score as a detector that found nothing.
+    if images_detected == 0 {
+        if let Some(first) = failed.first() {
+            return Err(format!(
+                "no image could be detected in ({} failed; nothing written); the first: {first}",
+                failed.len()
+            )
+            .into());
+        }
+    }
     write_results_file(&args.out, &rows)?;
     let failed_note = match failed.len() {
         0 => String::new(),

@@ -32,6 +32,9 @@ pub fn dataset_models(dataset: &BopDataset, ids: &[u32]) -> Result<Vec<ObjectMod
             if let Some(why) = &cached.symmetry_left_out {
                 bar.suspend(|| eprintln!("warning: {why}"));
             }
+            if let Some(w) = ppfd_models::limits::small_diameter(cached.model.diameter_mm()) {
+                bar.suspend(|| eprintln!("warning: {}: {w}", path.display()));
+            }
             bar.inc(1);
             Ok(cached.model)
         })

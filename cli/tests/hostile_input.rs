@@ -317,10 +317,26 @@ fn eval_goes_on_past_a_frame_it_cannot_detect_in() {
         "{e}"
     );
     assert!(csv.exists(), "the results are written");
+    // When every image fails, nothing is written: an empty results file would score as a
+    // detector that found nothing.
+    std::fs::remove_file(&csv).unwrap();
+    std::fs::copy(&depth, root.join("test/000000/depth/000001.png")).unwrap();
+    let out = run(ppf(&["eval"])
+        .arg(&root)
+        .arg("--out")
+        .arg(&csv)
+        .env("PPFD_CACHE", dir.join("cache")));
+    assert_eq!(out.status.code(), Some(1));
+    let e = text(&out.stderr);
+    assert!(
+        e.contains("no image could be detected in (2 failed; nothing written)"),
+        "{e}"
+    );
+    assert!(!csv.exists(), "nothing written");
 }
 
 /// A mesh in metres is refused as it is; its model built with `--scale 1000` into the mesh's
-/// own folder, as the refusal advises, is taken in its place, where the mesh was refused again.
+/// own folder, as the refusal advises, is taken in its place.
 #[test]
 fn a_model_built_with_scale_beside_its_mesh_in_metres_is_taken() {
     let dir = Scratch::new("scaled-beside");
@@ -357,6 +373,32 @@ fn a_model_built_with_scale_beside_its_mesh_in_metres_is_taken() {
         text(&out.stdout).contains("| 1 |"),
         "object 1 is detected for"
     );
+}
+
+/// A mesh in centimetres is warned of with the scale each time the dataset commands load its
+/// model, the first time (built) and the next (taken from the cache).
+#[test]
+fn a_small_model_is_warned_of_at_each_load() {
+    let dir = Scratch::new("small-model");
+    let root = dir.join("dataset");
+    write_dataset(&root, GOOD_GT);
+    let mut centimetres = Part::ALL[0].mesh();
+    centimetres.scale(0.1);
+    let mesh = root.join("models/obj_000001.ply");
+    std::fs::write(&mesh, centimetres.to_ply_ascii()).unwrap();
+    for _ in 0..2 {
+        let out = run(ppf(&["detect", "--dataset"])
+            .arg(&root)
+            .args(["--scene", "0", "--image", "0"])
+            .env("PPFD_CACHE", dir.join("cache")));
+        assert!(out.status.success());
+        let e = text(&out.stderr);
+        assert!(
+            e.contains(&format!("warning: {}: the diameter is", mesh.display()))
+                && e.contains("scale it by 10"),
+            "{e}"
+        );
+    }
 }
 
 /// On a frame where the object is not (a wall), its row says so.

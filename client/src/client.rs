@@ -257,28 +257,43 @@ impl AliveCheck {
         }
     }
 
-    /// True once no live node of the daemon's name is attached to the detect service. A listing
-    /// that fails, or a node whose state cannot be read, counts as alive: the timeout still ends
-    /// the wait. Only the service's nodes (the daemon and its clients) are listed, not every
-    /// node on the host: the check runs on the waiting thread, and a host whose node folder
-    /// held 2 500 entries (dead processes of other prefixes) held an answer back by up to
-    /// 30 ms while the whole folder was read.
-    fn daemon_gone(&mut self, service: &DetectService<Ipc>) -> bool {
+    /// True once the daemon that took a request sent at `send_ns` has gone
+    /// ([`daemon_gone_since`]), looked at once per [`ALIVE_CHECK_PERIOD`]. A listing that
+    /// fails counts as alive: the timeout still ends the wait.
+    fn daemon_gone(&mut self, service: &DetectService<Ipc>, send_ns: u64) -> bool {
         if Instant::now() < self.next {
             return false;
         }
         self.next = Instant::now() + ALIVE_CHECK_PERIOD;
-        let mut alive = false;
-        let listed = service.nodes(|state| {
-            alive = services::may_be_the_daemon(&state);
-            if alive {
-                CallbackProgression::Stop
-            } else {
-                CallbackProgression::Continue
-            }
-        });
-        listed.is_ok() && !alive
+        daemon_gone_since(service, send_ns)
     }
+}
+
+/// Whether the daemon that took a request sent at `send_ns` has gone: no live node of the
+/// daemon's name attached to the detect service was made before the request was sent (a node
+/// whose state cannot be read counts as alive). A daemon restarted at once (as systemd's
+/// `Restart=` does) is attached again, but it never took the request. Only the service's nodes
+/// (the daemon and its clients) are listed, not every node on the host: the check runs on the
+/// waiting thread, and a host whose node folder held 2 500 entries (dead processes of other
+/// prefixes) held an answer back by up to 30 ms while the whole folder was read. Node ids hold
+/// their creation time on `CLOCK_MONOTONIC`, the clock of `send_ns`.
+fn daemon_gone_since(service: &DetectService<Ipc>, send_ns: u64) -> bool {
+    let mut held_by_a_live_daemon = false;
+    let listed = service.nodes(|state| {
+        let made_before = match &state {
+            NodeState::Alive(view) => view.id().creation_time::<Ipc>().map_or(true, |t| {
+                t.seconds() * 1_000_000_000 + u64::from(t.nanoseconds()) <= send_ns
+            }),
+            _ => true,
+        };
+        held_by_a_live_daemon = services::may_be_the_daemon(&state) && made_before;
+        if held_by_a_live_daemon {
+            CallbackProgression::Stop
+        } else {
+            CallbackProgression::Continue
+        }
+    });
+    listed.is_ok() && !held_by_a_live_daemon
 }
 
 fn new_token() -> u64 {
@@ -535,12 +550,14 @@ impl Client {
             // Whether the daemon still holds the request, read before looking for the answer:
             // it answers before it lets go, so an answer sent before is found below.
             let held = held();
-            let gone = alive.daemon_gone(&self._detect_service);
+            let gone = alive.daemon_gone(&self._detect_service, send_ns);
             if let Some(found) = answer()? {
                 return Ok(found);
             }
             if !held {
-                return Err(if self.daemon_replaced_since(send_ns) {
+                // A daemon restarted at once removes its dead predecessor's ports as it
+                // starts, which lets go of the request before the periodic check looks.
+                return Err(if daemon_gone_since(&self._detect_service, send_ns) {
                     Error::DaemonGone
                 } else {
                     Error::Dropped
@@ -555,30 +572,6 @@ impl Client {
             }
             self.wait_reply(left.min(HELD_CHECK_PERIOD))?;
         }
-    }
-
-    /// Whether the daemon that took a request sent at `send_ns` has gone, asked when the
-    /// request was let go of: no daemon is attached to the detect service now, or the one
-    /// attached started after the request was sent. A daemon restarted at once (as systemd's
-    /// `Restart=` does) removes its dead predecessor's ports as it starts, which lets go of the
-    /// request before the periodic check ([`AliveCheck`]) sees the death.
-    fn daemon_replaced_since(&self, send_ns: u64) -> bool {
-        let mut taken_by_a_live_daemon = false;
-        let listed = self._detect_service.nodes(|state| {
-            let older = match &state {
-                NodeState::Alive(view) => view.id().creation_time::<Ipc>().map_or(true, |t| {
-                    t.seconds() * 1_000_000_000 + u64::from(t.nanoseconds()) <= send_ns
-                }),
-                _ => true,
-            };
-            taken_by_a_live_daemon = services::may_be_the_daemon(&state) && older;
-            if taken_by_a_live_daemon {
-                CallbackProgression::Stop
-            } else {
-                CallbackProgression::Continue
-            }
-        });
-        listed.is_ok() && !taken_by_a_live_daemon
     }
 
     /// Sets what decides, while a request waits for its answer, whether to stop waiting: it is

@@ -56,9 +56,12 @@ pub mod wake {
 pub mod limits {
     /// Detect clients at once (robot processes).
     pub const MAX_CLIENTS: usize = 32;
-    /// Control clients at once: one per detect client, and room for the operator's tools
-    /// (`ppf stats`, `ppf models`, a monitoring script), which connect without a detect port,
-    /// so that they work while the daemon serves its most detect clients.
+    /// Control clients at once: one per detect client and 8 more, one pool for all. Clients
+    /// that only send control requests (`ppf stats`, `ppf models`) take no detect place, so
+    /// that they connect while the daemon serves its most detect clients; a control-only
+    /// client that stays (a monitor) takes one of these places as long as it lives. The
+    /// event services' and nodes' limits ([`MAX_NODES`]) hold these 40 and the daemon and its
+    /// cameras, so they are those of the detect clients alone.
     pub const MAX_CONTROL_CLIENTS: usize = MAX_CLIENTS + 8;
     /// Daemons serving at once: 1, plus one while a restarted daemon replaces a dead one.
     pub const MAX_SERVERS: usize = 2;
@@ -69,7 +72,7 @@ pub mod limits {
     /// Responses buffered per request before the oldest is discarded (one is sent).
     pub const RESPONSE_BUFFER: usize = 2;
     /// Processes attached to one service.
-    pub const MAX_NODES: usize = 2 * MAX_CONTROL_CLIENTS + 8;
+    pub const MAX_NODES: usize = 2 * MAX_CLIENTS + 8;
     /// Hypotheses one response can carry.
     pub const MAX_RESPONSE_HYPOTHESES: usize =
         super::MAX_OBJECTS_PER_REQUEST * super::MAX_HYPOTHESES_PER_OBJECT as usize;
@@ -165,7 +168,7 @@ pub fn daemon_wake_builder<S: Service>(node: &Node<S>) -> event::Builder<S> {
     node.service_builder(&fixed_name(DAEMON_WAKE))
         .event()
         .max_listeners(limits::MAX_SERVERS)
-        .max_notifiers(2 * limits::MAX_CONTROL_CLIENTS + 8)
+        .max_notifiers(2 * limits::MAX_CLIENTS + 8)
         .max_nodes(limits::MAX_NODES)
         .event_id_max_value(wake::MAX)
 }
@@ -174,7 +177,7 @@ pub fn daemon_wake_builder<S: Service>(node: &Node<S>) -> event::Builder<S> {
 pub fn responses_builder<S: Service>(node: &Node<S>) -> event::Builder<S> {
     node.service_builder(&fixed_name(RESPONSES))
         .event()
-        .max_listeners(2 * limits::MAX_CONTROL_CLIENTS)
+        .max_listeners(2 * limits::MAX_CLIENTS)
         .max_notifiers(limits::MAX_SERVERS)
         .max_nodes(limits::MAX_NODES)
         .event_id_max_value(1)

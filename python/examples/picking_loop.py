@@ -46,6 +46,8 @@ def main() -> int:
                         help="seconds per request (default: the client's, 3 s)")
     args = parser.parse_args()
     orders = args.orders
+    # One line per cycle as it ends, also into a pipe or a journal.
+    sys.stdout.reconfigure(line_buffering=True)
 
     client = ppfd.Client(prefix=args.prefix)
     picked = failed = 0

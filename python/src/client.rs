@@ -487,11 +487,19 @@ pub struct Client {
 impl Client {
     /// Connects under the iceoryx2 `prefix` (None: `PPFD_PREFIX`, else iceoryx2's default).
     /// Works before the daemon starts: requests then raise `NoDaemon` until one serves.
+    /// `detects=False` connects for control requests only (statistics, models): without a
+    /// detect place, so it connects while the daemon serves its most detecting clients.
     #[new]
-    #[pyo3(signature = (prefix=None, *, control_timeout=5.0))]
-    fn new(py: Python<'_>, prefix: Option<String>, control_timeout: f64) -> PyResult<Self> {
+    #[pyo3(signature = (prefix=None, *, control_timeout=5.0, detects=true))]
+    fn new(
+        py: Python<'_>,
+        prefix: Option<String>,
+        control_timeout: f64,
+        detects: bool,
+    ) -> PyResult<Self> {
         let mut options = ClientOptions {
             control_timeout: seconds(py, "control_timeout", control_timeout)?,
+            detects,
             ..ClientOptions::default()
         };
         if prefix.is_some() {

@@ -228,8 +228,11 @@ fn raise(py: Python<'_>, error: &Error) -> PyResult<PyErr> {
         Error::NoDaemon { .. } => &c.no_daemon,
         Error::CameraTaken { .. } => &c.camera_taken,
         Error::Protocol(_) => &c.protocol,
-        // Python's clients always detect; a use of the call the client cannot make.
-        Error::ControlOnly => &c.protocol,
+        // A call the client was connected without (`Client(detects=False)`), as a closed
+        // client's calls raise.
+        Error::ControlOnly => {
+            return Ok(pyo3::exceptions::PyValueError::new_err(message));
+        }
         Error::Transport(_) => &c.transport,
         Error::TooManyClients { .. } => &c.too_many_clients,
         Error::OtherProtocolVersion { .. } => &c.other_protocol_version,

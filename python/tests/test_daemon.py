@@ -120,6 +120,13 @@ def test_models_and_stats(client, scene):
     assert (stats["model_loads_running"], stats["model_loads_waiting"]) == (0, 0)
 
 
+def test_a_monitor_connects_for_control_requests_only(daemon, scene):
+    with ppfd.Client(prefix=daemon.prefix, detects=False) as monitor:
+        assert monitor.stats()["models_loaded"] == len(scene.object_ids)
+        with pytest.raises(ValueError, match="control requests only"):
+            monitor.detect("parts", [1])
+
+
 def test_a_dropped_model_is_unknown_until_loaded_again(client, camera, scene):
     client.drop_model(4)
     try:

@@ -105,6 +105,16 @@ pub enum Error {
         /// The service's name (`ppfd/detect` or `ppfd/control`).
         service: &'static str,
     },
+    /// Two daemons already listen on `ppfd/daemon` under the prefix, the most there may be
+    /// (one serving and one replacing a dead one): others starting at the same time.
+    #[error(
+        "other ppfd daemons are starting or serving with this prefix ({listeners} listen on \
+         ppfd/daemon, the most there may be); stop them first"
+    )]
+    DaemonsStarting {
+        /// Daemons listening already.
+        listeners: usize,
+    },
     /// A request/response service is held open, under this prefix, with the messages of
     /// another protocol version: clients or a daemon of another ppfd release still run.
     #[error(

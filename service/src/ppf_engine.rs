@@ -187,6 +187,13 @@ impl PpfEngine {
         let cached =
             model_cache::load_or_build(MeshSource::File(path), id, &self.model_params, &files)
                 .map_err(model_error)?;
+        // A model built now warned as it was built; one reused warns at each load, as the log
+        // of a daemon's start is where a cell looks.
+        if cached.origin != model_cache::Origin::Built {
+            if let Some(warning) = ppfd_models::limits::small_diameter(cached.model.diameter_mm()) {
+                tracing::warn!(path = %path.display(), "{warning}");
+            }
+        }
         let source = cached.file.unwrap_or_else(|| path.to_path_buf());
         Ok(loaded(cached.model, &source))
     }

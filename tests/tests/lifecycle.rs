@@ -415,10 +415,9 @@ fn a_daemon_meeting_another_protocol_version_says_so() {
 }
 
 /// A daemon started while two others are starting (both listening on `ppfd/daemon`, the most
-/// it takes) is told another daemon serves, where it said only iceoryx2's
-/// "ExceedsMaxSupportedListeners".
+/// it takes) is told that other daemons start or serve under its prefix.
 #[test]
-fn a_third_daemon_starting_at_once_is_told_another_serves() {
+fn a_third_daemon_starting_at_once_is_told_others_start_or_serve() {
     use ppfd_client::protocol::services;
 
     let prefix = Prefix::new("thirddaemon");
@@ -432,8 +431,8 @@ fn a_third_daemon_starting_at_once_is_told_another_serves() {
         .collect();
     let stderr = refused_start(&prefix, &models);
     assert!(
-        stderr.contains("another ppfd already serves with this prefix")
-            && stderr.contains("stop it first"),
+        stderr.contains("other ppfd daemons are starting or serving with this prefix (2 listen")
+            && stderr.contains("stop them first"),
         "{stderr}"
     );
 }

@@ -29,13 +29,11 @@ pub struct MeshReport {
     /// Closed, and its normals point inward for the most part (the flux of the normals through
     /// the surface is negative).
     pub inward_normals: bool,
-    /// The diameter is below [`limits::SMALL_DIAMETER_MM`]: the caller warns
-    /// ([`MeshReport::small_warning`]), and the model is built all the same.
-    pub small: bool,
 }
 
 impl MeshReport {
-    /// The warning of a small diameter ([`limits::small_diameter`]), when it is.
+    /// The warning of a diameter below [`limits::SMALL_DIAMETER_MM`]
+    /// ([`limits::small_diameter`]), for the caller to give; the model is built all the same.
     pub fn small_warning(&self) -> Option<String> {
         limits::small_diameter(self.diameter_mm)
     }
@@ -73,7 +71,6 @@ pub fn check_mesh(mesh: &Mesh) -> Result<MeshReport> {
         size_mm,
         closed,
         inward_normals,
-        small: limits::small_diameter(diameter_mm).is_some(),
     })
 }
 
@@ -175,11 +172,10 @@ mod tests {
     #[test]
     fn a_mesh_in_centimetres_passes_with_a_warning() {
         let r = check_mesh(&box_mesh(Vector3::new(8.0, 4.0, 4.4))).unwrap();
-        assert!(r.small, "{r:?}");
         let w = r.small_warning().unwrap();
         assert!(w.contains("centimetres") && w.contains("--scale"), "{w}");
         let r = check_mesh(&box_mesh(Vector3::new(60.0, 40.0, 20.0))).unwrap();
-        assert!(!r.small && r.small_warning().is_none(), "{r:?}");
+        assert!(r.small_warning().is_none(), "{r:?}");
     }
 
     #[test]

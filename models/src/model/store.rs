@@ -29,10 +29,11 @@ pub const EXTENSION: &str = "ppfm";
 /// Bumped whenever [`crate::model::ModelData`], the table encoding or what a model is built
 /// from a mesh changes. Version 2 added the mesh fingerprint, version 3 the CRC of the mesh
 /// file; version 4 takes the normals of a mesh without normals from its faces split at creases
-/// ([`crate::geometry::mesh::CREASE_ANGLE_DEG`]); version 5 added the object's symmetries.
+/// ([`crate::geometry::mesh::CREASE_ANGLE_DEG`]); version 5 added the object's symmetries;
+/// version 6 reads meshes without the vertices that no face uses (they counted in the diameter).
 /// Every file of an earlier version is refused: a cached model is rebuilt from its mesh, a model
 /// file without one has to be rebuilt (`ppf model build`).
-pub const FORMAT_VERSION: u32 = 5;
+pub const FORMAT_VERSION: u32 = 6;
 const MAGIC: &[u8; 8] = b"PPFDMODL";
 const HEADER_LEN: usize = 32;
 

@@ -230,9 +230,8 @@ pub fn run(
         .create()
         .map_err(|e| match e {
             iceoryx2::port::listener::ListenerCreateError::ExceedsMaxSupportedListeners => {
-                Error::AlreadyServing {
-                    servers: limits::MAX_SERVERS + 1,
-                    service: services::DAEMON_WAKE,
+                Error::DaemonsStarting {
+                    listeners: limits::MAX_SERVERS,
                 }
             }
             e => resource("cannot listen on ppfd/daemon")(e),

@@ -431,8 +431,9 @@ fn build_mesh(
 
     // A vertex that no face uses is not on the surface the model samples, yet it would count
     // in the diameter, and so in every length of the model: one stray vertex half a metre out,
-    // as CAD and decimation exports leave, made a 100 mm part's model five times too coarse to
-    // be found. Such vertices are dropped; a file without faces is a point cloud and keeps all.
+    // as CAD and decimation exports leave, makes a 100 mm part's model five times too coarse
+    // to be found. Such vertices are dropped; a file without faces is a point cloud and keeps
+    // all.
     let kept: Vec<usize> = if triangles.is_empty() {
         (0..vertex_count).collect()
     } else {
