@@ -240,13 +240,18 @@ impl Daemon {
                     ))
                 }),
             };
+            let finished_ns = monotonic_now_ns();
+            // The deadline is looked at between stages, so the last stage may end past it; its
+            // client stops waiting at the deadline, and poses sent then would be counted
+            // served though none waited for them.
+            let result = in_time(result, &header, finished_ns);
             let served = Served {
                 header,
                 received_ns,
                 frame_sequence: frame_header.sequence,
                 frame_age_ns,
                 started_ns,
-                finished_ns: monotonic_now_ns(),
+                finished_ns,
             };
             // Answered from here: the client does not wait for the I/O thread to wake up. The
             // request (and an inline frame in it) is released only after the answer.
@@ -291,6 +296,28 @@ impl Drop for Report {
         });
         self.signaller.signal();
     }
+}
+
+/// `result`, or for a detection that finished at `finished_ns`, after the request's deadline,
+/// its refusal as such.
+fn in_time<T>(
+    result: Result<T, EngineError>,
+    header: &DetectRequestHeader,
+    finished_ns: u64,
+) -> Result<T, EngineError> {
+    if result.is_err() || header.deadline_ns == 0 || finished_ns <= header.deadline_ns {
+        return result;
+    }
+    let ms = |ns: u64| ns as f64 / 1e6;
+    Err(EngineError::new(
+        Status::DeadlineExceeded,
+        format!(
+            "deadline exceeded: the detection finished {:.1} ms after the request's deadline, \
+             {:.1} ms after it was sent; a longer timeout waits for it",
+            ms(finished_ns - header.deadline_ns),
+            ms(finished_ns.saturating_sub(header.send_time_ns))
+        ),
+    ))
 }
 
 /// `camera stale` when the camera's frame is older than the limit at `now`.
@@ -344,5 +371,50 @@ fn duration_text(ns: u64) -> String {
         format!("{:.1} h", s / 3600.0)
     } else {
         format!("{:.0} days", s / 86400.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Poses of a detection that ended past the request's deadline are not sent as served: the
+    /// answer says by how much it was late. One in time, one without a deadline and a refusal
+    /// go as they are.
+    #[test]
+    fn a_detection_finished_past_its_deadline_is_refused_as_such() {
+        let header = DetectRequestHeader {
+            send_time_ns: 1_000_000_000,
+            deadline_ns: 1_250_000_000,
+            ..Default::default()
+        };
+        let late = in_time(Ok::<u32, EngineError>(7), &header, 1_256_000_000).unwrap_err();
+        assert_eq!(late.status, Status::DeadlineExceeded);
+        assert!(
+            late.message.contains(
+                "finished 6.0 ms after the request's deadline, 256.0 ms after it was sent"
+            ),
+            "{}",
+            late.message
+        );
+        assert_eq!(
+            in_time(Ok::<u32, EngineError>(7), &header, 1_250_000_000).unwrap(),
+            7
+        );
+        let unbounded = DetectRequestHeader {
+            deadline_ns: 0,
+            ..header
+        };
+        assert_eq!(
+            in_time(Ok::<u32, EngineError>(7), &unbounded, u64::MAX).unwrap(),
+            7
+        );
+        let refused = in_time(
+            Err::<u32, _>(EngineError::new(Status::InvalidFrame, "bad")),
+            &header,
+            2_000_000_000,
+        )
+        .unwrap_err();
+        assert_eq!(refused.status, Status::InvalidFrame);
     }
 }
