@@ -128,7 +128,7 @@ pub struct StatsArgs {
     #[arg(long)]
     pub json: bool,
     /// Give up waiting for the daemon's answer after this long, milliseconds (a daemon answers
-    /// once it has loaded the models it starts with).
+    /// from its start, also while it loads the models it starts with).
     #[arg(long, default_value_t = 5_000, value_parser = clap::value_parser!(u64).range(1..))]
     pub timeout_ms: u64,
     #[command(flatten)]

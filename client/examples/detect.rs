@@ -86,12 +86,13 @@ fn run(camera: &str, objects: &[u32]) -> Result<(), Box<dyn std::error::Error>> 
     }
     let l = &found.latency;
     println!(
-        "end to end {:.2} ms = detection {:.2} ms + overhead {:.3} ms (transport {:.3} + queue {:.3} + return {:.3})",
+        "end to end {:.2} ms = detection {:.2} ms + overhead {:.3} ms (transport {:.3} + queue {:.3} + hand-back {:.3} + return {:.3})",
         l.end_to_end_ns as f64 / 1e6,
         l.daemon.detection_ns as f64 / 1e6,
         l.overhead_ns() as f64 / 1e6,
         l.daemon.transport_ns as f64 / 1e6,
         l.daemon.queue_wait_ns as f64 / 1e6,
+        l.hand_back_ns() as f64 / 1e6,
         l.response_transport_ns as f64 / 1e6,
     );
     Ok(())
