@@ -232,7 +232,16 @@ pub fn run(args: BenchArgs) -> Result<(), String> {
     let mut per_client = Vec::new();
     let mut failures = Failures::default();
     for (i, r) in results.into_iter().enumerate() {
-        let r = r?;
+        let r = match r {
+            Ok(r) => r,
+            Err(e) => {
+                // A script that reads --json gets JSON here too: the error that ended the run.
+                if args.json {
+                    println!("{}", serde_json::json!({ "error": e }));
+                }
+                return Err(e);
+            }
+        };
         per_client.push(ClientFigures::of(i, objects_of(i), &r));
         failures.add(&r.failures);
         all.extend(r.served);

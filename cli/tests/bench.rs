@@ -106,6 +106,17 @@ fn a_failed_warmup_ends_the_run() {
         out.stdout.is_empty(),
         "no figures for a run that never started"
     );
+    // With --json, the error as JSON too, for a script that reads it.
+    let mut command = bench_one_unknown(&served, "1", true);
+    let out = served.publish_until_done(command.spawn().unwrap());
+    show(&command, &out);
+    assert_eq!(out.status.code(), Some(1));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON on stdout");
+    let error = json["error"].as_str().unwrap_or_default();
+    assert!(
+        error.contains("client 1's warm-up") && error.contains(UNKNOWN),
+        "{json}"
+    );
 }
 
 /// A run whose every request fails prints no latency table (a table of zeros would read as
