@@ -93,22 +93,25 @@ impl Connect {
 
     /// A client that detects.
     pub fn client(&self) -> Result<Client, String> {
-        let options = ClientOptions {
-            prefix: self.prefix()?,
-            ..Default::default()
-        };
-        Client::connect_with(&options).map_err(|e| e.to_string())
+        self.connect(ClientOptions::default())
     }
 
     /// A client for control requests only (`ppf stats`, `ppf models`), which wait up to
     /// `control_timeout` for their answers: without a detect port, it connects while the daemon
     /// serves its most robot clients.
     pub fn control_client(&self, control_timeout: Duration) -> Result<Client, String> {
-        let options = ClientOptions {
-            prefix: self.prefix()?,
+        self.connect(ClientOptions {
             control_timeout,
             detects: false,
             ..Default::default()
+        })
+    }
+
+    /// Connects with `options` under this command's prefix.
+    fn connect(&self, options: ClientOptions) -> Result<Client, String> {
+        let options = ClientOptions {
+            prefix: self.prefix()?,
+            ..options
         };
         Client::connect_with(&options).map_err(|e| e.to_string())
     }

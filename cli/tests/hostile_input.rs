@@ -101,6 +101,23 @@ fn write_dataset(root: &Path, scene_gt: &str) {
     }
 }
 
+/// `ppf detect --dataset root --scene 0 --image 0`, with `cache` as the model cache.
+fn detect_image_0(root: &Path, cache: &Path) -> Output {
+    run(ppf(&["detect", "--dataset"])
+        .arg(root)
+        .args(["--scene", "0", "--image", "0"])
+        .env("PPFD_CACHE", cache))
+}
+
+/// `ppf eval root --out csv`, with `cache` as the model cache.
+fn eval_into(root: &Path, csv: &Path, cache: &Path) -> Output {
+    run(ppf(&["eval"])
+        .arg(root)
+        .arg("--out")
+        .arg(csv)
+        .env("PPFD_CACHE", cache))
+}
+
 #[test]
 fn special_files_are_refused_at_once_by_model_build_and_score() {
     let dir = Scratch::new("special-files");
@@ -269,11 +286,7 @@ fn eval_reports_a_broken_image_before_any_work() {
     write_dataset(&root, GOOD_GT);
     write_depth_png(&root.join("test/000000/depth/000001.png"), 64, 40);
     let cache = dir.join("cache");
-    let out = run(ppf(&["eval"])
-        .arg(&root)
-        .arg("--out")
-        .arg(dir.join("r.csv"))
-        .env("PPFD_CACHE", &cache));
+    let out = eval_into(&root, &dir.join("r.csv"), &cache);
     assert_eq!(out.status.code(), Some(1));
     assert!(text(&out.stderr).contains("000001.png"));
     assert!(!cache.exists(), "no model was built");
@@ -299,11 +312,7 @@ fn eval_goes_on_past_a_frame_it_cannot_detect_in() {
         .write_image_data(&zeros)
         .unwrap();
     let csv = dir.join("r.csv");
-    let out = run(ppf(&["eval"])
-        .arg(&root)
-        .arg("--out")
-        .arg(&csv)
-        .env("PPFD_CACHE", dir.join("cache")));
+    let out = eval_into(&root, &csv, &dir.join("cache"));
     assert_eq!(out.status.code(), Some(1));
     let (o, e) = (text(&out.stdout), text(&out.stderr));
     assert!(
@@ -321,11 +330,7 @@ fn eval_goes_on_past_a_frame_it_cannot_detect_in() {
     // detector that found nothing.
     std::fs::remove_file(&csv).unwrap();
     std::fs::copy(&depth, root.join("test/000000/depth/000001.png")).unwrap();
-    let out = run(ppf(&["eval"])
-        .arg(&root)
-        .arg("--out")
-        .arg(&csv)
-        .env("PPFD_CACHE", dir.join("cache")));
+    let out = eval_into(&root, &csv, &dir.join("cache"));
     assert_eq!(out.status.code(), Some(1));
     let e = text(&out.stderr);
     assert!(
@@ -346,12 +351,7 @@ fn a_model_built_with_scale_beside_its_mesh_in_metres_is_taken() {
     let mut metres = Part::ALL[0].mesh();
     metres.scale(0.001);
     std::fs::write(models.join("obj_000001.ply"), metres.to_ply_ascii()).unwrap();
-    let detect = || {
-        run(ppf(&["detect", "--dataset"])
-            .arg(&root)
-            .args(["--scene", "0", "--image", "0"])
-            .env("PPFD_CACHE", dir.join("cache")))
-    };
+    let detect = || detect_image_0(&root, &dir.join("cache"));
     let refused = detect();
     assert_eq!(refused.status.code(), Some(1));
     let said = text(&refused.stderr);
@@ -387,10 +387,7 @@ fn a_small_model_is_warned_of_at_each_load() {
     let mesh = root.join("models/obj_000001.ply");
     std::fs::write(&mesh, centimetres.to_ply_ascii()).unwrap();
     for _ in 0..2 {
-        let out = run(ppf(&["detect", "--dataset"])
-            .arg(&root)
-            .args(["--scene", "0", "--image", "0"])
-            .env("PPFD_CACHE", dir.join("cache")));
+        let out = detect_image_0(&root, &dir.join("cache"));
         assert!(out.status.success());
         let e = text(&out.stderr);
         assert!(
@@ -407,10 +404,7 @@ fn an_object_without_a_hypothesis_has_a_row_in_dataset_mode() {
     let dir = Scratch::new("no-hypothesis");
     let root = dir.join("dataset");
     write_dataset(&root, GOOD_GT);
-    let out = run(ppf(&["detect", "--dataset"])
-        .arg(&root)
-        .args(["--scene", "0", "--image", "0"])
-        .env("PPFD_CACHE", dir.join("cache")));
+    let out = detect_image_0(&root, &dir.join("cache"));
     assert!(out.status.success());
     let o = text(&out.stdout);
     assert!(o.contains("| 1 |") && o.contains("(no hypothesis)"), "{o}");

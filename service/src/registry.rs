@@ -119,8 +119,12 @@ impl Registry {
 
     /// Adds a model, replacing one of the same id.
     pub fn insert(&mut self, model: LoadedModel) -> Option<Arc<LoadedModel>> {
-        self.failed.remove(&model.source);
-        self.models.insert(model.info.object_id, Arc::new(model))
+        // A model's source is the file it was read from (a mesh's cached model), not the mesh
+        // that failed: failures are let go of by the object id their file's name gives.
+        let id = model.info.object_id;
+        self.failed
+            .retain(|path, _| crate::ppf_engine::object_id_of_file(path) != Some(id));
+        self.models.insert(id, Arc::new(model))
     }
 
     /// Records that the models folder's file `path` did not load, and why.

@@ -434,39 +434,39 @@ fn build_mesh(
     // as CAD and decimation exports leave, makes a 100 mm part's model five times too coarse
     // to be found. Such vertices are dropped; a file without faces is a point cloud and keeps
     // all.
-    let kept: Vec<usize> = if triangles.is_empty() {
-        (0..vertex_count).collect()
-    } else {
+    // The file's number of each vertex of the mesh, when some are dropped.
+    let mut kept: Option<Vec<usize>> = None;
+    if !triangles.is_empty() {
         let mut used = vec![false; vertex_count];
         triangles
             .iter()
             .flatten()
             .for_each(|&v| used[v as usize] = true);
-        if used.iter().all(|&u| u) {
-            (0..vertex_count).collect()
-        } else {
+        if !used.iter().all(|&u| u) {
             let mut new_index = vec![u32::MAX; vertex_count];
-            let kept: Vec<usize> = (0..vertex_count).filter(|&i| used[i]).collect();
-            for (j, &i) in kept.iter().enumerate() {
+            let in_file: Vec<usize> = (0..vertex_count).filter(|&i| used[i]).collect();
+            for (j, &i) in in_file.iter().enumerate() {
                 new_index[i] = j as u32;
             }
             for t in &mut triangles {
                 *t = t.map(|v| new_index[v as usize]);
             }
-            positions = kept.iter().map(|&i| positions[i]).collect();
+            positions = in_file.iter().map(|&i| positions[i]).collect();
             tracing::debug!(
-                dropped = vertex_count - kept.len(),
+                dropped = vertex_count - in_file.len(),
                 "PLY vertices that no face uses dropped"
             );
-            kept
+            kept = Some(in_file);
         }
-    };
+    }
+    let in_file = |j: usize| kept.as_ref().map_or(j, |k| k[j]);
 
     let mut face_normals = None;
-    let mut normals = Vec::with_capacity(kept.len());
+    let mut normals = Vec::with_capacity(positions.len());
     if has_normals {
         // `i` is the vertex's number in the file, for messages; `j` its index in the mesh.
-        for (j, &i) in kept.iter().enumerate() {
+        for j in 0..positions.len() {
+            let i = in_file(j);
             let v = &vertices[i];
             let n = Vector3::new(v.values[3], v.values[4], v.values[5]);
             if !n.iter().all(|c| c.is_finite()) {
@@ -504,7 +504,8 @@ fn build_mesh(
                     .into(),
             );
         }
-        return with_normals_from_faces(&positions, &triangles).map_err(|i| {
+        return with_normals_from_faces(&positions, &triangles).map_err(|j| {
+            let i = in_file(j);
             format!(
                 "vertex {i}: the file has no normals and the vertex lies on no face of \
                  non-zero area to compute one from"
